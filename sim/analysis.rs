@@ -1,0 +1,346 @@
+//! Deterministic analysis of a design: the chief ray of one pixel at its exact Bragg wavelength
+//! (`probe`) and the design summary of `info` (critical and guided angles, replica pitch and
+//! count, Bragg wavelengths across the field, field of view and what limits it).
+//!
+//! Everything here is traced with the same `trace` code as the renderer, with no randomness:
+//! chief rays through the lens centre at the exact Bragg wavelength of physics.md §3.2. The FOV
+//! is found by scanning the field angle in air (0.05° steps) and naming the first element that
+//! stops the chief ray at each end: the sensor crop, the top-vHOE aperture, the Bragg band
+//! falling outside the simulated spectrum, the guided wave not being trapped by TIR, or no
+//! contact inside the bottom vHOE.
+
+use glam::{DVec2, DVec3};
+use serde::Serialize;
+
+use crate::optics::interface::critical_angle;
+use crate::system::System;
+use crate::trace::{Branch, BranchKind, trace_camera_path};
+
+/// One replica of a probed chief ray.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProbeReplica {
+    /// Index (0 = nearest the top vHOE).
+    pub index: u32,
+    /// Bottom-vHOE contact on the back face (x, y, z = w), mm.
+    pub bottom_contact_mm: [f64; 3],
+    /// Where the branch leaves the front face toward the user (x, y, 0), mm.
+    pub exit_point_mm: [f64; 3],
+    /// Where it meets the display plane, mm.
+    pub object_point_mm: [f64; 3],
+    /// Energy fraction carried to the object (display polarisation applied).
+    pub weight: f64,
+    /// TE part of the weight.
+    pub weight_te: f64,
+    /// TM part of the weight.
+    pub weight_tm: f64,
+}
+
+/// Result of `probe`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProbeResult {
+    /// Pixel (col, row) in the crop.
+    pub pixel: [usize; 2],
+    /// Exact Bragg wavelength of the chief ray, nm.
+    pub lambda_nm: f64,
+    /// Unit direction leaving the lens toward the screen.
+    pub camera_ray_dir: [f64; 3],
+    /// Field angles of the chief ray in air: [horizontal, vertical], degrees.
+    pub field_angle_deg: [f64; 2],
+    /// Polar angle of the guided ray from the plate normal inside the glass, degrees.
+    pub guided_angle_deg: f64,
+    /// Glass index at `lambda_nm`.
+    pub n_glass: f64,
+    /// Replica pitch 2w·tanΘ', mm.
+    pub replica_pitch_mm: f64,
+    /// Replicas in order.
+    pub replicas: Vec<ProbeReplica>,
+    /// Weight of the straight-through branch (0 when the top vHOE is covered).
+    pub direct_weight: f64,
+    /// Guided weight left when the path stopped on its weight limit (bias bound).
+    pub truncated_weight: f64,
+}
+
+fn v3(p: DVec2, z: f64) -> [f64; 3] {
+    [p.x, p.y, z]
+}
+
+/// Traces the chief ray of `dir` from the lens centre at its Bragg wavelength.
+pub fn probe_direction(
+    sys: &System,
+    origin: DVec3,
+    dir: DVec3,
+    pixel: [usize; 2],
+) -> Option<ProbeResult> {
+    let wg = &sys.waveguide;
+    let lambda = wg.grating.bragg_wavelength_nm(-dir.truncate())?;
+    let pol = sys.display.polarization_weights;
+    let mut replicas = Vec::new();
+    let mut direct_weight = 0.0;
+    let w = wg.thickness_mm;
+    let summary = trace_camera_path(
+        wg,
+        sys.display.z_mm,
+        sys.limits,
+        origin,
+        dir,
+        lambda,
+        |b: &Branch| {
+            let weight = pol[0] * b.weight[0] + pol[1] * b.weight[1];
+            match b.kind {
+                BranchKind::Direct => direct_weight += weight,
+                BranchKind::Replica(index) => replicas.push(ProbeReplica {
+                    index,
+                    bottom_contact_mm: v3(b.bottom_contact_mm.unwrap_or_default(), w),
+                    exit_point_mm: v3(b.exit_point_mm, 0.0),
+                    object_point_mm: v3(b.object_point_mm, sys.display.z_mm),
+                    weight,
+                    weight_te: b.weight[0],
+                    weight_tm: b.weight[1],
+                }),
+            }
+        },
+    );
+    let n = summary.n_glass;
+    let ug = summary.guided_u.length();
+    let guided = if ug > 0.0 && ug < n {
+        (ug / n).asin()
+    } else {
+        f64::NAN
+    };
+    Some(ProbeResult {
+        pixel,
+        lambda_nm: lambda,
+        camera_ray_dir: dir.to_array(),
+        field_angle_deg: [
+            dir.x.atan2(-dir.z).to_degrees(),
+            dir.y.atan2(-dir.z).to_degrees(),
+        ],
+        guided_angle_deg: guided.to_degrees(),
+        n_glass: n,
+        replica_pitch_mm: 2.0 * w * guided.tan(),
+        replicas,
+        direct_weight,
+        truncated_weight: summary.truncated_weight,
+    })
+}
+
+/// `probe`: the chief ray of pixel (col, row) of the crop.
+pub fn probe(sys: &System, col: usize, row: usize) -> Result<ProbeResult, String> {
+    let cam = &sys.camera;
+    if col >= cam.width_px || row >= cam.height_px {
+        return Err(format!(
+            "pixel {col},{row} is outside the {}x{} crop",
+            cam.width_px, cam.height_px
+        ));
+    }
+    let ray = cam.chief_ray(col, row);
+    probe_direction(sys, ray.origin, ray.dir, [col, row]).ok_or_else(|| {
+        format!("pixel {col},{row}: no wavelength is Bragg-matched for its chief ray")
+    })
+}
+
+/// One end of a field-of-view interval.
+#[derive(Clone, Debug, Serialize)]
+pub struct FovEdge {
+    /// Field angle in air, degrees.
+    pub angle_deg: f64,
+    /// What stops the field beyond this angle.
+    pub limited_by: String,
+}
+
+/// Field of view along one axis.
+#[derive(Clone, Debug, Serialize)]
+pub struct Fov {
+    /// Full angle, degrees.
+    pub full_deg: f64,
+    /// Lower edge (bottom or left).
+    pub min: FovEdge,
+    /// Upper edge (top or right).
+    pub max: FovEdge,
+}
+
+/// Field summary at one point of the crop.
+#[derive(Clone, Debug, Serialize)]
+pub struct FieldPoint {
+    /// Name ("centre", "top", ...).
+    pub name: String,
+    /// Pixel (col, row).
+    pub pixel: [usize; 2],
+    /// Bragg wavelength, nm.
+    pub lambda_nm: f64,
+    /// Guided angle in the glass, degrees.
+    pub guided_angle_deg: f64,
+    /// Replica pitch on the display side, mm.
+    pub replica_pitch_mm: f64,
+    /// Bottom-vHOE contacts (replicas available).
+    pub replicas: usize,
+    /// Replicas above 5 % of the brightest one.
+    pub replicas_above_5pct: usize,
+}
+
+/// Result of `info`.
+#[derive(Clone, Debug, Serialize)]
+pub struct DesignInfo {
+    /// Critical angle glass → air at the recording wavelength, degrees.
+    pub critical_angle_deg: f64,
+    /// Critical angle film → air, degrees.
+    pub film_critical_angle_deg: f64,
+    /// Glass index at the recording wavelength.
+    pub n_glass_recording: f64,
+    /// Grating period, nm.
+    pub grating_period_nm: f64,
+    /// Replica spacing on the sensor at the field centre, pixels.
+    pub replica_pitch_sensor_px: f64,
+    /// Field points (centre and the four crop edges).
+    pub field: Vec<FieldPoint>,
+    /// Vertical FOV of the waveguide (without the sensor crop).
+    pub fov_vertical_waveguide: Fov,
+    /// Vertical FOV of the capture (with the crop).
+    pub fov_vertical_capture: Fov,
+    /// Horizontal FOV of the waveguide.
+    pub fov_horizontal_waveguide: Fov,
+    /// Horizontal FOV of the capture.
+    pub fov_horizontal_capture: Fov,
+    /// Focus distance used, mm.
+    pub focus_distance_mm: f64,
+    /// Lens-to-sensor distance, mm.
+    pub sensor_distance_mm: f64,
+}
+
+fn count_above(p: &ProbeResult, frac: f64) -> usize {
+    let max = p.replicas.iter().map(|r| r.weight).fold(0.0, f64::max);
+    p.replicas
+        .iter()
+        .filter(|r| max > 0.0 && r.weight >= frac * max)
+        .count()
+}
+
+/// Why the chief ray at a field angle fails, or `None` if it reaches the display.
+fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option<&'static str> {
+    let cam = &sys.camera;
+    let wg = &sys.waveguide;
+    if with_crop {
+        let d0 = cam.sensor_distance_mm;
+        let img = DVec2::new(dir.x, dir.y) * (d0 / -dir.z);
+        let half = DVec2::new(cam.width_px as f64, cam.height_px as f64) * (0.5 * cam.pitch_mm);
+        if (img.x - cam.offset_px.x * cam.pitch_mm).abs() > half.x
+            || (img.y - cam.offset_px.y * cam.pitch_mm).abs() > half.y
+        {
+            return Some("sensor crop");
+        }
+    }
+    let u = -dir.truncate();
+    let p_back = cam.lens_center_mm.truncate()
+        + dir.truncate() * ((cam.lens_center_mm.z - wg.thickness_mm) / -dir.z);
+    let lambda = wg.grating.bragg_wavelength_nm(u);
+    let n = wg.n_glass(lambda.unwrap_or(sys.scene.hoe.recording_wavelength_nm));
+    let p_top = p_back - crate::optics::interface::lateral_shift(u, n, wg.thickness_mm);
+    if !wg.top.contains(p_top) {
+        return Some("top vHOE aperture");
+    }
+    let Some(lambda) = lambda.filter(|&l| sys.wavelengths.in_band(l)) else {
+        return Some("Bragg band outside the simulated spectrum");
+    };
+    let ug = u - wg.grating.u_shift(lambda);
+    if ug.length_squared() <= 1.0 {
+        return Some("TIR (guided angle below critical)");
+    }
+    let p = probe_direction(sys, cam.lens_center_mm, dir, [0, 0])?;
+    if p.replicas.iter().all(|r| r.weight <= 0.0) {
+        return Some("bottom vHOE (no contact)");
+    }
+    None
+}
+
+fn scan_fov(sys: &System, vertical: bool, with_crop: bool) -> Fov {
+    let step = 0.05f64;
+    let dir_of = |deg: f64| {
+        let t = deg.to_radians();
+        if vertical {
+            DVec3::new(0.0, t.sin(), -t.cos())
+        } else {
+            DVec3::new(t.sin(), 0.0, -t.cos())
+        }
+    };
+    let edge = |sign: f64| -> FovEdge {
+        let mut last_ok = f64::NAN;
+        let mut k = 0;
+        loop {
+            let a = sign * step * k as f64;
+            if a.abs() > 89.0 {
+                return FovEdge {
+                    angle_deg: last_ok,
+                    limited_by: "none up to 89°".into(),
+                };
+            }
+            if let Some(why) = field_blocker(sys, dir_of(a), with_crop) {
+                return FovEdge {
+                    angle_deg: last_ok,
+                    limited_by: why.into(),
+                };
+            }
+            last_ok = a;
+            k += 1;
+        }
+    };
+    let min = edge(-1.0);
+    let max = edge(1.0);
+    let full = if min.angle_deg.is_nan() || max.angle_deg.is_nan() {
+        0.0
+    } else {
+        max.angle_deg - min.angle_deg
+    };
+    Fov {
+        full_deg: full,
+        min,
+        max,
+    }
+}
+
+/// `info`: the design summary.
+pub fn info(sys: &System) -> DesignInfo {
+    let wg = &sys.waveguide;
+    let cam = &sys.camera;
+    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
+    let n0 = wg.n_glass(lambda0);
+    let (w, h) = (cam.width_px, cam.height_px);
+    let points = [
+        ("centre", w / 2, h / 2),
+        ("top", w / 2, 0),
+        ("bottom", w / 2, h - 1),
+        ("left", 0, h / 2),
+        ("right", w - 1, h / 2),
+    ];
+    let field: Vec<FieldPoint> = points
+        .iter()
+        .filter_map(|&(name, col, row)| {
+            probe(sys, col, row).ok().map(|p| FieldPoint {
+                name: name.into(),
+                pixel: [col, row],
+                lambda_nm: p.lambda_nm,
+                guided_angle_deg: p.guided_angle_deg,
+                replica_pitch_mm: p.replica_pitch_mm,
+                replicas: p.replicas.len(),
+                replicas_above_5pct: count_above(&p, 0.05),
+            })
+        })
+        .collect();
+    let centre_pitch = field.first().map_or(f64::NAN, |f| f.replica_pitch_mm);
+    let object_distance = cam.focus_distance_mm;
+    DesignInfo {
+        critical_angle_deg: critical_angle(n0, 1.0).to_degrees(),
+        film_critical_angle_deg: critical_angle(wg.grating.n_film, 1.0).to_degrees(),
+        n_glass_recording: n0,
+        grating_period_nm: wg.grating.period_nm(),
+        replica_pitch_sensor_px: centre_pitch * cam.sensor_distance_mm
+            / object_distance
+            / cam.pitch_mm,
+        field,
+        fov_vertical_waveguide: scan_fov(sys, true, false),
+        fov_vertical_capture: scan_fov(sys, true, true),
+        fov_horizontal_waveguide: scan_fov(sys, false, false),
+        fov_horizontal_capture: scan_fov(sys, false, true),
+        focus_distance_mm: cam.focus_distance_mm,
+        sensor_distance_mm: cam.sensor_distance_mm,
+    }
+}

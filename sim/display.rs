@@ -1,0 +1,134 @@
+//! The display (LCD) as an emissive plane whose spectral radiance follows the target image.
+//!
+//! Model (`reference/physics.md` §6.1): the display plane z = −D carries the target image,
+//! each target pixel shown as a square of `lcd_pixels_per_image_pixel`² LCD pixels. Relative
+//! radiance at a point is L_black + (1 − L_black)·V^γ for display code value V (PNG and
+//! built-in targets), or L_black + (1 − L_black)·V for linear (EXR) input; the rest of the LCD
+//! shows black (L_black) and everything beyond the LCD is dark (0). Spectral radiance is the
+//! relative radiance times the backlight spectrum S(λ) (normalised to mean 1 over 380–780 nm).
+//! Emission is Lambertian (constant radiance) over the few degrees the screen subtends.
+//! Polarisation: linearly polarised at angle ψ from x → TE weight cos²ψ, TM weight sin²ψ
+//! (TE = E along x for the vertical diffraction plane); "none" → ½, ½.
+//!
+//! Assumptions: no sub-pixel (RGB stripe) structure, uniform backlight, no angular falloff.
+
+use glam::DVec2;
+
+use crate::spectra::Spectrum;
+
+/// The runtime display built from the scene.
+#[derive(Clone, Debug)]
+pub struct Display {
+    /// Plane position z in mm (negative).
+    pub z_mm: f64,
+    /// Centre of the image on the plane, mm.
+    pub center_mm: DVec2,
+    /// Size of one target pixel, mm.
+    pub image_pixel_mm: f64,
+    /// Target width in pixels.
+    pub width_px: usize,
+    /// Target height in pixels.
+    pub height_px: usize,
+    /// Relative linear radiance per target pixel (row-major, row 0 top).
+    pub radiance: Vec<f64>,
+    /// Relative radiance of black LCD pixels.
+    pub black_level: f64,
+    /// Half extents of the LCD, mm.
+    pub half_extent_mm: DVec2,
+    /// Backlight spectrum (mean 1 over 380–780 nm).
+    pub spectrum: Spectrum,
+    /// Fractions of the emitted power in TE and TM.
+    pub polarization_weights: [f64; 2],
+}
+
+impl Display {
+    /// Converts code values (or linear values if `linear`) into relative radiance.
+    pub fn linearise(values: &[f32], linear: bool, gamma: f64, black_level: f64) -> Vec<f64> {
+        values
+            .iter()
+            .map(|&v| {
+                let v = f64::from(v).clamp(0.0, 1.0);
+                let lin = if linear { v } else { v.powf(gamma) };
+                black_level + (1.0 - black_level) * lin
+            })
+            .collect()
+    }
+
+    /// TE/TM power fractions for a polariser at `angle_deg` from x, or unpolarised (`None`).
+    pub fn polarization_weights(angle_deg: Option<f64>) -> [f64; 2] {
+        match angle_deg {
+            None => [0.5, 0.5],
+            Some(a) => {
+                let c = a.to_radians().cos();
+                [c * c, 1.0 - c * c]
+            }
+        }
+    }
+
+    /// Target pixel (col, row) containing point `p` on the plane, if inside the image.
+    #[inline]
+    pub fn pixel_at(&self, p: DVec2) -> Option<(usize, usize)> {
+        let w = self.width_px as f64 * self.image_pixel_mm;
+        let h = self.height_px as f64 * self.image_pixel_mm;
+        let fx = (p.x - (self.center_mm.x - 0.5 * w)) / self.image_pixel_mm;
+        let fy = ((self.center_mm.y + 0.5 * h) - p.y) / self.image_pixel_mm;
+        if fx >= 0.0 && fy >= 0.0 && fx < self.width_px as f64 && fy < self.height_px as f64 {
+            Some((fx as usize, fy as usize))
+        } else {
+            None
+        }
+    }
+
+    /// Relative radiance (white = 1) at point `p` on the display plane.
+    #[inline]
+    pub fn radiance_at(&self, p: DVec2) -> f64 {
+        if let Some((c, r)) = self.pixel_at(p) {
+            return self.radiance[r * self.width_px + c];
+        }
+        let d = (p - self.center_mm).abs();
+        if d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y {
+            self.black_level
+        } else {
+            0.0
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spectra::{DisplaySpectrumKind, display_spectrum};
+
+    fn disp() -> Display {
+        // 2×2 target: top-left white, others code 0.5 / 0 / 0.
+        Display {
+            z_mm: -550.0,
+            center_mm: DVec2::new(0.0, 0.0),
+            image_pixel_mm: 2.7,
+            width_px: 2,
+            height_px: 2,
+            radiance: Display::linearise(&[1.0, 0.5, 0.0, 0.0], false, 2.2, 0.001),
+            black_level: 0.001,
+            half_extent_mm: DVec2::new(259.2, 162.0),
+            spectrum: display_spectrum(DisplaySpectrumKind::Flat),
+            polarization_weights: Display::polarization_weights(None),
+        }
+    }
+
+    #[test]
+    fn orientation_and_levels() {
+        let d = disp();
+        // Top-left pixel is at −x, +y.
+        assert_eq!(d.pixel_at(DVec2::new(-1.0, 1.0)), Some((0, 0)));
+        assert_eq!(d.radiance_at(DVec2::new(-1.0, 1.0)), 1.0);
+        let half = 0.001 + 0.999 * 0.5f64.powf(2.2);
+        assert!((d.radiance_at(DVec2::new(1.0, 1.0)) - half).abs() < 1e-12);
+        assert_eq!(d.radiance_at(DVec2::new(-1.0, -1.0)), 0.001);
+        // Outside the target but on the LCD: black; beyond the LCD: dark.
+        assert_eq!(d.radiance_at(DVec2::new(100.0, 0.0)), 0.001);
+        assert_eq!(d.radiance_at(DVec2::new(300.0, 0.0)), 0.0);
+        assert_eq!(Display::polarization_weights(Some(0.0)), [1.0, 0.0]);
+        let w = Display::polarization_weights(Some(90.0));
+        assert!(w[0] < 1e-30 && (w[1] - 1.0).abs() < 1e-15);
+    }
+}

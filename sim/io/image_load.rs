@@ -1,0 +1,304 @@
+//! Loading of single-channel display images from PNG (display code values) or
+//! OpenEXR (linear values) files.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use png::{BitDepth, ColorType, Decoder, Transformations};
+
+use super::exr::decode_exr;
+use super::{IoError, MAX_PIXELS};
+
+/// Rec. 709 luma weights for R, G, B.
+const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// A single-channel image: `values[y * width + x]`, row 0 at the top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadedImage {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Pixel values, row-major.
+    pub values: Vec<f32>,
+    /// `true` for linear values (EXR); `false` for display code values in
+    /// `[0, 1]` (PNG) to which the caller applies a display gamma.
+    pub linear: bool,
+}
+
+/// Loads a `.png` or `.exr` file (extension matched case-insensitively) as a
+/// single-channel image.
+///
+/// PNG (any bit depth, gray/gray+alpha/RGB/RGBA/palette; alpha is ignored):
+/// values are code value / maximum code, RGB is reduced with the Rec. 709 luma
+/// weights on the code values, and `linear` is `false`. EXR: channel `Y` if
+/// present, else the luma of `R`, `G`, `B`, else the only channel; `linear` is
+/// `true`.
+pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let is_png = match ext.as_deref() {
+        Some("png") => true,
+        Some("exr") => false,
+        _ => {
+            return Err(IoError::format(
+                path,
+                "unsupported image type (supported extensions: .png, .exr)",
+            ));
+        }
+    };
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let image = if is_png {
+        decode_png(path, bytes)?
+    } else {
+        exr_to_gray(path, bytes)?
+    };
+    if image.width == 0 || image.height == 0 {
+        return Err(IoError::format(path, "image is empty"));
+    }
+    Ok(image)
+}
+
+fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+    let bad =
+        |e: png::DecodingError| IoError::format(path, format!("not a readable PNG file ({e})"));
+    let mut decoder = Decoder::new(Cursor::new(bytes));
+    decoder.set_transformations(Transformations::EXPAND);
+    let mut reader = decoder.read_info().map_err(bad)?;
+    let (w, h) = (reader.info().width as usize, reader.info().height as usize);
+    if w.saturating_mul(h) > MAX_PIXELS {
+        return Err(IoError::format(
+            path,
+            format!("PNG image has more than {MAX_PIXELS} pixels"),
+        ));
+    }
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| IoError::format(path, "PNG image is too large"))?;
+    let mut buf = vec![0; size];
+    let info = reader.next_frame(&mut buf).map_err(bad)?;
+    let (width, height) = (info.width as usize, info.height as usize);
+    let channels = match info.color_type {
+        ColorType::Grayscale => 1,
+        ColorType::GrayscaleAlpha => 2,
+        ColorType::Rgb => 3,
+        ColorType::Rgba => 4,
+        ColorType::Indexed => return Err(IoError::format(path, "PNG palette was not expanded")),
+    };
+    let (bytes_per_sample, max) = match info.bit_depth {
+        BitDepth::Eight => (1, 255.0),
+        BitDepth::Sixteen => (2, 65535.0),
+        d => {
+            return Err(IoError::format(
+                path,
+                format!("unsupported PNG bit depth {d:?}"),
+            ));
+        }
+    };
+    let sample = |row: &[u8], i: usize| -> f64 {
+        if bytes_per_sample == 1 {
+            f64::from(row[i])
+        } else {
+            f64::from(u16::from_be_bytes([row[2 * i], row[2 * i + 1]]))
+        }
+    };
+    let row_bytes = width * channels * bytes_per_sample;
+    if info.line_size < row_bytes || buf.len() < info.line_size * height {
+        return Err(IoError::format(path, "PNG row size mismatch"));
+    }
+    let mut values = Vec::with_capacity(width * height);
+    for row in buf.chunks_exact(info.line_size).take(height) {
+        for x in 0..width {
+            let base = x * channels;
+            let code = if channels >= 3 {
+                (0..3).map(|c| LUMA[c] * sample(row, base + c)).sum()
+            } else {
+                sample(row, base)
+            };
+            values.push((code / max) as f32);
+        }
+    }
+    Ok(LoadedImage {
+        width,
+        height,
+        values,
+        linear: false,
+    })
+}
+
+fn exr_to_gray(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+    let (width, height, mut channels) = decode_exr(path, bytes)?;
+    let position = |name: &str| channels.iter().position(|c| c.name == name);
+    let values = if let Some(y) = position("Y") {
+        channels.swap_remove(y).data
+    } else if let (Some(r), Some(g), Some(b)) = (position("R"), position("G"), position("B")) {
+        let (r, g, b) = (&channels[r].data, &channels[g].data, &channels[b].data);
+        (0..width * height)
+            .map(|i| {
+                let luma = LUMA[0] * f64::from(r[i])
+                    + LUMA[1] * f64::from(g[i])
+                    + LUMA[2] * f64::from(b[i]);
+                luma as f32
+            })
+            .collect()
+    } else if channels.len() == 1 {
+        channels.swap_remove(0).data
+    } else {
+        let names: Vec<_> = channels.iter().map(|c| c.name.as_str()).collect();
+        return Err(IoError::format(
+            path,
+            format!(
+                "EXR has no Y channel, no R,G,B channels and not exactly one channel (channels: {})",
+                names.join(", ")
+            ),
+        ));
+    };
+    Ok(LoadedImage {
+        width,
+        height,
+        values,
+        linear: true,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::{ExrChannel, encode_exr, encode_png16, write_atomic};
+
+    fn png8_gray(width: u32, height: u32, data: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut encoder = png::Encoder::new(&mut out, width, height);
+        encoder.set_color(ColorType::Grayscale);
+        encoder.set_depth(BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        writer.write_image_data(data).unwrap();
+        writer.finish().unwrap();
+        out
+    }
+
+    #[test]
+    fn loads_8_bit_gray_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gray.PNG");
+        write_atomic(&path, &png8_gray(3, 2, &[0, 51, 255, 128, 1, 254])).unwrap();
+        let img = load_image(&path).unwrap();
+        assert_eq!((img.width, img.height, img.linear), (3, 2, false));
+        let expected: Vec<f32> = [0, 51, 255, 128, 1, 254]
+            .iter()
+            .map(|&c| (c as f64 / 255.0) as f32)
+            .collect();
+        assert_eq!(img.values, expected);
+    }
+
+    #[test]
+    fn loads_16_bit_rgb_png_as_luma() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rgb.png");
+        let rgb: [u16; 6] = [65535, 0, 0, 1000, 30000, 65535];
+        write_atomic(&path, &encode_png16(2, 1, 3, &rgb).unwrap()).unwrap();
+        let img = load_image(&path).unwrap();
+        let luma = |p: &[u16]| {
+            ((0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64) / 65535.0) as f32
+        };
+        assert_eq!((img.width, img.height), (2, 1));
+        assert_eq!(img.values, [luma(&rgb[..3]), luma(&rgb[3..])]);
+    }
+
+    #[test]
+    fn loads_palette_png_ignoring_alpha() {
+        let mut out = Vec::new();
+        let mut encoder = png::Encoder::new(&mut out, 2, 1);
+        encoder.set_color(ColorType::Indexed);
+        encoder.set_depth(BitDepth::Eight);
+        encoder.set_palette(vec![10, 20, 30, 255, 255, 255]);
+        encoder.set_trns(vec![0, 255]);
+        let mut writer = encoder.write_header().unwrap();
+        writer.write_image_data(&[0, 1]).unwrap();
+        writer.finish().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pal.png");
+        write_atomic(&path, &out).unwrap();
+        let img = load_image(&path).unwrap();
+        let first = ((0.2126 * 10.0 + 0.7152 * 20.0 + 0.0722 * 30.0) / 255.0) as f32;
+        assert_eq!(
+            img.values,
+            [first, ((0.2126 + 0.7152 + 0.0722) * 255.0 / 255.0) as f32]
+        );
+    }
+
+    #[test]
+    fn loads_exr_channels() {
+        let dir = tempfile::tempdir().unwrap();
+        let ch = |name: &str, data: &[f32]| ExrChannel {
+            name: name.into(),
+            data: data.to_vec(),
+        };
+        let path = dir.path().join("y.exr");
+        let bytes =
+            encode_exr(2, 1, vec![ch("Y", &[0.25, 3.5]), ch("Z", &[9.0, 9.0])], &[]).unwrap();
+        write_atomic(&path, &bytes).unwrap();
+        let img = load_image(&path).unwrap();
+        assert_eq!((img.width, img.height, img.linear), (2, 1, true));
+        assert_eq!(img.values, [0.25, 3.5]);
+
+        let path = dir.path().join("rgb.Exr");
+        let bytes = encode_exr(
+            1,
+            1,
+            vec![ch("R", &[1.0]), ch("G", &[2.0]), ch("B", &[4.0])],
+            &[],
+        )
+        .unwrap();
+        write_atomic(&path, &bytes).unwrap();
+        let expected = (0.2126 + 0.7152 * 2.0 + 0.0722 * 4.0) as f32;
+        assert_eq!(load_image(&path).unwrap().values, [expected]);
+
+        let path = dir.path().join("one.exr");
+        write_atomic(
+            &path,
+            &encode_exr(1, 1, vec![ch("S0.550,000nm", &[7.0])], &[]).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(load_image(&path).unwrap().values, [7.0]);
+
+        let path = dir.path().join("two.exr");
+        write_atomic(
+            &path,
+            &encode_exr(1, 1, vec![ch("A", &[1.0]), ch("Q", &[2.0])], &[]).unwrap(),
+        )
+        .unwrap();
+        let msg = load_image(&path).unwrap_err().to_string();
+        assert!(msg.contains("two.exr") && msg.contains("A, Q"), "{msg}");
+    }
+
+    #[test]
+    fn error_cases() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing.png");
+        let err = load_image(&missing).unwrap_err();
+        assert!(matches!(err, IoError::Io { ref path, .. } if path == &missing));
+
+        let err = load_image(&dir.path().join("picture.jpg")).unwrap_err();
+        let msg = err.to_string();
+        assert!(matches!(err, IoError::Format { .. }));
+        assert!(
+            msg.contains("picture.jpg") && msg.contains(".png") && msg.contains(".exr"),
+            "{msg}"
+        );
+
+        for name in ["corrupt.png", "corrupt.exr"] {
+            let path = dir.path().join(name);
+            std::fs::write(&path, b"\x89PNG garbage garbage").unwrap();
+            let msg = load_image(&path).unwrap_err().to_string();
+            assert!(msg.contains(name) && !msg.contains('\n'), "{msg}");
+        }
+        // A valid PNG signature and header, truncated in the image data.
+        let path = dir.path().join("truncated.png");
+        let full = png8_gray(4, 4, &[7; 16]);
+        std::fs::write(&path, &full[..full.len() - 20]).unwrap();
+        assert!(matches!(load_image(&path), Err(IoError::Format { .. })));
+    }
+}

@@ -1,0 +1,59 @@
+//! File input/output for the simulator: atomic writes, OpenEXR (including the
+//! spectral-EXR channel layout), 16-bit PNG encoding with a preview tone map,
+//! and loading of display images from PNG or EXR.
+
+pub mod atomic;
+pub mod exr;
+pub mod image_load;
+pub mod png;
+
+use std::path::{Path, PathBuf};
+
+pub use self::atomic::write_atomic;
+pub use self::exr::{ExrAttr, ExrChannel, encode_exr, read_exr, spectral_channel_name};
+pub use self::image_load::{LoadedImage, load_image};
+pub use self::png::{encode_png16, preview_u16};
+
+/// Largest pixel count accepted when reading an image, so that a corrupt or
+/// hostile header cannot trigger a huge allocation.
+pub(crate) const MAX_PIXELS: usize = 1 << 28;
+
+/// An error while reading or writing a file; always names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// The operating system reported an error (missing file, permissions, …).
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The file (or the request) is not in a form this module can handle.
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is wrong, on one line.
+        message: String,
+    },
+}
+
+impl IoError {
+    /// Builds an [`IoError::Io`] for `path`.
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        IoError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+
+    /// Builds an [`IoError::Format`] for `path`, folding the message onto one line.
+    pub(crate) fn format(path: &Path, message: impl std::fmt::Display) -> Self {
+        let message = message.to_string();
+        IoError::Format {
+            path: path.to_path_buf(),
+            message: message.split_whitespace().collect::<Vec<_>>().join(" "),
+        }
+    }
+}

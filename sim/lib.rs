@@ -1,0 +1,24 @@
+//! stscam: a spectral Monte Carlo simulator of the see-through-screen camera built on a
+//! holographic waveguide (Optics Express 2022). See `DESIGN.md`-style notes in the README and
+//! each module's header for the model, its assumptions and its sources.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod analysis;
+pub mod camera;
+pub mod display;
+pub mod io;
+pub mod optics;
+pub mod output;
+pub mod render;
+pub mod sampler;
+pub mod scene;
+pub mod spectra;
+pub mod system;
+pub mod targets;
+pub mod trace;
+pub mod waveguide;
+pub mod wavelength;
+
+/// The crate version, recorded in every output.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -1,0 +1,342 @@
+//! Volume reflection hologram (vHOE) as a thick slanted grating: grating vector from the
+//! recording geometry, on-shell k-closure for arbitrary (conical) incidence, and the Kogelnik
+//! efficiency for TE (s) and TM (p).
+//!
+//! Model (`reference/physics.md` §0.2, §2, §3):
+//! - Recording beams inside the film: object ŝ_O = (0, 0, 1), reference
+//!   ŝ_R = (0, sin θ_R, −cos θ_R); K = k0 (ŝ_O − ŝ_R), k0 = 2π n_film/λ0 (a reflection grating,
+//!   with the sign correction of §0.2 to the paper's Eq. 4).
+//! - A plane wave is described by its tangential "optical direction cosines" u = n·ŝ_t, which
+//!   every planar interface conserves (Snell) and a grating shifts by −m·(λ/2π)·K_t.
+//! - Closure (§2.1): ρ = β ŝ, σ = ρ − mK, k_d,t = σ_t exactly, k_d,z = sign(σ_z)√(β² − |k_d,t|²)
+//!   (on-shell, Uchida's "beta-value" method); evanescent orders have η = 0.
+//! - Dephasing (§2.2 (b)): |ξ| = |Δk_z|·d/2 with Δk_z = k_d,z − σ_z, ν = π n1 d/(λ√(c_R|c_S|)),
+//!   c_R = |ρ_z|/β, c_S = k_d,z/β (signed relative to the incident direction); reflection
+//!   geometry when c_S < 0. In the lossy case ϑ_β = c_S·Δk_z enters Kogelnik's general form.
+//! - Polarisation (§1.5): κ_s = κ, κ_p = κ·(ρ̂·k̂_d); s and p do not cross-couple.
+//!
+//! Assumptions: the film (thickness d, mean index n_film, no dispersion of n_film) and the
+//! fringes are unchanged since recording (no shrinkage); reflections at the glass–film boundary
+//! are neglected (index mismatch ≲ 0.03). Absorption of a transmission-type order uses the
+//! lossless Kogelnik value times exp(−α0 d (1/c_R + 1/c_S)), an approximation used only for
+//! far-off-Bragg stray orders.
+
+use glam::{DVec2, DVec3};
+use num_complex::Complex64;
+use std::f64::consts::PI;
+
+use super::kogelnik::{self, CoupledWave};
+
+/// A volume grating recorded by two plane waves, ready for playback at any wavelength.
+#[derive(Clone, Copy, Debug)]
+pub struct VolumeGrating {
+    /// Grating vector K in rad/nm (frame of `DESIGN.md`: z from the user toward the camera).
+    pub k_rad_per_nm: DVec3,
+    /// Mean index of the film (non-dispersive).
+    pub n_film: f64,
+    /// Film thickness in nm.
+    pub thickness_nm: f64,
+    /// Index modulation amplitude n1 (peak-to-mean).
+    pub n1: f64,
+    /// Mean amplitude absorption α0 of the film in 1/nm.
+    pub alpha0_per_nm: f64,
+}
+
+/// One diffracted order leaving a grating.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Diffraction {
+    /// Tangential optical direction cosines n·ŝ_t of the diffracted wave.
+    pub u: DVec2,
+    /// +1 if the diffracted wave travels toward +z, −1 otherwise.
+    pub z_sign: f64,
+    /// Diffraction efficiency for TE (s) and TM (p) light.
+    pub eta: [f64; 2],
+    /// True for reflection geometry (the order leaves through the face it entered).
+    pub reflection: bool,
+}
+
+impl VolumeGrating {
+    /// Builds the grating from its recording: vacuum wavelength, reference angle inside the film
+    /// (degrees from −z, in the yz plane), film index and thickness, index modulation, and the
+    /// mean amplitude absorption α0 in 1/mm.
+    pub fn from_recording(
+        lambda0_nm: f64,
+        reference_angle_deg: f64,
+        n_film: f64,
+        thickness_um: f64,
+        n1: f64,
+        alpha0_per_mm: f64,
+    ) -> Self {
+        let th = reference_angle_deg.to_radians();
+        let k0 = 2.0 * PI * n_film / lambda0_nm;
+        let s_o = DVec3::new(0.0, 0.0, 1.0);
+        let s_r = DVec3::new(0.0, th.sin(), -th.cos());
+        VolumeGrating {
+            k_rad_per_nm: k0 * (s_o - s_r),
+            n_film,
+            thickness_nm: thickness_um * 1e3,
+            n1,
+            alpha0_per_nm: alpha0_per_mm * 1e-6,
+        }
+    }
+
+    /// Grating period Λ = 2π/|K| in nm.
+    pub fn period_nm(&self) -> f64 {
+        2.0 * PI / self.k_rad_per_nm.length()
+    }
+
+    /// The shift (λ/2π)·K_t that order m = +1 subtracts from u.
+    #[inline]
+    pub fn u_shift(&self, lambda_nm: f64) -> DVec2 {
+        self.k_rad_per_nm.truncate() * (lambda_nm / (2.0 * PI))
+    }
+
+    /// Exact (on-shell) Bragg wavelength, in nm, for a wave with tangential direction cosines `u`
+    /// entering the film toward +z and diffracted into order +1 (the in-coupling of the bottom
+    /// vHOE): |ρ − K| = |ρ| gives λ_B = 4π(u·K_t + √(n² − |u|²)·K_z)/|K|² (physics.md §3.2).
+    /// Returns `None` when no positive wavelength is Bragg-matched or the wave cannot enter.
+    pub fn bragg_wavelength_nm(&self, u: DVec2) -> Option<f64> {
+        let nn = self.n_film * self.n_film - u.length_squared();
+        if nn <= 0.0 {
+            return None;
+        }
+        let k = self.k_rad_per_nm;
+        let lam = 4.0 * PI * (u.dot(k.truncate()) + nn.sqrt() * k.z) / k.length_squared();
+        (lam > 0.0 && lam.is_finite()).then_some(lam)
+    }
+
+    /// Diffraction of the plane wave (u, travelling toward `z_sign`) at vacuum wavelength
+    /// `lambda_nm` into order `order` (σ = ρ − order·K). `None` if the wave cannot enter the film
+    /// or the order is evanescent.
+    pub fn diffract(
+        &self,
+        u: DVec2,
+        z_sign: f64,
+        lambda_nm: f64,
+        order: i32,
+    ) -> Option<Diffraction> {
+        let k_vac = 2.0 * PI / lambda_nm;
+        let beta = k_vac * self.n_film;
+        let beta2 = beta * beta;
+        let rho_t = u * k_vac;
+        let rz2 = beta2 - rho_t.length_squared();
+        if rz2 <= 0.0 {
+            return None;
+        }
+        let rho = rho_t.extend(z_sign * rz2.sqrt());
+        let sigma = rho - f64::from(order) * self.k_rad_per_nm;
+        let kd_t = sigma.truncate();
+        let kz2 = beta2 - kd_t.length_squared();
+        if kz2 <= 0.0 {
+            return None;
+        }
+        let kd_z = if sigma.z >= 0.0 {
+            kz2.sqrt()
+        } else {
+            -kz2.sqrt()
+        };
+        let c_r = rho.z.abs() / beta;
+        // Signed relative to the incident direction (mirror z when the wave travels −z).
+        let c_s = kd_z * z_sign / beta;
+        if c_s.abs() < 1e-12 {
+            return None;
+        }
+        let dkz = kd_z - sigma.z;
+        let d = self.thickness_nm;
+        let reflection = c_s < 0.0;
+        let kd = kd_t.extend(kd_z);
+        let cos_pp = (rho.dot(kd) / beta2).abs();
+        let kappa_s = PI * self.n1 / lambda_nm;
+        let eta = if self.alpha0_per_nm == 0.0 {
+            let nu_s = kappa_s * d / (c_r * c_s.abs()).sqrt();
+            let xi = 0.5 * dkz.abs() * d;
+            let f = if reflection {
+                kogelnik::reflection_lossless
+            } else {
+                kogelnik::transmission_lossless
+            };
+            [f(nu_s, xi), f(nu_s * cos_pp, xi)]
+        } else if reflection {
+            let theta = c_s * dkz * z_sign;
+            let cw = |kappa: f64| CoupledWave {
+                kappa: Complex64::new(kappa, 0.0),
+                alpha0: self.alpha0_per_nm,
+                theta,
+                c_r,
+                c_s,
+                d,
+            };
+            [
+                cw(kappa_s).reflection_efficiency(),
+                cw(kappa_s * cos_pp).reflection_efficiency(),
+            ]
+        } else {
+            let nu_s = kappa_s * d / (c_r * c_s).sqrt();
+            let xi = 0.5 * dkz.abs() * d;
+            let att = (-self.alpha0_per_nm * d * (1.0 / c_r + 1.0 / c_s)).exp();
+            [
+                kogelnik::transmission_lossless(nu_s, xi) * att,
+                kogelnik::transmission_lossless(nu_s * cos_pp, xi) * att,
+            ]
+        };
+        Some(Diffraction {
+            u: kd_t / k_vac,
+            z_sign: kd_z.signum(),
+            eta,
+            reflection,
+        })
+    }
+
+    /// Fraction of a wave (u, z_sign) that crosses the film undiffracted: 1 − Σ_{m=±1} η_m,
+    /// times the film's mean absorption exp(−2α0 d/c_R). Equals 1 if the wave cannot enter.
+    pub fn undiffracted(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> [f64; 2] {
+        let mut t = [1.0, 1.0];
+        for order in [1, -1] {
+            if let Some(dif) = self.diffract(u, z_sign, lambda_nm, order) {
+                t[0] -= dif.eta[0];
+                t[1] -= dif.eta[1];
+            }
+        }
+        let att = if self.alpha0_per_nm > 0.0 {
+            let cr2 = 1.0 - u.length_squared() / (self.n_film * self.n_film);
+            if cr2 > 0.0 {
+                (-2.0 * self.alpha0_per_nm * self.thickness_nm / cr2.sqrt()).exp()
+            } else {
+                1.0
+            }
+        } else {
+            1.0
+        };
+        [t[0].max(0.0) * att, t[1].max(0.0) * att]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn paper(n1: f64) -> VolumeGrating {
+        VolumeGrating::from_recording(532.0, 61.2, 1.50, 16.0, n1, 0.0)
+    }
+
+    #[test]
+    fn grating_vector_and_period() {
+        let g = paper(0.01);
+        // physics.md §3.1: K = (0, −0.015524, 0.026250) nm⁻¹, Λ = 206.0 nm at n = 1.50.
+        assert!((g.k_rad_per_nm.y - -0.015524).abs() < 2e-6);
+        assert!((g.k_rad_per_nm.z - 0.026250).abs() < 2e-6);
+        assert!((g.period_nm() - 206.0).abs() < 0.1);
+        // K̂ tilted 30.6° from +z toward −y.
+        let tilt = (-g.k_rad_per_nm.y).atan2(g.k_rad_per_nm.z).to_degrees();
+        assert!((tilt - 30.6).abs() < 1e-9);
+    }
+
+    #[test]
+    fn normal_incidence_couples_into_reference_direction() {
+        let g = paper(0.01);
+        let dif = g.diffract(DVec2::ZERO, 1.0, 532.0, 1).expect("propagating");
+        assert!(dif.reflection);
+        assert_eq!(dif.z_sign, -1.0);
+        // Diffracted along ŝ_R: u = n sin θ_R ŷ.
+        assert!((dif.u.y - 1.5 * 61.2f64.to_radians().sin()).abs() < 1e-12);
+        assert!(dif.u.x.abs() < 1e-15);
+        // At Bragg: η = tanh²ν with ν = π n1 d/(λ√(c_R|c_S|)).
+        let nu = PI * 0.01 * 16000.0 / (532.0 * 61.2f64.to_radians().cos().sqrt());
+        assert!((dif.eta[0] - nu.tanh().powi(2)).abs() < 1e-12);
+        assert!((g.bragg_wavelength_nm(DVec2::ZERO).unwrap() - 532.0).abs() < 1e-9);
+    }
+
+    /// FWHM of η(λ) at normal incidence, found numerically on a fine grid.
+    fn fwhm_nm(g: &VolumeGrating, pol: usize) -> (f64, f64) {
+        let (lo, hi, n) = (500.0, 570.0, 70_001);
+        let etas: Vec<f64> = (0..n)
+            .map(|i| {
+                let lam = lo + (hi - lo) * i as f64 / (n - 1) as f64;
+                g.diffract(DVec2::ZERO, 1.0, lam, 1)
+                    .map_or(0.0, |d| d.eta[pol])
+            })
+            .collect();
+        let peak = etas.iter().cloned().fold(0.0, f64::max);
+        let first = etas.iter().position(|&e| e >= peak / 2.0).unwrap();
+        let last = etas.iter().rposition(|&e| e >= peak / 2.0).unwrap();
+        (peak, (last - first) as f64 * (hi - lo) / (n - 1) as f64)
+    }
+
+    #[test]
+    fn fwhm_matches_physics_reference_table() {
+        // physics.md §3.5: (n1, η_TE, FWHM_TE, η_TM, FWHM_TM)
+        let table = [
+            (0.005, 0.350, 3.95, 0.100, 3.53),
+            (0.010, 0.769, 5.33, 0.331, 3.91),
+            (0.020, 0.983, 8.57, 0.748, 5.21),
+            (0.030, 0.999, 11.67, 0.925, 6.78),
+        ];
+        for (n1, eta_te, w_te, eta_tm, w_tm) in table {
+            let g = paper(n1);
+            let (p_te, f_te) = fwhm_nm(&g, 0);
+            let (p_tm, f_tm) = fwhm_nm(&g, 1);
+            assert!((p_te - eta_te).abs() < 1e-3, "n1 {n1}: η_TE {p_te}");
+            assert!((p_tm - eta_tm).abs() < 1e-3, "n1 {n1}: η_TM {p_tm}");
+            assert!((f_te / w_te - 1.0).abs() < 0.01, "n1 {n1}: FWHM_TE {f_te}");
+            assert!((f_tm / w_tm - 1.0).abs() < 0.01, "n1 {n1}: FWHM_TM {f_tm}");
+        }
+    }
+
+    #[test]
+    fn bragg_wavelength_in_plane_closed_form() {
+        // physics.md §3.3: λ_B(Θ) = λ0 cos(Θ + θ_R/2)/cos(θ_R/2) for in-plane incidence.
+        let g = paper(0.01);
+        for &(theta_deg, expect) in &[(-10.0, 578.6), (-5.0, 557.4), (5.0, 502.6), (10.0, 469.3)] {
+            let th: f64 = f64::to_radians(theta_deg);
+            let u = DVec2::new(0.0, 1.5 * th.sin());
+            let lam = g.bragg_wavelength_nm(u).unwrap();
+            let closed = 532.0 * (th + 30.6f64.to_radians()).cos() / 30.6f64.to_radians().cos();
+            assert!((lam - closed).abs() < 1e-9 * closed);
+            assert!((lam - expect).abs() < 0.06, "{theta_deg}: {lam}");
+            // At λ_B the closure is exact: the diffracted order is on-shell with Δk_z = 0,
+            // so η = tanh²ν.
+            let dif = g.diffract(u, 1.0, lam, 1).unwrap();
+            let beta = 2.0 * PI * 1.5 / lam;
+            let c_r = (1.0 - u.length_squared() / 2.25).sqrt();
+            let c_s = (1.0 - dif.u.length_squared() / 2.25).sqrt();
+            let nu = PI * 0.01 * 16000.0 / (lam * (c_r * c_s).sqrt());
+            assert!((dif.eta[0] - nu.tanh().powi(2)).abs() < 1e-9, "β {beta}");
+        }
+    }
+
+    #[test]
+    fn conical_bragg_wavelength() {
+        // physics.md §3.3: horizontal tilt a at zero vertical tilt gives λ_B = λ0 cos a.
+        let g = paper(0.01);
+        for &a in &[5.0f64, 10.0, 15.0] {
+            let u = DVec2::new(1.5 * a.to_radians().sin(), 0.0);
+            let lam = g.bragg_wavelength_nm(u).unwrap();
+            assert!((lam - 532.0 * a.to_radians().cos()).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn reciprocity_of_in_and_out_coupling() {
+        // In-coupling u_in → u_g (order +1) and the reverse u_g → u_in (order −1) have the same
+        // efficiency in the lossless case, at any wavelength and direction.
+        let g = paper(0.02);
+        let mut rng = crate::optics::kogelnik::tests::TestRng(5);
+        let mut checked = 0;
+        for _ in 0..500 {
+            let u = DVec2::new(rng.range(-0.3, 0.3), rng.range(-0.3, 0.3));
+            let lam = rng.range(420.0, 650.0);
+            // Directions whose order +1 is evanescent have nothing to compare.
+            let Some(fwd) = g.diffract(u, 1.0, lam, 1) else {
+                continue;
+            };
+            checked += 1;
+            let back = g.diffract(fwd.u, fwd.z_sign, lam, -1).unwrap();
+            assert!((back.u - u).length() < 1e-12);
+            assert_eq!(back.z_sign, 1.0);
+            for p in 0..2 {
+                assert!((fwd.eta[p] - back.eta[p]).abs() < 1e-12);
+            }
+        }
+        assert!(checked > 300, "{checked}");
+    }
+}

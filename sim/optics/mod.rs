@@ -1,0 +1,7 @@
+//! Optical elements: glass dispersion and absorption, planar interfaces, and the volume
+//! grating (k-closure + Kogelnik coupled-wave efficiencies).
+
+pub mod glass;
+pub mod grating;
+pub mod interface;
+pub mod kogelnik;

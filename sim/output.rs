@@ -1,0 +1,100 @@
+//! Writing a capture: `capture.exr` (linear float32, `Y` or `R`,`G`,`B`, optional spectral
+//! channels `S0.<nm>,<frac>nm`), `capture.png` (16-bit sRGB-encoded preview scaled to the
+//! 99.9th percentile) and `capture.json` (scene after overrides, seed, spp, version, timings).
+//!
+//! Every file is encoded in memory first and written atomically (temp file + rename), so a
+//! failure leaves no partial file. The EXR holds no timestamps or timings: equal inputs give
+//! byte-identical EXR files.
+
+use std::path::Path;
+
+use crate::io::{
+    ExrAttr, ExrChannel, IoError, encode_exr, encode_png16, preview_u16, spectral_channel_name,
+    write_atomic,
+};
+use crate::render::Capture;
+
+/// What one pixel value means (recorded in the EXR header and the JSON sidecar).
+pub const CAPTURE_UNITS: &str = "relative: 1 = a white display pixel seen straight on by an on-axis pixel through lossless optics (flat spectrum and response)";
+
+/// Encodes the capture as an EXR file in memory.
+pub fn encode_capture_exr(
+    cap: &Capture,
+    scene_json: &str,
+    seed: u64,
+    spp: u32,
+) -> Result<Vec<u8>, String> {
+    let mut channels: Vec<ExrChannel> = cap
+        .channel_names
+        .iter()
+        .zip(&cap.channels)
+        .map(|(n, d)| ExrChannel {
+            name: (*n).to_string(),
+            data: d.clone(),
+        })
+        .collect();
+    for (lambda, data) in &cap.spectral {
+        channels.push(ExrChannel {
+            name: spectral_channel_name(*lambda),
+            data: data.clone(),
+        });
+    }
+    let attrs = vec![
+        (
+            "stscam.version".to_string(),
+            ExrAttr::Text(crate::VERSION.to_string()),
+        ),
+        ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
+        (
+            "stscam.spp".to_string(),
+            ExrAttr::I32(i32::try_from(spp).unwrap_or(i32::MAX)),
+        ),
+        (
+            "stscam.units".to_string(),
+            ExrAttr::Text(CAPTURE_UNITS.to_string()),
+        ),
+        (
+            "stscam.scene".to_string(),
+            ExrAttr::Text(scene_json.to_string()),
+        ),
+    ];
+    encode_exr(cap.width, cap.height, channels, &attrs)
+}
+
+/// Encodes the 16-bit PNG preview (grey for one channel, RGB for three).
+pub fn encode_capture_png(cap: &Capture) -> Result<Vec<u8>, String> {
+    let refs: Vec<&[f32]> = cap.channels.iter().map(|c| c.as_slice()).collect();
+    let samples = preview_u16(&refs, 0.999);
+    encode_png16(cap.width, cap.height, refs.len(), &samples)
+}
+
+/// Writes `capture.exr`, `capture.png` and `capture.json` into `dir` (created if needed).
+pub fn write_capture(
+    dir: &Path,
+    cap: &Capture,
+    scene_json: &str,
+    seed: u64,
+    spp: u32,
+    sidecar: &serde_json::Value,
+) -> Result<(), IoError> {
+    let exr = encode_capture_exr(cap, scene_json, seed, spp).map_err(|m| IoError::Format {
+        path: dir.join("capture.exr"),
+        message: m,
+    })?;
+    let png = encode_capture_png(cap).map_err(|m| IoError::Format {
+        path: dir.join("capture.png"),
+        message: m,
+    })?;
+    let json = serde_json::to_vec_pretty(sidecar).map_err(|e| IoError::Format {
+        path: dir.join("capture.json"),
+        message: e.to_string(),
+    })?;
+    std::fs::create_dir_all(dir).map_err(|e| IoError::Io {
+        path: dir.to_path_buf(),
+        source: e,
+    })?;
+    write_atomic(&dir.join("capture.exr"), &exr)?;
+    write_atomic(&dir.join("capture.png"), &png)?;
+    write_atomic(&dir.join("capture.json"), &json)?;
+    Ok(())
+}

@@ -1,0 +1,223 @@
+//! The image loop: for every crop pixel and sample, a camera ray, a wavelength, one backward
+//! path with all its replicas, and the sensor's spectral response.
+//!
+//! Estimator (DESIGN.md): for channel c the pixel value is
+//!   E[ cos⁴θ · S(λ) · R_c(λ)/∫R_c · Σ_branches L_rel(x_b)·(f_TE W_b,TE + f_TM W_b,TM) / p(λ) ]
+//! with S the backlight spectrum (mean 1), R_c the sensor response, L_rel the display's relative
+//! radiance, W the branch weights of `trace`, f the display's polarisation fractions and p the
+//! wavelength density. Unit: 1 = a white display pixel seen straight on by an on-axis pixel
+//! through lossless optics (flat spectrum and response). Optional spectral channels hold the
+//! same estimate without R_c, per nm, binned by wavelength.
+//!
+//! Parallelism: rows are rendered by rayon and collected in row order; each pixel accumulates
+//! its samples in f64 in sample order; the sampler is addressable. The output is therefore
+//! bit-identical for any thread count.
+
+use rayon::prelude::*;
+
+use crate::sampler::{PixelSampler, SamplerKind};
+use crate::system::System;
+use crate::trace::trace_camera_path;
+
+/// Render settings that are not part of the scene.
+#[derive(Clone, Debug)]
+pub struct RenderSettings {
+    /// Samples (camera paths) per pixel.
+    pub spp: u32,
+    /// Seed of the sampler.
+    pub seed: u64,
+    /// Sample sequence.
+    pub sampler: SamplerKind,
+    /// Spectral bins (start nm, bin width nm, count), if spectral output is wanted.
+    pub spectral_bins: Option<(f64, f64, usize)>,
+    /// Show a progress bar on a terminal.
+    pub progress: bool,
+}
+
+/// Counters gathered over a render (summed in row order).
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct RenderStats {
+    /// Camera paths traced.
+    pub camera_paths: u64,
+    /// Branches that reached the display.
+    pub branches: u64,
+    /// Plate contacts visited.
+    pub contacts: u64,
+    /// Samples whose value was NaN or infinite (zeroed).
+    pub nonfinite_samples: u64,
+    /// Paths stopped by `sampling.max_contacts`.
+    pub max_contacts_hits: u64,
+    /// Largest guided weight truncated by `min_guided_weight` or `max_contacts`.
+    pub max_truncated_weight: f64,
+    /// Largest branch weight seen (must be ≤ 1).
+    pub max_branch_weight: f64,
+}
+
+impl RenderStats {
+    fn merge(&mut self, o: &RenderStats) {
+        self.camera_paths += o.camera_paths;
+        self.branches += o.branches;
+        self.contacts += o.contacts;
+        self.nonfinite_samples += o.nonfinite_samples;
+        self.max_contacts_hits += o.max_contacts_hits;
+        self.max_truncated_weight = self.max_truncated_weight.max(o.max_truncated_weight);
+        self.max_branch_weight = self.max_branch_weight.max(o.max_branch_weight);
+    }
+}
+
+/// A rendered capture.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Channel names.
+    pub channel_names: Vec<&'static str>,
+    /// Channel data (row-major, row 0 top).
+    pub channels: Vec<Vec<f32>>,
+    /// Spectral bin centres (nm) and data, if requested.
+    pub spectral: Vec<(f64, Vec<f32>)>,
+    /// Counters.
+    pub stats: RenderStats,
+}
+
+struct RowResult {
+    values: Vec<f64>,   // width × channels
+    spectral: Vec<f64>, // width × bins
+    stats: RenderStats,
+}
+
+fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
+    let cam = &sys.camera;
+    let w = cam.width_px;
+    let nch = sys.response.curves.len();
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
+    let mut values = vec![0.0; w * nch];
+    let mut spectral = vec![0.0; w * nbins];
+    let mut stats = RenderStats::default();
+    let pol = sys.display.polarization_weights;
+    let disp = &sys.display;
+    for col in 0..w {
+        let pixel = (row * w + col) as u64;
+        let sampler = PixelSampler::new(set.sampler, set.seed, pixel);
+        let mut acc = [0.0f64; 4];
+        for i in 0..u64::from(set.spp) {
+            let u = sampler.get(i);
+            let ray = cam.generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
+            stats.camera_paths += 1;
+            let lb = sys
+                .waveguide
+                .grating
+                .bragg_wavelength_nm(-ray.dir.truncate());
+            let (lambda, pdf) = sys.wavelengths.sample(u[4], lb);
+            if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
+                continue;
+            }
+            let mut radiance = 0.0;
+            let mut max_w: f64 = 0.0;
+            let mut branches = 0u64;
+            let summary = trace_camera_path(
+                &sys.waveguide,
+                disp.z_mm,
+                sys.limits,
+                ray.origin,
+                ray.dir,
+                lambda,
+                |b| {
+                    branches += 1;
+                    max_w = max_w.max(b.weight[0]).max(b.weight[1]);
+                    let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
+                    if wt > 0.0 {
+                        radiance += wt * disp.radiance_at(b.object_point_mm);
+                    }
+                },
+            );
+            stats.branches += branches;
+            stats.contacts += u64::from(summary.contacts);
+            stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
+            stats.max_truncated_weight = stats.max_truncated_weight.max(summary.truncated_weight);
+            stats.max_branch_weight = stats.max_branch_weight.max(max_w);
+            let base = ray.cos4 * disp.spectrum.eval(lambda) * radiance / pdf;
+            if !base.is_finite() {
+                stats.nonfinite_samples += 1;
+                continue;
+            }
+            for (c, a) in acc.iter_mut().enumerate().take(nch) {
+                *a += base * sys.response.curves[c].eval(lambda) * sys.response.inv_integral[c];
+            }
+            if let Some((start, width, n)) = set.spectral_bins {
+                let k = ((lambda - start) / width).floor();
+                if k >= 0.0 && (k as usize) < n {
+                    spectral[col * nbins + k as usize] += base / width;
+                }
+            }
+        }
+        let inv = 1.0 / f64::from(set.spp.max(1));
+        for c in 0..nch {
+            values[col * nch + c] = acc[c] * inv;
+        }
+        for v in &mut spectral[col * nbins..(col + 1) * nbins] {
+            *v *= inv;
+        }
+    }
+    RowResult {
+        values,
+        spectral,
+        stats,
+    }
+}
+
+/// Renders the capture of `sys`. Deterministic for a given seed, whatever the thread count.
+pub fn render(sys: &System, set: &RenderSettings) -> Capture {
+    let cam = &sys.camera;
+    let (w, h) = (cam.width_px, cam.height_px);
+    let pb = if set.progress {
+        indicatif::ProgressBar::new(h as u64).with_style(
+            indicatif::ProgressStyle::with_template("{spinner} rendering rows {pos}/{len} [{elapsed_precise} < {eta_precise}] {per_sec}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        )
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let rows: Vec<RowResult> = (0..h)
+        .into_par_iter()
+        .map(|row| {
+            let r = render_row(sys, set, row);
+            pb.inc(1);
+            r
+        })
+        .collect();
+    pb.finish_and_clear();
+    let nch = sys.response.curves.len();
+    let mut channels = vec![vec![0f32; w * h]; nch];
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
+    let mut spec = vec![vec![0f32; w * h]; nbins];
+    let mut stats = RenderStats::default();
+    for (row, r) in rows.iter().enumerate() {
+        stats.merge(&r.stats);
+        for col in 0..w {
+            for (c, ch) in channels.iter_mut().enumerate() {
+                ch[row * w + col] = r.values[col * nch + c] as f32;
+            }
+            for (b, sb) in spec.iter_mut().enumerate() {
+                sb[row * w + col] = r.spectral[col * nbins + b] as f32;
+            }
+        }
+    }
+    let spectral = match set.spectral_bins {
+        Some((start, width, n)) => (0..n)
+            .map(|k| start + (k as f64 + 0.5) * width)
+            .zip(spec)
+            .collect(),
+        None => Vec::new(),
+    };
+    Capture {
+        width: w,
+        height: h,
+        channel_names: sys.response.names.clone(),
+        channels,
+        spectral,
+        stats,
+    }
+}

@@ -1,0 +1,768 @@
+//! Scene description: serde structs (pure data, units in every name), loading from TOML,
+//! `--set KEY=VALUE` overrides and validation.
+//!
+//! A scene file may list only the keys it changes: it is merged over the embedded paper scene
+//! (`scenes/paper-2022.toml`), so every key always exists. Keys that the embedded scene does
+//! not have are errors, as are values of the wrong type or out of range; each error names the
+//! file (or `--set`), the dotted key and the problem.
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The paper's setup, compiled into the binary.
+pub const PAPER_SCENE_TOML: &str = include_str!("../scenes/paper-2022.toml");
+/// Name used in messages for the embedded scene.
+pub const EMBEDDED_NAME: &str = "<embedded scenes/paper-2022.toml>";
+
+/// A scene error: one line naming the source (file or `--set`), the key and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The file could not be read.
+    #[error("{file}: cannot read scene file: {message}")]
+    Read {
+        /// Scene file.
+        file: String,
+        /// OS error text.
+        message: String,
+    },
+    /// TOML syntax error.
+    #[error("{file}: {location}: malformed TOML: {message}")]
+    Syntax {
+        /// Scene file.
+        file: String,
+        /// "line L, column C".
+        location: String,
+        /// Parser message.
+        message: String,
+    },
+    /// A key-specific problem (unknown key, wrong type, out of range, missing asset).
+    #[error("{file}: {key}: {message}")]
+    Key {
+        /// Scene file, or `--set`.
+        file: String,
+        /// Dotted key, e.g. `plate.thickness_mm`.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A value that is either the word "auto" or a number.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged, expecting = "\"auto\" or a number")]
+pub enum AutoOr {
+    /// A number.
+    Value(f64),
+    /// Should be "auto" (checked by validation).
+    Word(String),
+}
+
+impl AutoOr {
+    /// The number, or `None` for "auto".
+    pub fn value(&self) -> Option<f64> {
+        match self {
+            AutoOr::Value(v) => Some(*v),
+            AutoOr::Word(_) => None,
+        }
+    }
+}
+
+/// Glass of the plate.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(
+    untagged,
+    expecting = "\"soda-lime\", \"n-bk7\" or a constant refractive index"
+)]
+pub enum GlassSpec {
+    /// Constant, non-dispersive index.
+    Index(f64),
+    /// A named glass model.
+    Name(String),
+}
+
+/// Display polarisation: "none" or the E-field angle in degrees from the x axis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged, expecting = "\"none\" or an angle in degrees")]
+pub enum PolarizationSpec {
+    /// E-field angle in degrees from the horizontal x axis.
+    AngleDeg(f64),
+    /// Should be "none".
+    Word(String),
+}
+
+/// Sensor crop: a square size or [width, height].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged, expecting = "a pixel count or [width, height]")]
+pub enum CropSpec {
+    /// Square crop.
+    Square(u32),
+    /// Width and height.
+    Rect([u32; 2]),
+}
+
+impl CropSpec {
+    /// (width, height) in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            CropSpec::Square(s) => (*s, *s),
+            CropSpec::Rect([w, h]) => (*w, *h),
+        }
+    }
+}
+
+/// `[plate]`: the glass waveguide.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateDesc {
+    /// Plate thickness w in mm.
+    pub thickness_mm: f64,
+    /// Glass model.
+    pub glass: GlassSpec,
+    /// Intensity absorption in 1/mm or "auto" (from the glass model).
+    pub absorption_per_mm: AutoOr,
+}
+
+/// `[hoe]`: properties shared by both volume holograms.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HoeDesc {
+    /// Recording wavelength λ0 in nm.
+    pub recording_wavelength_nm: f64,
+    /// Reference-beam angle inside the film, degrees.
+    pub reference_angle_deg: f64,
+    /// Film thickness in µm.
+    pub film_thickness_um: f64,
+    /// Index modulation n1 (peak-to-mean).
+    pub index_modulation: f64,
+    /// Mean film index.
+    pub mean_index: f64,
+    /// Mean amplitude absorption α0 of the film in 1/mm.
+    pub amplitude_absorption_per_mm: f64,
+}
+
+/// `[bottom_hoe]`: the in-coupling hologram on the back face.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BottomHoeDesc {
+    /// Width (x) in mm.
+    pub width_mm: f64,
+    /// Height (y) in mm.
+    pub height_mm: f64,
+}
+
+/// `[top_hoe]`: the out-coupling hologram on the front face.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TopHoeDesc {
+    /// Width (x) in mm.
+    pub width_mm: f64,
+    /// Height (y) in mm.
+    pub height_mm: f64,
+    /// Gap between the bottom vHOE's top edge and the top vHOE's bottom edge, mm.
+    pub gap_mm: f64,
+    /// Whether an absorbing cover (tape) sits on the user side of the top vHOE.
+    pub covered: bool,
+    /// Whether the cover makes optical contact and absorbs at TIR contacts under it.
+    pub cover_frustrates_tir: bool,
+}
+
+/// `[camera]`: thin-lens camera behind the plate.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDesc {
+    /// Lens to back face, mm (d1).
+    pub distance_mm: f64,
+    /// Focal length, mm.
+    pub focal_length_mm: f64,
+    /// F-number (aperture diameter = f / N).
+    pub f_number: f64,
+    /// Focus distance from the lens in mm (air-equivalent), or "auto".
+    pub focus_distance_mm: AutoOr,
+}
+
+/// `[sensor]`: pixel grid, crop and spectral response.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorDesc {
+    /// Full sensor width in pixels.
+    pub width_px: u32,
+    /// Full sensor height in pixels.
+    pub height_px: u32,
+    /// Pixel pitch in µm.
+    pub pitch_um: f64,
+    /// Rendered crop.
+    pub crop_px: CropSpec,
+    /// Crop centre offset from the sensor centre, pixels (+x right, +y up in the image).
+    pub crop_offset_px: [i32; 2],
+    /// Spectral response name.
+    pub response: String,
+}
+
+/// `[display]`: the emissive LCD showing the target.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisplayDesc {
+    /// Distance from the front face, mm (display at z = −distance).
+    pub distance_mm: f64,
+    /// LCD pixel pitch, mm.
+    pub pixel_pitch_mm: f64,
+    /// LCD size in pixels [width, height].
+    pub size_px: [u32; 2],
+    /// Target image: a PNG/EXR path (relative to the scene file) or a built-in target name.
+    pub image: String,
+    /// LCD pixels per target pixel.
+    pub lcd_pixels_per_image_pixel: u32,
+    /// Centre of the target (and of the LCD) on the display plane, mm [x, y].
+    pub center_mm: [f64; 2],
+    /// Backlight spectrum name.
+    pub spectrum: String,
+    /// Polarisation of the emitted light.
+    pub polarization: PolarizationSpec,
+    /// Display gamma (code value → linear radiance).
+    pub gamma: f64,
+    /// Black level as a fraction of white.
+    pub black_level: f64,
+}
+
+/// `[sampling]`: Monte Carlo estimator settings that belong to the scene.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingDesc {
+    /// Lower end of the spectral band, nm.
+    pub lambda_min_nm: f64,
+    /// Upper end of the spectral band, nm.
+    pub lambda_max_nm: f64,
+    /// Fraction of wavelengths drawn uniformly over the band.
+    pub uniform_fraction: f64,
+    /// Guided weight below which a path stops.
+    pub min_guided_weight: f64,
+    /// Hard limit on plate contacts per path.
+    pub max_contacts: u32,
+}
+
+/// A complete scene description.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Glass plate.
+    pub plate: PlateDesc,
+    /// Shared hologram properties.
+    pub hoe: HoeDesc,
+    /// In-coupling hologram.
+    pub bottom_hoe: BottomHoeDesc,
+    /// Out-coupling hologram.
+    pub top_hoe: TopHoeDesc,
+    /// Camera.
+    pub camera: CameraDesc,
+    /// Sensor.
+    pub sensor: SensorDesc,
+    /// Display.
+    pub display: DisplayDesc,
+    /// Sampling.
+    pub sampling: SamplingDesc,
+}
+
+/// A scene with the context needed to resolve its assets and report errors.
+#[derive(Clone, Debug)]
+pub struct LoadedScene {
+    /// The description after merging and overrides.
+    pub scene: Scene,
+    /// Name of the source used in messages.
+    pub source: String,
+    /// Directory against which relative asset paths resolve.
+    pub base_dir: PathBuf,
+    /// Keys changed by `--set`.
+    pub overridden: BTreeSet<String>,
+}
+
+impl LoadedScene {
+    /// The name to blame for a key: `--set` if it was overridden, else the scene source.
+    pub fn origin_of(&self, key: &str) -> String {
+        if self
+            .overridden
+            .iter()
+            .any(|k| key == k || key.starts_with(&format!("{k}.")))
+        {
+            format!("--set {key}")
+        } else {
+            self.source.clone()
+        }
+    }
+
+    /// A key error attributed to the right origin.
+    pub fn key_error(&self, key: &str, message: impl Into<String>) -> SceneError {
+        SceneError::Key {
+            file: self.origin_of(key),
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> String {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |s| s.chars().count()) + 1;
+    format!("line {line}, column {col}")
+}
+
+fn parse_table(text: &str, file: &str) -> Result<toml::Table, SceneError> {
+    text.parse::<toml::Table>().map_err(|e| SceneError::Syntax {
+        file: file.to_string(),
+        location: e.span().map_or_else(
+            || "unknown position".to_string(),
+            |s| line_col(text, s.start),
+        ),
+        message: e.message().trim().replace('\n', " "),
+    })
+}
+
+/// Merges `over` into `base`; every key of `over` must exist in `base`.
+fn merge(
+    base: &mut toml::Table,
+    over: toml::Table,
+    prefix: &str,
+    file: &str,
+) -> Result<(), SceneError> {
+    for (k, v) in over {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match (base.get_mut(&k), v) {
+            (None, _) => {
+                return Err(SceneError::Key {
+                    file: file.to_string(),
+                    key,
+                    message: "unknown key".into(),
+                });
+            }
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o, &key, file)?,
+            (Some(toml::Value::Table(_)), _) => {
+                return Err(SceneError::Key {
+                    file: file.to_string(),
+                    key,
+                    message: "expected a table".into(),
+                });
+            }
+            (Some(slot), v) => *slot = v,
+        }
+    }
+    Ok(())
+}
+
+/// Parses a `--set` value: TOML syntax if it parses (numbers, booleans, arrays, quoted
+/// strings), otherwise the raw text as a string.
+fn parse_override_value(raw: &str) -> toml::Value {
+    let doc = format!("v = {raw}");
+    match doc.parse::<toml::Table>() {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| toml::Value::String(raw.to_string())),
+        Err(_) => toml::Value::String(raw.to_string()),
+    }
+}
+
+/// Applies one `KEY=VALUE` override to a full scene table.
+fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneError> {
+    let Some((key, raw)) = spec.split_once('=') else {
+        return Err(SceneError::Key {
+            file: "--set".into(),
+            key: spec.to_string(),
+            message: "expected KEY=VALUE".into(),
+        });
+    };
+    let key = key.trim();
+    let unknown = || SceneError::Key {
+        file: format!("--set {key}"),
+        key: key.to_string(),
+        message: "unknown key".into(),
+    };
+    let mut parts = key.split('.').peekable();
+    let mut cur = table;
+    while let Some(part) = parts.next() {
+        if parts.peek().is_none() {
+            let slot = cur.get_mut(part).ok_or_else(unknown)?;
+            if slot.is_table() {
+                return Err(SceneError::Key {
+                    file: format!("--set {key}"),
+                    key: key.to_string(),
+                    message: "is a section; set one of its keys".into(),
+                });
+            }
+            *slot = parse_override_value(raw.trim());
+            return Ok(key.to_string());
+        }
+        cur = match cur.get_mut(part) {
+            Some(toml::Value::Table(t)) => t,
+            _ => return Err(unknown()),
+        };
+    }
+    Err(unknown())
+}
+
+/// Loads a scene: the embedded paper scene, merged with `path` if given, then the overrides.
+/// The result is validated.
+pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedScene, SceneError> {
+    let mut table = parse_table(PAPER_SCENE_TOML, EMBEDDED_NAME)?;
+    let (source, base_dir) = match path {
+        Some(p) => {
+            let file = p.display().to_string();
+            let text = std::fs::read_to_string(p).map_err(|e| SceneError::Read {
+                file: file.clone(),
+                message: e.to_string(),
+            })?;
+            let user = parse_table(&text, &file)?;
+            merge(&mut table, user, "", &file)?;
+            let dir = p.parent().map(Path::to_path_buf).unwrap_or_default();
+            (file, dir)
+        }
+        None => (EMBEDDED_NAME.to_string(), PathBuf::from(".")),
+    };
+    let mut overridden = BTreeSet::new();
+    for spec in overrides {
+        overridden.insert(apply_override(&mut table, spec)?);
+    }
+    let mut loaded = LoadedScene {
+        scene: placeholder_free_deserialize(table, &source, &overridden)?,
+        source,
+        base_dir,
+        overridden,
+    };
+    if loaded.base_dir.as_os_str().is_empty() {
+        loaded.base_dir = PathBuf::from(".");
+    }
+    validate(&loaded)?;
+    Ok(loaded)
+}
+
+fn placeholder_free_deserialize(
+    table: toml::Table,
+    source: &str,
+    overridden: &BTreeSet<String>,
+) -> Result<Scene, SceneError> {
+    serde_path_to_error::deserialize::<_, Scene>(table).map_err(|e| {
+        let key = e.path().to_string();
+        let file = if overridden.iter().any(|k| &key == k) {
+            format!("--set {key}")
+        } else {
+            source.to_string()
+        };
+        SceneError::Key {
+            file,
+            key,
+            message: e.inner().to_string().replace('\n', " "),
+        }
+    })
+}
+
+/// Names of the glasses `plate.glass` accepts.
+pub const GLASS_NAMES: &[&str] = &["soda-lime", "n-bk7"];
+/// Names `sensor.response` accepts.
+pub const RESPONSE_NAMES: &[&str] = &["mono-qe", "mono-bayer-y", "flat", "rgb-bayer"];
+/// Names `display.spectrum` accepts.
+pub const SPECTRUM_NAMES: &[&str] = &["white-led", "flat", "ccfl"];
+
+fn check(
+    ls: &LoadedScene,
+    ok: bool,
+    key: &str,
+    message: impl FnOnce() -> String,
+) -> Result<(), SceneError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ls.key_error(key, message()))
+    }
+}
+
+fn positive(ls: &LoadedScene, v: f64, key: &str) -> Result<(), SceneError> {
+    check(ls, v.is_finite() && v > 0.0, key, || {
+        format!("must be a positive finite number, got {v}")
+    })
+}
+
+fn in_range(ls: &LoadedScene, v: f64, lo: f64, hi: f64, key: &str) -> Result<(), SceneError> {
+    check(ls, v.is_finite() && v >= lo && v <= hi, key, || {
+        format!("must be in [{lo}, {hi}], got {v}")
+    })
+}
+
+/// Checks ranges and names; every failure names its key.
+pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
+    positive(ls, s.plate.thickness_mm, "plate.thickness_mm")?;
+    match &s.plate.glass {
+        GlassSpec::Index(n) => in_range(ls, *n, 1.0, 4.0, "plate.glass")?,
+        GlassSpec::Name(name) => check(
+            ls,
+            GLASS_NAMES.contains(&name.as_str()),
+            "plate.glass",
+            || format!("unknown glass {name:?}; expected one of {GLASS_NAMES:?} or a number"),
+        )?,
+    }
+    match &s.plate.absorption_per_mm {
+        AutoOr::Value(a) => in_range(ls, *a, 0.0, 1e3, "plate.absorption_per_mm")?,
+        AutoOr::Word(w) => check(ls, w == "auto", "plate.absorption_per_mm", || {
+            format!("expected \"auto\" or a number, got {w:?}")
+        })?,
+    }
+    in_range(
+        ls,
+        s.hoe.recording_wavelength_nm,
+        200.0,
+        2000.0,
+        "hoe.recording_wavelength_nm",
+    )?;
+    check(
+        ls,
+        s.hoe.reference_angle_deg > 0.0 && s.hoe.reference_angle_deg < 90.0,
+        "hoe.reference_angle_deg",
+        || {
+            format!(
+                "must be in (0, 90) degrees, got {}",
+                s.hoe.reference_angle_deg
+            )
+        },
+    )?;
+    positive(ls, s.hoe.film_thickness_um, "hoe.film_thickness_um")?;
+    in_range(ls, s.hoe.mean_index, 1.0, 4.0, "hoe.mean_index")?;
+    check(
+        ls,
+        s.hoe.index_modulation >= 0.0 && s.hoe.index_modulation < s.hoe.mean_index - 1.0 + 1.0,
+        "hoe.index_modulation",
+        || format!("must be in [0, mean_index), got {}", s.hoe.index_modulation),
+    )?;
+    in_range(
+        ls,
+        s.hoe.amplitude_absorption_per_mm,
+        0.0,
+        1e4,
+        "hoe.amplitude_absorption_per_mm",
+    )?;
+    positive(ls, s.bottom_hoe.width_mm, "bottom_hoe.width_mm")?;
+    positive(ls, s.bottom_hoe.height_mm, "bottom_hoe.height_mm")?;
+    positive(ls, s.top_hoe.width_mm, "top_hoe.width_mm")?;
+    positive(ls, s.top_hoe.height_mm, "top_hoe.height_mm")?;
+    in_range(ls, s.top_hoe.gap_mm, 0.0, 1e4, "top_hoe.gap_mm")?;
+    positive(ls, s.camera.distance_mm, "camera.distance_mm")?;
+    positive(ls, s.camera.focal_length_mm, "camera.focal_length_mm")?;
+    positive(ls, s.camera.f_number, "camera.f_number")?;
+    match &s.camera.focus_distance_mm {
+        AutoOr::Value(v) => check(
+            ls,
+            v.is_finite() && *v > s.camera.focal_length_mm,
+            "camera.focus_distance_mm",
+            || {
+                format!(
+                    "must exceed the focal length ({} mm), got {v}",
+                    s.camera.focal_length_mm
+                )
+            },
+        )?,
+        AutoOr::Word(w) => check(ls, w == "auto", "camera.focus_distance_mm", || {
+            format!("expected \"auto\" or a number, got {w:?}")
+        })?,
+    }
+    check(
+        ls,
+        s.sensor.width_px > 0 && s.sensor.height_px > 0,
+        "sensor.width_px",
+        || "sensor size must be positive".into(),
+    )?;
+    positive(ls, s.sensor.pitch_um, "sensor.pitch_um")?;
+    let (cw, ch) = s.sensor.crop_px.size();
+    check(
+        ls,
+        cw > 0 && ch > 0 && cw <= 16384 && ch <= 16384,
+        "sensor.crop_px",
+        || format!("crop {cw}x{ch} must be 1..=16384 pixels each way"),
+    )?;
+    let [ox, oy] = s.sensor.crop_offset_px;
+    let fits = |crop: u32, off: i32, full: u32| {
+        i64::from(crop) + 2 * i64::from(off).abs() <= i64::from(full)
+    };
+    check(
+        ls,
+        fits(cw, ox, s.sensor.width_px) && fits(ch, oy, s.sensor.height_px),
+        "sensor.crop_px",
+        || {
+            format!(
+                "crop {cw}x{ch} offset [{ox}, {oy}] does not fit the {}x{} sensor",
+                s.sensor.width_px, s.sensor.height_px
+            )
+        },
+    )?;
+    check(
+        ls,
+        RESPONSE_NAMES.contains(&s.sensor.response.as_str()),
+        "sensor.response",
+        || {
+            format!(
+                "unknown response {:?}; expected one of {RESPONSE_NAMES:?}",
+                s.sensor.response
+            )
+        },
+    )?;
+    positive(ls, s.display.distance_mm, "display.distance_mm")?;
+    positive(ls, s.display.pixel_pitch_mm, "display.pixel_pitch_mm")?;
+    check(
+        ls,
+        s.display.size_px[0] > 0 && s.display.size_px[1] > 0,
+        "display.size_px",
+        || "must be positive".into(),
+    )?;
+    check(
+        ls,
+        s.display.lcd_pixels_per_image_pixel > 0,
+        "display.lcd_pixels_per_image_pixel",
+        || "must be positive".into(),
+    )?;
+    check(
+        ls,
+        s.display.center_mm.iter().all(|v| v.is_finite()),
+        "display.center_mm",
+        || "must be finite".into(),
+    )?;
+    check(
+        ls,
+        SPECTRUM_NAMES.contains(&s.display.spectrum.as_str()),
+        "display.spectrum",
+        || {
+            format!(
+                "unknown spectrum {:?}; expected one of {SPECTRUM_NAMES:?}",
+                s.display.spectrum
+            )
+        },
+    )?;
+    match &s.display.polarization {
+        PolarizationSpec::AngleDeg(a) => check(ls, a.is_finite(), "display.polarization", || {
+            "angle must be finite".into()
+        })?,
+        PolarizationSpec::Word(w) => check(ls, w == "none", "display.polarization", || {
+            format!("expected \"none\" or an angle in degrees, got {w:?}")
+        })?,
+    }
+    positive(ls, s.display.gamma, "display.gamma")?;
+    check(
+        ls,
+        s.display.black_level >= 0.0 && s.display.black_level < 1.0,
+        "display.black_level",
+        || format!("must be in [0, 1), got {}", s.display.black_level),
+    )?;
+    check(ls, s.display.image.trim() != "", "display.image", || {
+        "must name a file or a built-in target".into()
+    })?;
+    let sm = &s.sampling;
+    in_range(
+        ls,
+        sm.lambda_min_nm,
+        200.0,
+        2000.0,
+        "sampling.lambda_min_nm",
+    )?;
+    in_range(
+        ls,
+        sm.lambda_max_nm,
+        200.0,
+        2000.0,
+        "sampling.lambda_max_nm",
+    )?;
+    check(
+        ls,
+        sm.lambda_max_nm > sm.lambda_min_nm,
+        "sampling.lambda_max_nm",
+        || "must exceed sampling.lambda_min_nm".into(),
+    )?;
+    check(
+        ls,
+        sm.uniform_fraction > 0.0 && sm.uniform_fraction <= 1.0,
+        "sampling.uniform_fraction",
+        || format!("must be in (0, 1], got {}", sm.uniform_fraction),
+    )?;
+    check(
+        ls,
+        sm.min_guided_weight > 0.0 && sm.min_guided_weight < 1.0,
+        "sampling.min_guided_weight",
+        || format!("must be in (0, 1), got {}", sm.min_guided_weight),
+    )?;
+    check(ls, sm.max_contacts >= 1, "sampling.max_contacts", || {
+        "must be at least 1".into()
+    })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_scene_loads_and_has_paper_values() {
+        let ls = load_scene(None, &[]).unwrap();
+        let s = &ls.scene;
+        assert_eq!(s.plate.thickness_mm, 2.0);
+        assert_eq!(s.hoe.reference_angle_deg, 61.2);
+        assert_eq!(s.bottom_hoe.height_mm, 50.0);
+        assert_eq!(s.sensor.crop_px.size(), (440, 440));
+        assert_eq!(s.display.distance_mm, 550.0);
+    }
+
+    #[test]
+    fn overrides_change_values_and_types() {
+        let ls = load_scene(
+            None,
+            &[
+                "plate.glass=1.5".into(),
+                "plate.thickness_mm=3".into(),
+                "sensor.crop_px=64".into(),
+                "display.image=checker:8".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!(ls.scene.plate.glass, GlassSpec::Index(1.5));
+        assert_eq!(ls.scene.plate.thickness_mm, 3.0);
+        assert_eq!(ls.scene.sensor.crop_px.size(), (64, 64));
+        assert_eq!(ls.scene.display.image, "checker:8");
+    }
+
+    #[test]
+    fn errors_name_source_and_key() {
+        let e = load_scene(None, &["plate.nope=1".into()])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "--set plate.nope: plate.nope: unknown key");
+        let e = load_scene(None, &["plate.thickness_mm=-1".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--set plate.thickness_mm: plate.thickness_mm: must be a positive"),
+            "{e}"
+        );
+        let e = load_scene(None, &["plate.thickness_mm=thick".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("plate.thickness_mm"), "{e}");
+        let e = load_scene(None, &["plate.glass=flint".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("plate.glass: unknown glass"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.toml");
+        std::fs::write(&p, "[plate]\nthickness_mm = 1.0\n[hoe]\ncolour = 3\n").unwrap();
+        let e = load_scene(Some(&p), &[]).unwrap_err().to_string();
+        assert_eq!(e, format!("{}: hoe.colour: unknown key", p.display()));
+        std::fs::write(&p, "[plate\nthickness_mm = 1.0\n").unwrap();
+        let e = load_scene(Some(&p), &[]).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!("{}: line 1, column", p.display()))
+                && e.contains("malformed TOML"),
+            "{e}"
+        );
+        std::fs::write(&p, "[plate]\nthickness_mm = 1.5\n").unwrap();
+        let ls = load_scene(Some(&p), &[]).unwrap();
+        assert_eq!(ls.scene.plate.thickness_mm, 1.5);
+        assert_eq!(ls.scene.hoe.film_thickness_um, 16.0);
+    }
+}

@@ -1,0 +1,282 @@
+//! The runtime system built from a scene description: waveguide, camera, sensor response,
+//! display and wavelength sampler, with every derived quantity computed once.
+//!
+//! Geometry (DESIGN.md): bottom vHOE centred at (0, 0) on the back face; top vHOE on the front
+//! face with its bottom edge `gap` above the bottom vHOE's top edge; camera axis through the
+//! top vHOE's centre at `camera.distance_mm` behind the back face; display plane at
+//! z = −`display.distance_mm`.
+
+use glam::{DVec2, DVec3};
+use std::path::Path;
+
+use crate::camera::{Camera, sensor_distance_mm};
+use crate::display::Display;
+use crate::io::image_load::load_image;
+use crate::optics::glass::Glass;
+use crate::optics::grating::VolumeGrating;
+use crate::scene::{AutoOr, GlassSpec, LoadedScene, PolarizationSpec, Scene, SceneError};
+use crate::spectra::{self, DisplaySpectrumKind, SensorResponseKind, Spectrum};
+use crate::trace::{TraceLimits, trace_camera_path};
+use crate::waveguide::{Rect, Waveguide};
+use crate::wavelength::WavelengthSampler;
+
+/// Sensor spectral response, normalised per channel.
+#[derive(Clone, Debug)]
+pub struct Response {
+    /// Channel names ("Y" or "R", "G", "B").
+    pub names: Vec<&'static str>,
+    /// Curves (absolute QE-like fractions).
+    pub curves: Vec<Spectrum>,
+    /// 1/∫R_c dλ over the band, per channel.
+    pub inv_integral: Vec<f64>,
+}
+
+/// Everything a render needs.
+#[derive(Clone, Debug)]
+pub struct System {
+    /// The description it was built from.
+    pub scene: Scene,
+    /// Waveguide.
+    pub waveguide: Waveguide,
+    /// Camera.
+    pub camera: Camera,
+    /// Display.
+    pub display: Display,
+    /// Sensor response.
+    pub response: Response,
+    /// Wavelength sampler.
+    pub wavelengths: WavelengthSampler,
+    /// Trace limits.
+    pub limits: TraceLimits,
+}
+
+/// Glass model of a scene.
+pub fn glass_of(spec: &GlassSpec) -> Glass {
+    match spec {
+        GlassSpec::Index(n) => Glass::Constant { n: *n },
+        GlassSpec::Name(name) if name == "n-bk7" => Glass::NBk7,
+        GlassSpec::Name(_) => Glass::SodaLime,
+    }
+}
+
+fn response_kind(name: &str) -> SensorResponseKind {
+    match name {
+        "mono-qe" => SensorResponseKind::MonoQe,
+        "flat" => SensorResponseKind::Flat,
+        "rgb-bayer" => SensorResponseKind::RgbBayer,
+        _ => SensorResponseKind::MonoBayerY,
+    }
+}
+
+fn spectrum_kind(name: &str) -> DisplaySpectrumKind {
+    match name {
+        "flat" => DisplaySpectrumKind::Flat,
+        "ccfl" => DisplaySpectrumKind::Ccfl,
+        _ => DisplaySpectrumKind::WhiteLed,
+    }
+}
+
+/// Builds the waveguide of a scene.
+pub fn build_waveguide(s: &Scene) -> Waveguide {
+    let h = &s.hoe;
+    let grating = VolumeGrating::from_recording(
+        h.recording_wavelength_nm,
+        h.reference_angle_deg,
+        h.mean_index,
+        h.film_thickness_um,
+        h.index_modulation,
+        h.amplitude_absorption_per_mm,
+    );
+    let bottom = Rect::centered(
+        DVec2::ZERO,
+        DVec2::new(s.bottom_hoe.width_mm, s.bottom_hoe.height_mm),
+    );
+    let top_cy = 0.5 * s.bottom_hoe.height_mm + s.top_hoe.gap_mm + 0.5 * s.top_hoe.height_mm;
+    let top = Rect::centered(
+        DVec2::new(0.0, top_cy),
+        DVec2::new(s.top_hoe.width_mm, s.top_hoe.height_mm),
+    );
+    Waveguide {
+        thickness_mm: s.plate.thickness_mm,
+        glass: glass_of(&s.plate.glass),
+        absorption_override_per_mm: s.plate.absorption_per_mm.value(),
+        grating,
+        bottom,
+        top,
+        covered: s.top_hoe.covered,
+        cover_frustrates_tir: s.top_hoe.cover_frustrates_tir,
+    }
+}
+
+/// Builds the camera of a scene (needs the waveguide for its position and auto focus).
+pub fn build_camera(s: &Scene, wg: &Waveguide) -> Camera {
+    let c = &s.camera;
+    let n0 = wg.n_glass(s.hoe.recording_wavelength_nm);
+    let focus = match c.focus_distance_mm {
+        AutoOr::Value(v) => v,
+        AutoOr::Word(_) => c.distance_mm + 2.0 * wg.thickness_mm / n0 + s.display.distance_mm,
+    };
+    let (cw, ch) = s.sensor.crop_px.size();
+    Camera {
+        lens_center_mm: DVec3::new(
+            wg.top.center().x,
+            wg.top.center().y,
+            wg.thickness_mm + c.distance_mm,
+        ),
+        focal_length_mm: c.focal_length_mm,
+        sensor_distance_mm: sensor_distance_mm(c.focal_length_mm, focus),
+        focus_distance_mm: focus,
+        aperture_radius_mm: 0.5 * c.focal_length_mm / c.f_number,
+        pitch_mm: s.sensor.pitch_um * 1e-3,
+        width_px: cw as usize,
+        height_px: ch as usize,
+        offset_px: DVec2::new(
+            f64::from(s.sensor.crop_offset_px[0]),
+            f64::from(s.sensor.crop_offset_px[1]),
+        ),
+    }
+}
+
+/// True if a `display.image` value names a file rather than a built-in target.
+pub fn is_image_path(spec: &str) -> bool {
+    let lower = spec.to_ascii_lowercase();
+    lower.ends_with(".png") || lower.ends_with(".exr")
+}
+
+/// Loads the target as (width, height, values, linear).
+fn load_target(ls: &LoadedScene) -> Result<(usize, usize, Vec<f32>, bool), SceneError> {
+    let spec = ls.scene.display.image.trim();
+    if is_image_path(spec) {
+        let path = if Path::new(spec).is_absolute() {
+            Path::new(spec).to_path_buf()
+        } else {
+            ls.base_dir.join(spec)
+        };
+        let img = load_image(&path).map_err(|e| ls.key_error("display.image", e.to_string()))?;
+        Ok((img.width, img.height, img.values, img.linear))
+    } else {
+        let t =
+            crate::targets::builtin_target(spec).map_err(|e| ls.key_error("display.image", e))?;
+        Ok((t.width, t.height, t.values, false))
+    }
+}
+
+/// Builds the display of a scene.
+pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
+    let d = &ls.scene.display;
+    let (w, h, values, linear) = load_target(ls)?;
+    let angle = match d.polarization {
+        PolarizationSpec::AngleDeg(a) => Some(a),
+        PolarizationSpec::Word(_) => None,
+    };
+    Ok(Display {
+        z_mm: -d.distance_mm,
+        center_mm: DVec2::new(d.center_mm[0], d.center_mm[1]),
+        image_pixel_mm: d.pixel_pitch_mm * f64::from(d.lcd_pixels_per_image_pixel),
+        width_px: w,
+        height_px: h,
+        radiance: Display::linearise(&values, linear, d.gamma, d.black_level),
+        black_level: d.black_level,
+        half_extent_mm: DVec2::new(f64::from(d.size_px[0]), f64::from(d.size_px[1]))
+            * (0.5 * d.pixel_pitch_mm),
+        spectrum: spectra::display_spectrum(spectrum_kind(&d.spectrum)),
+        polarization_weights: Display::polarization_weights(angle),
+    })
+}
+
+/// Half-width (nm) of the table used for wavelength importance sampling.
+const TABLE_HALF_WIDTH_NM: f64 = 60.0;
+/// Bins of that table.
+const TABLE_BINS: usize = 2400;
+
+/// Measures the end-to-end spectral throughput of the centre pixel's chief ray around its
+/// Bragg wavelength and builds the wavelength sampler from it.
+fn build_wavelength_sampler(
+    s: &Scene,
+    wg: &Waveguide,
+    cam: &Camera,
+    display: &Display,
+    limits: TraceLimits,
+) -> WavelengthSampler {
+    let sm = &s.sampling;
+    let bin = 2.0 * TABLE_HALF_WIDTH_NM / TABLE_BINS as f64;
+    let chief = cam.ray_through(DVec2::ZERO, DVec2::ZERO);
+    let lb = wg.grating.bragg_wavelength_nm(-chief.dir.truncate());
+    let pol = display.polarization_weights;
+    let shape: Vec<f64> = match lb {
+        Some(lb) => (0..TABLE_BINS)
+            .map(|i| {
+                let lam = lb - TABLE_HALF_WIDTH_NM + (i as f64 + 0.5) * bin;
+                let mut total = 0.0;
+                trace_camera_path(
+                    wg,
+                    display.z_mm,
+                    limits,
+                    chief.origin,
+                    chief.dir,
+                    lam,
+                    |b| {
+                        if matches!(b.kind, crate::trace::BranchKind::Replica(_)) {
+                            total += pol[0] * b.weight[0] + pol[1] * b.weight[1];
+                        }
+                    },
+                );
+                total
+            })
+            .collect(),
+        None => vec![1.0; TABLE_BINS],
+    };
+    WavelengthSampler::new(
+        sm.lambda_min_nm,
+        sm.lambda_max_nm,
+        sm.uniform_fraction,
+        -TABLE_HALF_WIDTH_NM,
+        bin,
+        &shape,
+    )
+}
+
+impl System {
+    /// Builds the runtime system from a validated scene (loads the display image).
+    pub fn build(ls: &LoadedScene) -> Result<System, SceneError> {
+        let s = &ls.scene;
+        let waveguide = build_waveguide(s);
+        let camera = build_camera(s, &waveguide);
+        let display = build_display(ls)?;
+        let r = spectra::sensor_response(response_kind(&s.sensor.response));
+        let (lo, hi) = (s.sampling.lambda_min_nm, s.sampling.lambda_max_nm);
+        let inv_integral: Vec<f64> = r
+            .curves
+            .iter()
+            .map(|c| {
+                let i = c.integral(lo, hi);
+                if i > 0.0 { 1.0 / i } else { 0.0 }
+            })
+            .collect();
+        if inv_integral.iter().any(|&v| v == 0.0) {
+            return Err(ls.key_error(
+                "sensor.response",
+                format!("has no sensitivity in the band {lo}-{hi} nm"),
+            ));
+        }
+        let response = Response {
+            names: r.channel_names,
+            curves: r.curves,
+            inv_integral,
+        };
+        let limits = TraceLimits {
+            min_weight: s.sampling.min_guided_weight,
+            max_contacts: s.sampling.max_contacts,
+        };
+        let wavelengths = build_wavelength_sampler(s, &waveguide, &camera, &display, limits);
+        Ok(System {
+            scene: s.clone(),
+            waveguide,
+            camera,
+            display,
+            response,
+            wavelengths,
+            limits,
+        })
+    }
+}

@@ -1,0 +1,233 @@
+//! One backward path from the camera through the waveguide to the display, with deterministic
+//! splitting over every bottom-vHOE contact.
+//!
+//! Model (DESIGN.md "One camera sample, end to end"; physics.md §0.3, §2.3, §5): a camera ray
+//! (air, tangential direction cosines u) crosses the back face (Fresnel), the plate
+//! (Beer–Lambert), and meets the front face. Inside the top vHOE it splits into
+//! - the diffracted branch: the guided wave u_g = u − (λ/2π)K_t that the top vHOE out-couples
+//!   into u (order −1, Kogelnik efficiency η_top), traced backward down the plate by TIR;
+//! - the straight branch (1 − Σ η) through the film to the user side, absorbed by the cover
+//!   when `covered`.
+//!
+//! Along the guided zig-zag (each leg shifts by w·u_g/√(n² − |u_g|²)):
+//! - at a back-face contact inside the bottom vHOE, the in-coupled branch (order +1 from u to
+//!   u_g, efficiency η_in) crosses the plate and leaves the front face toward the display with
+//!   the camera's own direction (the periscope property); the guided branch continues with the
+//!   two-pass factor (1 − Σ η_pass1)·R_TIR·(1 − Σ η_pass2) (pass 2 contains the out-coupling
+//!   loss ≈ η_in per bounce, physics.md §2.3);
+//! - at a front-face contact under the top vHOE the guided wave loses its out-coupled part
+//!   (and everything, if the cover frustrates TIR);
+//! - elsewhere the faces reflect with Fresnel R (1 under TIR).
+//!
+//! Every replica is summed (no Russian roulette). A path stops when it can no longer reach the
+//! bottom vHOE, when its guided weight falls below `min_weight` (what is left is reported as
+//! truncated, an upper bound on the bias), or at `max_contacts`.
+//! Weights are energy fractions per polarisation [TE, TM]; radiance/n² is invariant at the
+//! interfaces, and the grating's η already includes the obliquity factors, so a branch's weight
+//! multiplies the object radiance directly.
+
+use glam::{DVec2, DVec3};
+
+use crate::optics::interface::{lateral_shift, path_length, reflectance, transmittance};
+use crate::waveguide::Waveguide;
+
+/// Which kind of branch reached the display.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BranchKind {
+    /// Straight through the plate (no diffraction).
+    Direct,
+    /// Through the waveguide, in-coupled at the given bottom-vHOE contact (0 = first, nearest
+    /// the top vHOE).
+    Replica(u32),
+}
+
+/// One branch of a path that reached the display plane.
+#[derive(Clone, Copy, Debug)]
+pub struct Branch {
+    /// Branch kind.
+    pub kind: BranchKind,
+    /// Bottom-vHOE contact (x, y) on the back face, for replicas.
+    pub bottom_contact_mm: Option<DVec2>,
+    /// Where the branch crosses the front face (x, y).
+    pub exit_point_mm: DVec2,
+    /// Where it meets the display plane (x, y).
+    pub object_point_mm: DVec2,
+    /// Energy fraction [TE, TM] carried to the object along this branch.
+    pub weight: [f64; 2],
+}
+
+/// What a path did besides its branches.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TraceSummary {
+    /// Plate contacts visited by the guided part.
+    pub contacts: u32,
+    /// Guided weight left when the path stopped on `min_weight` or `max_contacts` (max of TE,
+    /// TM): an upper bound on each missing replica's weight.
+    pub truncated_weight: f64,
+    /// True if `max_contacts` stopped the path.
+    pub hit_max_contacts: bool,
+    /// Tangential direction cosines of the guided wave (zero if none).
+    pub guided_u: DVec2,
+    /// Glass index at the path's wavelength.
+    pub n_glass: f64,
+}
+
+/// Limits of one trace.
+#[derive(Clone, Copy, Debug)]
+pub struct TraceLimits {
+    /// Stop when the guided weight falls below this.
+    pub min_weight: f64,
+    /// Hard contact limit.
+    pub max_contacts: u32,
+}
+
+#[inline]
+fn mul(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] * b[0], a[1] * b[1]]
+}
+
+#[inline]
+fn scale(a: [f64; 2], s: f64) -> [f64; 2] {
+    [a[0] * s, a[1] * s]
+}
+
+/// Traces one camera ray (lens point `origin`, unit direction `dir` toward the screen) at
+/// `lambda_nm` backward to the display plane at `display_z_mm`, calling `visit` for every
+/// branch that reaches it.
+pub fn trace_camera_path(
+    wg: &Waveguide,
+    display_z_mm: f64,
+    limits: TraceLimits,
+    origin: DVec3,
+    dir: DVec3,
+    lambda_nm: f64,
+    mut visit: impl FnMut(&Branch),
+) -> TraceSummary {
+    let w = wg.thickness_mm;
+    let n_g = wg.n_glass(lambda_nm);
+    let alpha = wg.absorption_per_mm(lambda_nm);
+    let grating = &wg.grating;
+    let mut summary = TraceSummary {
+        n_glass: n_g,
+        ..Default::default()
+    };
+    if dir.z >= 0.0 || origin.z <= w {
+        return summary;
+    }
+    // Physical light travels along −dir: its tangential direction cosines in air.
+    let u = -dir.truncate();
+    let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
+    let t_face = transmittance(1.0, n_g, u);
+    let mut wt = t_face;
+    if wg.bottom.contains(p_back) {
+        wt = mul(wt, grating.undiffracted(u, 1.0, lambda_nm));
+    }
+    let cross_shift = lateral_shift(u, n_g, w);
+    let cross_t = (-alpha * path_length(u, n_g, w)).exp();
+    wt = scale(wt, cross_t);
+    let p_top = p_back - cross_shift;
+    let air_shift = lateral_shift(u, 1.0, -display_z_mm);
+    let direct = |p: DVec2, weight: [f64; 2]| Branch {
+        kind: BranchKind::Direct,
+        bottom_contact_mm: None,
+        exit_point_mm: p,
+        object_point_mm: p - air_shift,
+        weight,
+    };
+    if !wg.top.contains(p_top) {
+        visit(&direct(p_top, mul(wt, t_face)));
+        return summary;
+    }
+    if !wg.covered {
+        let straight = mul(grating.undiffracted(u, 1.0, lambda_nm), t_face);
+        visit(&direct(p_top, mul(wt, straight)));
+    }
+    // Out-coupling at the top vHOE: guided u_g (travelling −z) → u (order −1).
+    let u_g = u - grating.u_shift(lambda_nm);
+    if u_g.length_squared() >= n_g * n_g {
+        return summary;
+    }
+    let Some(top) = grating.diffract(u_g, -1.0, lambda_nm, -1) else {
+        return summary;
+    };
+    summary.guided_u = u_g;
+    let mut g = mul(wt, top.eta);
+    // In-coupling efficiency u → u_g (order +1), the same for every contact of this path.
+    let eta_in = grating
+        .diffract(u, 1.0, lambda_nm, 1)
+        .map_or([0.0, 0.0], |d| d.eta);
+    let leg = lateral_shift(u_g, n_g, w);
+    let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
+    let r_face = reflectance(n_g, 1.0, u_g);
+    let r_film = reflectance(grating.n_film, 1.0, u_g);
+    // Two-pass factors, computed on first use.
+    let mut cont_bottom: Option<[f64; 2]> = None;
+    let mut cont_top: Option<[f64; 2]> = None;
+    let exit_t = scale(t_face, cross_t);
+    let mut replica = 0u32;
+    let mut p = p_top;
+    let mut contact = 0u32;
+    loop {
+        if contact >= limits.max_contacts {
+            summary.hit_max_contacts = true;
+            summary.truncated_weight = g[0].max(g[1]);
+            break;
+        }
+        contact += 1;
+        p -= leg;
+        g = scale(g, leg_t);
+        if contact % 2 == 1 {
+            // Back face.
+            if wg.bottom.contains(p) {
+                let entry = p - cross_shift;
+                let mut wb = mul(mul(g, eta_in), exit_t);
+                if wg.top.contains(entry) {
+                    wb = if wg.covered {
+                        [0.0, 0.0]
+                    } else {
+                        mul(wb, grating.undiffracted(u, 1.0, lambda_nm))
+                    };
+                }
+                visit(&Branch {
+                    kind: BranchKind::Replica(replica),
+                    bottom_contact_mm: Some(p),
+                    exit_point_mm: entry,
+                    object_point_mm: entry - air_shift,
+                    weight: wb,
+                });
+                replica += 1;
+                let c = *cont_bottom.get_or_insert_with(|| {
+                    let pass1 = grating.undiffracted(u_g, 1.0, lambda_nm);
+                    let pass2 = grating.undiffracted(u_g, -1.0, lambda_nm);
+                    mul(mul(pass1, r_film), pass2)
+                });
+                g = mul(g, c);
+            } else {
+                g = mul(g, r_face);
+            }
+        } else if wg.top.contains(p) {
+            let c = *cont_top.get_or_insert_with(|| {
+                let r = if wg.cover_frustrates_tir {
+                    [0.0, 0.0]
+                } else {
+                    r_film
+                };
+                let pass1 = grating.undiffracted(u_g, -1.0, lambda_nm);
+                let pass2 = grating.undiffracted(u_g, 1.0, lambda_nm);
+                mul(mul(pass1, r), pass2)
+            });
+            g = mul(g, c);
+        } else {
+            g = mul(g, r_face);
+        }
+        if !wg.bottom.reachable(p, -leg) {
+            break;
+        }
+        if g[0].max(g[1]) < limits.min_weight {
+            summary.truncated_weight = g[0].max(g[1]);
+            break;
+        }
+    }
+    summary.contacts = contact;
+    summary
+}
