@@ -76,6 +76,19 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Relative RMSE ‖a − b‖₂/‖b‖₂ of two captures (all shared channels), b the reference.
+    Compare {
+        /// Capture to assess (EXR).
+        a: PathBuf,
+        /// Reference capture (EXR).
+        b: PathBuf,
+        /// Also write a 16-bit PNG map of |a − b| (first shared channel).
+        #[arg(long, value_name = "PNG")]
+        map: Option<PathBuf>,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Trace the chief ray of one pixel at its exact Bragg wavelength.
     Probe {
         #[command(flatten)]
@@ -320,6 +333,58 @@ fn cmd_probe(scene: &SceneArgs, pixel: &str, json: bool) -> Result<(), Failure> 
     Ok(())
 }
 
+fn cmd_compare(
+    a: &std::path::Path,
+    b: &std::path::Path,
+    map: Option<&std::path::Path>,
+    json: bool,
+) -> Result<(), Failure> {
+    let (wa, ha, ca) = stscam::io::read_exr(a).map_err(|e| bad_input(e.to_string()))?;
+    let (wb, hb, cb) = stscam::io::read_exr(b).map_err(|e| bad_input(e.to_string()))?;
+    if (wa, ha) != (wb, hb) {
+        return Err(bad_input(format!(
+            "{}: size {wa}x{ha} differs from {} ({wb}x{hb})",
+            a.display(),
+            b.display()
+        )));
+    }
+    let pairs: Vec<(&[f32], &[f32])> = ca
+        .iter()
+        .filter_map(|x| {
+            cb.iter()
+                .find(|y| y.name == x.name)
+                .map(|y| (x.data.as_slice(), y.data.as_slice()))
+        })
+        .collect();
+    if pairs.is_empty() {
+        return Err(bad_input(format!(
+            "{}: no channel in common with {}",
+            a.display(),
+            b.display()
+        )));
+    }
+    let rel = stscam::render::relative_rmse(&pairs);
+    if let Some(path) = map {
+        let (x, y) = pairs[0];
+        let diff: Vec<f32> = x.iter().zip(y).map(|(p, q)| (p - q).abs()).collect();
+        let png = stscam::io::encode_png16(wa, ha, 1, &stscam::io::preview_u16(&[&diff], 0.999))
+            .map_err(|m| Failure {
+                code: 1,
+                message: m,
+            })?;
+        stscam::io::write_atomic(path, &png).map_err(|e| bad_input(e.to_string()))?;
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({ "relative_rmse": rel, "channels": pairs.len() })
+        );
+    } else {
+        println!("relative RMSE: {rel:.6}");
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
@@ -340,6 +405,7 @@ fn main() -> ExitCode {
             sampler,
         } => cmd_render(scene, out, *spp, *seed, *threads, *spectral, *sampler),
         Command::Info { scene, json } => cmd_info(scene, *json),
+        Command::Compare { a, b, map, json } => cmd_compare(a, b, map.as_deref(), *json),
         Command::Probe { scene, pixel, json } => cmd_probe(scene, pixel, *json),
     };
     match result {

@@ -221,3 +221,21 @@ pub fn render(sys: &System, set: &RenderSettings) -> Capture {
         stats,
     }
 }
+
+/// Relative RMSE ‖a − b‖₂/‖b‖₂ over all pixels of the given (a, b) channel pairs, summed in
+/// order in f64 (b is the reference).
+pub fn relative_rmse(pairs: &[(&[f32], &[f32])]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (a, b) in pairs {
+        for (x, y) in a.iter().zip(b.iter()) {
+            let (x, y) = (f64::from(*x), f64::from(*y));
+            num += (x - y) * (x - y);
+            den += y * y;
+        }
+    }
+    if den > 0.0 {
+        (num / den).sqrt()
+    } else {
+        f64::NAN
+    }
+}

@@ -189,8 +189,14 @@ const TABLE_HALF_WIDTH_NM: f64 = 60.0;
 /// Bins of that table.
 const TABLE_BINS: usize = 2400;
 
-/// Measures the end-to-end spectral throughput of the centre pixel's chief ray around its
-/// Bragg wavelength and builds the wavelength sampler from it.
+/// Field rows at which the spectral throughput is tabulated.
+const TABLE_FIELDS: usize = 48;
+
+/// Builds the wavelength sampler from measured spectral throughput curves: for the chief rays
+/// of `TABLE_FIELDS` rows along the crop's vertical midline (λ_B varies along y), the
+/// end-to-end throughput (all replicas, display polarisation) is traced across
+/// Δλ = λ − λ_B and given a floor of 10⁻³ of its peak (robustness against the field-dependent
+/// side-lobe zeros of neighbouring rows).
 fn build_wavelength_sampler(
     s: &Scene,
     wg: &Waveguide,
@@ -198,41 +204,47 @@ fn build_wavelength_sampler(
     display: &Display,
     limits: TraceLimits,
 ) -> WavelengthSampler {
+    use rayon::prelude::*;
     let sm = &s.sampling;
     let bin = 2.0 * TABLE_HALF_WIDTH_NM / TABLE_BINS as f64;
-    let chief = cam.ray_through(DVec2::ZERO, DVec2::ZERO);
-    let lb = wg.grating.bragg_wavelength_nm(-chief.dir.truncate());
     let pol = display.polarization_weights;
-    let shape: Vec<f64> = match lb {
-        Some(lb) => (0..TABLE_BINS)
-            .map(|i| {
-                let lam = lb - TABLE_HALF_WIDTH_NM + (i as f64 + 0.5) * bin;
-                let mut total = 0.0;
-                trace_camera_path(
-                    wg,
-                    display.z_mm,
-                    limits,
-                    chief.origin,
-                    chief.dir,
-                    lam,
-                    |b| {
-                        if matches!(b.kind, crate::trace::BranchKind::Replica(_)) {
+    let half_y = 0.5 * cam.height_px as f64 * cam.pitch_mm;
+    let shapes: Vec<(f64, Vec<f64>)> = (0..TABLE_FIELDS)
+        .into_par_iter()
+        .filter_map(|k| {
+            let y = half_y * (2.0 * k as f64 / (TABLE_FIELDS - 1) as f64 - 1.0);
+            let chief = cam.ray_through(DVec2::new(0.0, y), DVec2::ZERO);
+            let lb = wg.grating.bragg_wavelength_nm(-chief.dir.truncate())?;
+            let mut curve: Vec<f64> = (0..TABLE_BINS)
+                .map(|i| {
+                    let lam = lb - TABLE_HALF_WIDTH_NM + (i as f64 + 0.5) * bin;
+                    let mut total = 0.0;
+                    trace_camera_path(
+                        wg,
+                        display.z_mm,
+                        limits,
+                        chief.origin,
+                        chief.dir,
+                        lam,
+                        |b| {
                             total += pol[0] * b.weight[0] + pol[1] * b.weight[1];
-                        }
-                    },
-                );
-                total
-            })
-            .collect(),
-        None => vec![1.0; TABLE_BINS],
-    };
+                        },
+                    );
+                    total
+                })
+                .collect();
+            let peak = curve.iter().cloned().fold(0.0, f64::max);
+            curve.iter_mut().for_each(|v| *v = v.max(1e-3 * peak));
+            Some((lb, curve))
+        })
+        .collect();
     WavelengthSampler::new(
         sm.lambda_min_nm,
         sm.lambda_max_nm,
         sm.uniform_fraction,
         -TABLE_HALF_WIDTH_NM,
         bin,
-        &shape,
+        &shapes,
     )
 }
 

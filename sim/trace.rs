@@ -147,22 +147,44 @@ pub fn trace_camera_path(
     if u_g.length_squared() >= n_g * n_g {
         return summary;
     }
-    let Some(top) = grating.diffract(u_g, -1.0, lambda_nm, -1) else {
+    // Only a reflection-type order sends the guided light back toward the camera (+z); where
+    // the same order is transmission-type (far off Bragg) it leaves toward the user instead.
+    let Some(top) = grating
+        .diffract(u_g, -1.0, lambda_nm, -1)
+        .filter(|d| d.reflection)
+    else {
         return summary;
     };
     summary.guided_u = u_g;
     let mut g = mul(wt, top.eta);
-    // In-coupling efficiency u → u_g (order +1), the same for every contact of this path.
-    let eta_in = grating
-        .diffract(u, 1.0, lambda_nm, 1)
-        .map_or([0.0, 0.0], |d| d.eta);
+    // In-coupling efficiency u → u_g (order +1), the same for every contact of this path; by
+    // reciprocity it equals the out-coupling efficiency when the film is lossless.
+    // (Both orders are reflection-type together: the on-shell conditions coincide.)
+    let eta_in = if grating.alpha0_per_nm == 0.0 {
+        top.eta
+    } else {
+        grating
+            .diffract(u, 1.0, lambda_nm, 1)
+            .filter(|d| d.reflection)
+            .map_or([0.0, 0.0], |d| d.eta)
+    };
     let leg = lateral_shift(u_g, n_g, w);
     let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
     let r_face = reflectance(n_g, 1.0, u_g);
     let r_film = reflectance(grating.n_film, 1.0, u_g);
-    // Two-pass factors, computed on first use.
-    let mut cont_bottom: Option<[f64; 2]> = None;
-    let mut cont_top: Option<[f64; 2]> = None;
+    // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the film
+    // toward the air face ("up" = toward the face it is about to reflect from) and back. The
+    // wave travelling −z is the one the top vHOE out-couples (order −1, `top.eta`), the same
+    // at every contact; at the back face the wave toward the air face travels +z and vice
+    // versa, so both faces see the same pair of passes in opposite order.
+    let toward_back = grating.undiffracted(u_g, 1.0, lambda_nm);
+    let toward_front = grating.undiffracted_with(u_g, -1.0, lambda_nm, Some((-1, top.eta)));
+    let cont_bottom = mul(mul(toward_back, r_film), toward_front);
+    let cont_top = if wg.cover_frustrates_tir {
+        [0.0, 0.0]
+    } else {
+        cont_bottom
+    };
     let exit_t = scale(t_face, cross_t);
     let mut replica = 0u32;
     let mut p = p_top;
@@ -196,27 +218,12 @@ pub fn trace_camera_path(
                     weight: wb,
                 });
                 replica += 1;
-                let c = *cont_bottom.get_or_insert_with(|| {
-                    let pass1 = grating.undiffracted(u_g, 1.0, lambda_nm);
-                    let pass2 = grating.undiffracted(u_g, -1.0, lambda_nm);
-                    mul(mul(pass1, r_film), pass2)
-                });
-                g = mul(g, c);
+                g = mul(g, cont_bottom);
             } else {
                 g = mul(g, r_face);
             }
         } else if wg.top.contains(p) {
-            let c = *cont_top.get_or_insert_with(|| {
-                let r = if wg.cover_frustrates_tir {
-                    [0.0, 0.0]
-                } else {
-                    r_film
-                };
-                let pass1 = grating.undiffracted(u_g, -1.0, lambda_nm);
-                let pass2 = grating.undiffracted(u_g, 1.0, lambda_nm);
-                mul(mul(pass1, r), pass2)
-            });
-            g = mul(g, c);
+            g = mul(g, cont_top);
         } else {
             g = mul(g, r_face);
         }

@@ -2,48 +2,36 @@
 //!
 //! Model (DESIGN.md "Estimator decisions"): the spectral integrand of a path is dominated by the
 //! product of the in- and out-coupling efficiencies, a band a few nm wide centred on the
-//! path's exact Bragg wavelength λ_B (physics.md §3.2, closed form). The sampler draws
-//! λ = λ_B + Δ with Δ from a tabulated, piecewise-constant density shaped like the end-to-end
-//! spectral throughput of the centre field (measured once per scene by tracing), mixed with a
-//! uniform density over the simulation band:
+//! path's exact Bragg wavelength λ_B (physics.md §3.2, closed form), with side lobes whose
+//! positions and heights change across the field. The sampler draws λ = λ_B + Δ with Δ from a
+//! tabulated, piecewise-constant density shaped like the measured end-to-end throughput of the
+//! field whose λ_B is nearest the path's own (a set of tables, one per field row, each measured
+//! once per scene by tracing), mixed with a uniform density over the simulation band:
 //!   p(λ) = (1 − f_u)·p_table(λ − λ_B) + f_u/(λ_max − λ_min).
-//! The uniform part keeps p > 0 wherever the integrand can be non-zero, so the estimator is
-//! unbiased; samples outside the band carry zero. Paths without a Bragg wavelength use the
-//! uniform density alone.
+//! The table is chosen by λ_B alone, a deterministic function of the camera ray, so the
+//! estimator f/p is unbiased; the uniform part keeps p > 0 wherever the integrand can be
+//! non-zero, and samples outside the band carry zero. Paths without a Bragg wavelength use the
+//! uniform density alone. Inversion is monotone in u (a guide table makes it O(1)), so
+//! stratified (quasi-random) inputs stay stratified in λ.
 
-/// Piecewise-constant density of Δλ plus a uniform part over the band.
+/// One piecewise-constant density of Δλ.
 #[derive(Clone, Debug)]
-pub struct WavelengthSampler {
-    lo_nm: f64,
-    hi_nm: f64,
-    uniform_fraction: f64,
-    /// Δλ of the first bin edge, nm.
-    table_start_nm: f64,
-    /// Bin width, nm.
-    bin_nm: f64,
+struct Table {
     /// Density per nm of each bin (integrates to 1).
     density: Vec<f64>,
     /// Cumulative distribution at bin edges (len = bins + 1).
     cdf: Vec<f64>,
+    /// `guide[j]` is the first bin whose upper CDF edge exceeds j/len.
+    guide: Vec<u32>,
 }
 
-impl WavelengthSampler {
-    /// Builds the sampler from a non-negative shape tabulated on `bins` equal bins starting at
-    /// Δλ = `table_start_nm`. A shape that sums to zero falls back to a flat table.
-    pub fn new(
-        lo_nm: f64,
-        hi_nm: f64,
-        uniform_fraction: f64,
-        table_start_nm: f64,
-        bin_nm: f64,
-        shape: &[f64],
-    ) -> Self {
+impl Table {
+    fn new(shape: &[f64], bin_nm: f64) -> Table {
         let mut shape: Vec<f64> = shape
             .iter()
             .map(|&v| if v.is_finite() && v > 0.0 { v } else { 0.0 })
             .collect();
-        let total: f64 = shape.iter().sum();
-        if total <= 0.0 {
+        if shape.iter().sum::<f64>() <= 0.0 {
             shape.iter_mut().for_each(|v| *v = 1.0);
         }
         let total: f64 = shape.iter().sum();
@@ -57,21 +45,119 @@ impl WavelengthSampler {
         if let Some(last) = cdf.last_mut() {
             *last = 1.0;
         }
-        let density = shape.iter().map(|v| v / total / bin_nm).collect();
+        let density: Vec<f64> = shape.iter().map(|v| v / total / bin_nm).collect();
+        let n = density.len();
+        let mut guide = Vec::with_capacity(n);
+        let mut i = 0usize;
+        for j in 0..n {
+            let v = j as f64 / n as f64;
+            while i + 1 < n && cdf[i + 1] <= v {
+                i += 1;
+            }
+            guide.push(i as u32);
+        }
+        Table {
+            density,
+            cdf,
+            guide,
+        }
+    }
+
+    /// Bin index and fraction within it for v ∈ [0, 1).
+    #[inline]
+    fn invert(&self, v: f64) -> (usize, f64) {
+        let n = self.density.len();
+        let mut i = self.guide[((v * n as f64) as usize).min(n - 1)] as usize;
+        while i + 1 < n && self.cdf[i + 1] <= v {
+            i += 1;
+        }
+        let span = self.cdf[i + 1] - self.cdf[i];
+        (
+            i,
+            if span > 0.0 {
+                ((v - self.cdf[i]) / span).clamp(0.0, 1.0)
+            } else {
+                0.5
+            },
+        )
+    }
+}
+
+/// Tabulated densities of Δλ (keyed by λ_B) plus a uniform part over the band.
+#[derive(Clone, Debug)]
+pub struct WavelengthSampler {
+    lo_nm: f64,
+    hi_nm: f64,
+    uniform_fraction: f64,
+    /// Δλ of the first bin edge, nm.
+    table_start_nm: f64,
+    /// Bin width, nm.
+    bin_nm: f64,
+    /// Bragg wavelength each table was measured at, ascending.
+    keys_nm: Vec<f64>,
+    tables: Vec<Table>,
+}
+
+impl WavelengthSampler {
+    /// Builds the sampler from non-negative shapes, each tabulated on equal bins starting at
+    /// Δλ = `table_start_nm` and measured for a field whose Bragg wavelength is the key. A shape
+    /// that sums to zero falls back to a flat table; no shapes at all gives one flat table.
+    pub fn new(
+        lo_nm: f64,
+        hi_nm: f64,
+        uniform_fraction: f64,
+        table_start_nm: f64,
+        bin_nm: f64,
+        shapes: &[(f64, Vec<f64>)],
+    ) -> Self {
+        let mut sorted: Vec<&(f64, Vec<f64>)> = shapes
+            .iter()
+            .filter(|(k, s)| k.is_finite() && !s.is_empty())
+            .collect();
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (keys_nm, tables): (Vec<f64>, Vec<Table>) = if sorted.is_empty() {
+            (vec![0.0], vec![Table::new(&[1.0], bin_nm)])
+        } else {
+            sorted
+                .iter()
+                .map(|(k, s)| (*k, Table::new(s, bin_nm)))
+                .unzip()
+        };
         WavelengthSampler {
             lo_nm,
             hi_nm,
             uniform_fraction,
             table_start_nm,
             bin_nm,
-            density,
-            cdf,
+            keys_nm,
+            tables,
         }
     }
 
     /// The band's width in nm.
     pub fn band_nm(&self) -> f64 {
         self.hi_nm - self.lo_nm
+    }
+
+    /// Number of tables.
+    pub fn table_count(&self) -> usize {
+        self.tables.len()
+    }
+
+    /// The table whose key is nearest `lambda_bragg_nm`.
+    #[inline]
+    fn table_for(&self, lambda_bragg_nm: f64) -> &Table {
+        let i = self.keys_nm.partition_point(|&k| k < lambda_bragg_nm);
+        let j = if i == 0 {
+            0
+        } else if i == self.keys_nm.len()
+            || lambda_bragg_nm - self.keys_nm[i - 1] <= self.keys_nm[i] - lambda_bragg_nm
+        {
+            i - 1
+        } else {
+            i
+        };
+        &self.tables[j]
     }
 
     /// Draws a wavelength from one uniform number `u` ∈ [0,1); returns (λ in nm, pdf per nm).
@@ -81,40 +167,36 @@ impl WavelengthSampler {
             return (self.lo_nm + u * self.band_nm(), 1.0 / self.band_nm());
         };
         let fu = self.uniform_fraction;
+        let table = self.table_for(lb);
         let lambda = if u < fu {
             self.lo_nm + (u / fu) * self.band_nm()
         } else {
             let v = ((u - fu) / (1.0 - fu)).min(1.0 - 1e-16);
-            // First bin whose upper CDF edge exceeds v.
-            let i = self.cdf[1..]
-                .partition_point(|&c| c <= v)
-                .min(self.density.len() - 1);
-            let span = self.cdf[i + 1] - self.cdf[i];
-            let frac = if span > 0.0 {
-                (v - self.cdf[i]) / span
-            } else {
-                0.5
-            };
+            let (i, frac) = table.invert(v);
             lb + self.table_start_nm + (i as f64 + frac) * self.bin_nm
         };
-        (lambda, self.pdf(lambda, lb))
+        (lambda, self.pdf_in(table, lambda, lb))
     }
 
-    /// Density (per nm) of drawing `lambda_nm` for a path with Bragg wavelength `lambda_bragg_nm`.
     #[inline]
-    pub fn pdf(&self, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
-        let uni = if lambda_nm >= self.lo_nm && lambda_nm < self.hi_nm {
+    fn pdf_in(&self, table: &Table, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
+        let uni = if self.in_band(lambda_nm) {
             self.uniform_fraction / self.band_nm()
         } else {
             0.0
         };
         let x = (lambda_nm - lambda_bragg_nm - self.table_start_nm) / self.bin_nm;
-        let tab = if x >= 0.0 && x < self.density.len() as f64 {
-            self.density[x as usize]
+        let tab = if x >= 0.0 && x < table.density.len() as f64 {
+            table.density[x as usize]
         } else {
             0.0
         };
         uni + (1.0 - self.uniform_fraction) * tab
+    }
+
+    /// Density (per nm) of drawing `lambda_nm` for a path with Bragg wavelength `lambda_bragg_nm`.
+    pub fn pdf(&self, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
+        self.pdf_in(self.table_for(lambda_bragg_nm), lambda_nm, lambda_bragg_nm)
     }
 
     /// Whether λ lies in the simulation band.
@@ -129,53 +211,75 @@ mod tests {
     use super::*;
 
     fn sampler() -> WavelengthSampler {
-        // Triangle shape over Δλ ∈ [−10, 10) nm in 0.5 nm bins.
-        let shape: Vec<f64> = (0..40).map(|i| 20.0 - (i as f64 - 19.5).abs()).collect();
-        WavelengthSampler::new(380.0, 780.0, 0.1, -10.0, 0.5, &shape)
+        // Triangle shapes over Δλ ∈ [−10, 10) nm in 0.5 nm bins, for two fields.
+        let tri: Vec<f64> = (0..40).map(|i| 20.0 - (i as f64 - 19.5).abs()).collect();
+        let lopsided: Vec<f64> = (0..40).map(|i| if i < 20 { 1.0 } else { 3.0 }).collect();
+        WavelengthSampler::new(
+            380.0,
+            780.0,
+            0.1,
+            -10.0,
+            0.5,
+            &[(540.0, tri), (500.0, lopsided)],
+        )
     }
 
     #[test]
     fn pdf_integrates_to_one() {
         let s = sampler();
-        let lb = 531.3;
-        let n = 400_000;
-        let (a, b) = (300.0, 800.0);
-        let integral: f64 = (0..n)
-            .map(|i| s.pdf(a + (b - a) * (i as f64 + 0.5) / n as f64, lb))
-            .sum::<f64>()
-            * (b - a)
-            / n as f64;
-        assert!((integral - 1.0).abs() < 1e-3, "{integral}");
+        for lb in [531.3, 497.0] {
+            let n = 400_000;
+            let (a, b) = (300.0, 800.0);
+            let integral: f64 = (0..n)
+                .map(|i| s.pdf(a + (b - a) * (i as f64 + 0.5) / n as f64, lb))
+                .sum::<f64>()
+                * (b - a)
+                / n as f64;
+            assert!((integral - 1.0).abs() < 1e-3, "{integral}");
+        }
     }
 
-    /// χ² test: histogram of sampled λ against the pdf.
+    /// χ² test: histogram of sampled λ against the pdf, for both tables.
     #[test]
     fn samples_follow_pdf() {
         let s = sampler();
-        let lb = 540.0;
-        let n = 200_000usize;
-        let edges: Vec<f64> = (0..=40).map(|i| 520.0 + i as f64 * 1.0).collect();
-        let mut counts = vec![0u64; 40];
-        for i in 0..n {
-            // Golden-ratio sequence: uniform in [0, 1) and well spread.
-            let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
-            let (lam, pdf) = s.sample(u, Some(lb));
-            assert!((pdf - s.pdf(lam, lb)).abs() < 1e-15);
-            if lam >= 520.0 && lam < 560.0 {
-                counts[(lam - 520.0) as usize] += 1;
+        for lb in [540.0, 501.0] {
+            let n = 200_000usize;
+            let lo = lb - 20.0;
+            let mut counts = vec![0u64; 40];
+            for i in 0..n {
+                // Golden-ratio sequence: uniform in [0, 1) and well spread.
+                let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
+                let (lam, pdf) = s.sample(u, Some(lb));
+                assert!((pdf - s.pdf(lam, lb)).abs() < 1e-15);
+                if lam >= lo && lam < lo + 40.0 {
+                    counts[(lam - lo) as usize] += 1;
+                }
             }
+            let mut chi2 = 0.0;
+            for (k, &c) in counts.iter().enumerate() {
+                let m = 200;
+                let p: f64 = (0..m)
+                    .map(|j| s.pdf(lo + k as f64 + (j as f64 + 0.5) / m as f64, lb))
+                    .sum::<f64>()
+                    / m as f64;
+                let expect = p * n as f64;
+                chi2 += (c as f64 - expect).powi(2) / expect.max(1.0);
+            }
+            // 39 dof, 99.9 % critical value ≈ 72.
+            assert!(chi2 < 72.0, "λ_B {lb}: χ² = {chi2}");
         }
-        let mut chi2 = 0.0;
-        for k in 0..40 {
-            let m = 200;
-            let p: f64 = (0..m)
-                .map(|j| s.pdf(edges[k] + (j as f64 + 0.5) / m as f64, lb))
-                .sum::<f64>()
-                / m as f64;
-            let expect = p * n as f64;
-            chi2 += (counts[k] as f64 - expect).powi(2) / expect.max(1.0);
-        }
-        // 39 dof, 99.9 % critical value ≈ 72.
-        assert!(chi2 < 72.0, "χ² = {chi2}");
+    }
+
+    #[test]
+    fn nearest_table_is_used() {
+        let s = sampler();
+        // Lopsided table (key 500): density 3× higher above λ_B than below.
+        let below = s.pdf(498.0, 500.0) - 0.1 / 400.0;
+        let above = s.pdf(502.0, 500.0) - 0.1 / 400.0;
+        assert!((above / below - 3.0).abs() < 1e-9);
+        // Key 540 is the triangle: symmetric.
+        assert!((s.pdf(535.25, 540.0) - s.pdf(544.75, 540.0)).abs() < 1e-15);
+        assert_eq!(s.table_count(), 2);
     }
 }

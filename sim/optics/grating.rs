@@ -187,27 +187,55 @@ impl VolumeGrating {
         })
     }
 
-    /// Fraction of a wave (u, z_sign) that crosses the film undiffracted: 1 − Σ_{m=±1} η_m,
-    /// times the film's mean absorption exp(−2α0 d/c_R). Equals 1 if the wave cannot enter.
-    pub fn undiffracted(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> [f64; 2] {
-        let mut t = [1.0, 1.0];
-        for order in [1, -1] {
-            if let Some(dif) = self.diffract(u, z_sign, lambda_nm, order) {
-                t[0] -= dif.eta[0];
-                t[1] -= dif.eta[1];
-            }
+    /// Mean-absorption factor exp(−2α0 d/c_R) of the film for a wave with direction cosines
+    /// `u` crossing it once (1 for a lossless film or a wave that cannot enter).
+    #[inline]
+    pub fn film_attenuation(&self, u: DVec2) -> f64 {
+        if self.alpha0_per_nm <= 0.0 {
+            return 1.0;
         }
-        let att = if self.alpha0_per_nm > 0.0 {
-            let cr2 = 1.0 - u.length_squared() / (self.n_film * self.n_film);
-            if cr2 > 0.0 {
-                (-2.0 * self.alpha0_per_nm * self.thickness_nm / cr2.sqrt()).exp()
-            } else {
-                1.0
-            }
+        let cr2 = 1.0 - u.length_squared() / (self.n_film * self.n_film);
+        if cr2 > 0.0 {
+            (-2.0 * self.alpha0_per_nm * self.thickness_nm / cr2.sqrt()).exp()
         } else {
             1.0
-        };
+        }
+    }
+
+    /// Efficiency [TE, TM] of one order (zero if it does not propagate).
+    #[inline]
+    pub fn efficiency(&self, u: DVec2, z_sign: f64, lambda_nm: f64, order: i32) -> [f64; 2] {
+        self.diffract(u, z_sign, lambda_nm, order)
+            .map_or([0.0, 0.0], |d| d.eta)
+    }
+
+    /// Fraction of a wave (u, z_sign) that crosses the film undiffracted: 1 − Σ_{m=±1} η_m,
+    /// times the film's mean absorption. `known` supplies an order's efficiency already
+    /// computed (the same wave and order give the same value), to avoid evaluating it twice.
+    pub fn undiffracted_with(
+        &self,
+        u: DVec2,
+        z_sign: f64,
+        lambda_nm: f64,
+        known: Option<(i32, [f64; 2])>,
+    ) -> [f64; 2] {
+        let mut t = [1.0, 1.0];
+        for order in [1, -1] {
+            let eta = match known {
+                Some((o, eta)) if o == order => eta,
+                _ => self.efficiency(u, z_sign, lambda_nm, order),
+            };
+            t[0] -= eta[0];
+            t[1] -= eta[1];
+        }
+        let att = self.film_attenuation(u);
         [t[0].max(0.0) * att, t[1].max(0.0) * att]
+    }
+
+    /// Fraction of a wave (u, z_sign) that crosses the film undiffracted (see
+    /// [`Self::undiffracted_with`]).
+    pub fn undiffracted(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> [f64; 2] {
+        self.undiffracted_with(u, z_sign, lambda_nm, None)
     }
 }
 
