@@ -189,7 +189,11 @@ pub struct DesignInfo {
     pub n_glass_recording: f64,
     /// Grating period, nm.
     pub grating_period_nm: f64,
-    /// Replica spacing on the sensor at the field centre, pixels.
+    /// Sensor rows (continuous, row 0 = top) at which a point at the display centre appears,
+    /// one entry per replica, with the weights of the chief rays that see it.
+    pub point_replicas: Vec<PointReplica>,
+    /// Mean spacing, in pixels, between consecutive replicas of that point that carry at least
+    /// 5 % of the brightest one's weight.
     pub replica_pitch_sensor_px: f64,
     /// Field points (centre and the four crop edges).
     pub field: Vec<FieldPoint>,
@@ -205,6 +209,114 @@ pub struct DesignInfo {
     pub focus_distance_mm: f64,
     /// Lens-to-sensor distance, mm.
     pub sensor_distance_mm: f64,
+}
+
+/// Where a point object appears on the sensor through one replica.
+#[derive(Clone, Debug, Serialize)]
+pub struct PointReplica {
+    /// Plate contacts along the guided path (identifies the replica across the field).
+    pub contact: u32,
+    /// Continuous sensor row (pixel centres at integers; row 0 = top of the crop).
+    pub row: f64,
+    /// Energy fraction of the chief ray that sees the point through this replica.
+    pub weight: f64,
+}
+
+/// Rows of the crop's vertical midline at which the point `object_mm` on the display is seen,
+/// one per replica, found by bisection on the chief rays' object points (deterministic, at each
+/// ray's Bragg wavelength). The spacing differs between replicas: each extra round trip adds
+/// an angle-dependent shift 2w·tanΘ'(θ), which acts like a replica-dependent object distance.
+pub fn point_replicas(sys: &System, object_mm: DVec2) -> Vec<PointReplica> {
+    let cam = &sys.camera;
+    let pitch = cam.pitch_mm;
+    let v_of_row = |row: f64| (0.5 * cam.height_px as f64 - (row + 0.5) + cam.offset_px.y) * pitch;
+    // Object y per contact number for the chief ray at image height v.
+    let objects = |v: f64| -> Vec<(u32, f64, f64)> {
+        let ray = cam.ray_through(DVec2::new(0.0, v), DVec2::ZERO);
+        let mut out = Vec::new();
+        if let Some(lambda) = sys
+            .waveguide
+            .grating
+            .bragg_wavelength_nm(-ray.dir.truncate())
+        {
+            let pol = sys.display.polarization_weights;
+            trace_camera_path(
+                &sys.waveguide,
+                sys.display.z_mm,
+                sys.limits,
+                ray.origin,
+                ray.dir,
+                lambda,
+                |b| {
+                    if let BranchKind::Replica(_) = b.kind {
+                        out.push((
+                            b.contact,
+                            b.object_point_mm.y,
+                            pol[0] * b.weight[0] + pol[1] * b.weight[1],
+                        ));
+                    }
+                },
+            );
+        }
+        out
+    };
+    let find = |v: f64, k: u32| objects(v).into_iter().find(|o| o.0 == k);
+    let steps = 4 * cam.height_px.max(50);
+    let mut found: Vec<PointReplica> = Vec::new();
+    let v_start = v_of_row(-0.5);
+    let v_end = v_of_row(cam.height_px as f64 - 0.5);
+    let mut prev = objects(v_start);
+    let mut v_prev = v_start;
+    for i in 1..=steps {
+        let v = v_start + (v_end - v_start) * i as f64 / steps as f64;
+        let cur = objects(v);
+        for &(k, y1, _) in &cur {
+            let Some(&(_, y0, _)) = prev.iter().find(|o| o.0 == k) else {
+                continue;
+            };
+            if (y0 - object_mm.y) * (y1 - object_mm.y) > 0.0 {
+                continue;
+            }
+            // Bisection on v for this contact number.
+            let (mut a, mut b) = (v_prev, v);
+            let fa0 = y0 - object_mm.y;
+            for _ in 0..60 {
+                let m = 0.5 * (a + b);
+                match find(m, k) {
+                    Some((_, ym, _)) if (ym - object_mm.y) * fa0 > 0.0 => a = m,
+                    Some(_) => b = m,
+                    None => break,
+                }
+            }
+            let v_hit = 0.5 * (a + b);
+            if let Some((_, _, wgt)) = find(v_hit, k) {
+                let row = 0.5 * cam.height_px as f64 + cam.offset_px.y - v_hit / pitch - 0.5;
+                found.push(PointReplica {
+                    contact: k,
+                    row,
+                    weight: wgt,
+                });
+            }
+        }
+        prev = cur;
+        v_prev = v;
+    }
+    found.sort_by(|a, b| a.row.total_cmp(&b.row));
+    found
+}
+
+/// Mean spacing (px) between consecutive replicas above `frac` of the brightest.
+pub fn strong_replica_spacing_px(reps: &[PointReplica], frac: f64) -> f64 {
+    let max = reps.iter().map(|r| r.weight).fold(0.0, f64::max);
+    let strong: Vec<f64> = reps
+        .iter()
+        .filter(|r| r.weight >= frac * max && max > 0.0)
+        .map(|r| r.row)
+        .collect();
+    if strong.len() < 2 {
+        return f64::NAN;
+    }
+    (strong[strong.len() - 1] - strong[0]) / (strong.len() - 1) as f64
 }
 
 fn count_above(p: &ProbeResult, frac: f64) -> usize {
@@ -325,16 +437,14 @@ pub fn info(sys: &System) -> DesignInfo {
             })
         })
         .collect();
-    let centre_pitch = field.first().map_or(f64::NAN, |f| f.replica_pitch_mm);
-    let object_distance = cam.focus_distance_mm;
+    let point = point_replicas(sys, sys.display.center_mm);
     DesignInfo {
         critical_angle_deg: critical_angle(n0, 1.0).to_degrees(),
         film_critical_angle_deg: critical_angle(wg.grating.n_film, 1.0).to_degrees(),
         n_glass_recording: n0,
         grating_period_nm: wg.grating.period_nm(),
-        replica_pitch_sensor_px: centre_pitch * cam.sensor_distance_mm
-            / object_distance
-            / cam.pitch_mm,
+        replica_pitch_sensor_px: strong_replica_spacing_px(&point, 0.05),
+        point_replicas: point,
         field,
         fov_vertical_waveguide: scan_fov(sys, true, false),
         fov_vertical_capture: scan_fov(sys, true, true),

@@ -54,6 +54,10 @@ pub struct Branch {
     pub object_point_mm: DVec2,
     /// Energy fraction [TE, TM] carried to the object along this branch.
     pub weight: [f64; 2],
+    /// Plate contacts along the guided path before this branch left it (1 = the first back-face
+    /// contact below the top vHOE; 0 for direct branches). Unlike the replica index this
+    /// changes continuously with the ray, so it identifies a replica across the field.
+    pub contact: u32,
 }
 
 /// What a path did besides its branches.
@@ -133,6 +137,7 @@ pub fn trace_camera_path(
         exit_point_mm: p,
         object_point_mm: p - air_shift,
         weight,
+        contact: 0,
     };
     if !wg.top.contains(p_top) {
         visit(&direct(p_top, mul(wt, t_face)));
@@ -216,6 +221,7 @@ pub fn trace_camera_path(
                     exit_point_mm: entry,
                     object_point_mm: entry - air_shift,
                     weight: wb,
+                    contact,
                 });
                 replica += 1;
                 g = mul(g, cont_bottom);

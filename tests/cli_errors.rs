@@ -1,0 +1,119 @@
+//! Bad input gives one line naming the file (or `--set`) and the key, exit code 2, and nothing
+//! written to `--out`.
+
+mod common;
+use common::{files_in, stscam};
+
+/// Runs a render expected to fail; returns its single stderr line.
+fn fails(extra: &[&str], out: &std::path::Path) -> String {
+    let out_s = out.to_str().unwrap();
+    let mut args = vec!["render", "--out", out_s, "--spp", "1"];
+    args.extend_from_slice(extra);
+    let o = stscam(&args);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "more than one line: {err}"
+    );
+    assert!(
+        files_in(out).is_empty(),
+        "{args:?} wrote {:?}",
+        files_in(out)
+    );
+    assert!(!out.exists(), "{args:?} created the output directory");
+    err.trim_end().to_string()
+}
+
+#[test]
+fn bad_scenes_and_overrides() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let scene = dir.path().join("scene.toml");
+    let s = scene.to_str().unwrap();
+
+    std::fs::write(&scene, "[plate]\nthickness_mm = = 2\n").unwrap();
+    let e = fails(&[s], &out);
+    assert!(
+        e.starts_with(&format!("error: {s}: line 2")) && e.contains("malformed TOML"),
+        "{e}"
+    );
+
+    std::fs::write(&scene, "[plate]\nthicknes_mm = 2.0\n").unwrap();
+    assert_eq!(
+        fails(&[s], &out),
+        format!("error: {s}: plate.thicknes_mm: unknown key")
+    );
+
+    std::fs::write(&scene, "[plate]\nthickness_mm = -2.0\n").unwrap();
+    let e = fails(&[s], &out);
+    assert!(
+        e.starts_with(&format!(
+            "error: {s}: plate.thickness_mm: must be a positive"
+        )),
+        "{e}"
+    );
+
+    std::fs::write(&scene, "[display]\nimage = \"missing.png\"\n").unwrap();
+    let e = fails(&[s], &out);
+    assert!(
+        e.starts_with(&format!("error: {s}: display.image: ")) && e.contains("missing.png"),
+        "{e}"
+    );
+
+    std::fs::write(&scene, "[sensor]\nresponse = \"infrared\"\n").unwrap();
+    let e = fails(&[s], &out);
+    assert!(e.contains("sensor.response: unknown response"), "{e}");
+
+    let e = fails(&["--set", "plate.thicknes_mm=3"], &out);
+    assert_eq!(
+        e,
+        "error: --set plate.thicknes_mm: plate.thicknes_mm: unknown key"
+    );
+    let e = fails(&["--set", "camera.f_number=0"], &out);
+    assert!(
+        e.starts_with("error: --set camera.f_number: camera.f_number: must be a positive"),
+        "{e}"
+    );
+    let e = fails(&["--set", "top_hoe.covered=maybe"], &out);
+    assert!(
+        e.starts_with("error: --set top_hoe.covered: top_hoe.covered:"),
+        "{e}"
+    );
+    let e = fails(&["--set", "display.image=letter:@"], &out);
+    assert!(e.contains("display.image"), "{e}");
+    let e = fails(&[dir.path().join("nope.toml").to_str().unwrap()], &out);
+    assert!(e.contains("nope.toml: cannot read scene file"), "{e}");
+}
+
+#[test]
+fn bad_arguments() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = stscam(&["probe", "--pixel", "999,0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("outside the 440x440 crop"));
+    let o = stscam(&["probe", "--pixel", "a,b"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = stscam(&[
+        "render",
+        "--spp",
+        "0",
+        "--out",
+        dir.path().join("x").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = stscam(&["render", "--bogus"]);
+    assert_eq!(o.status.code(), Some(2));
+    // --out that is a file.
+    let f = dir.path().join("file");
+    std::fs::write(&f, "x").unwrap();
+    let o = stscam(&["render", "--spp", "1", "--out", f.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
+}
