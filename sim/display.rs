@@ -68,7 +68,7 @@ impl Display {
     /// Target pixel (col, row) containing point `p` on the plane, if inside the image.
     #[inline]
     pub fn pixel_at(&self, p: DVec2) -> Option<(usize, usize)> {
-        let inv = 1.0 / self.image_pixel_mm;
+        let inv = self.image_pixel_mm.recip();
         let fx = (p.x - self.center_mm.x) * inv + 0.5 * self.width_px as f64;
         let fy = (self.center_mm.y - p.y) * inv + 0.5 * self.height_px as f64;
         if fx >= 0.0 && fy >= 0.0 && fx < self.width_px as f64 && fy < self.height_px as f64 {

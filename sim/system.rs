@@ -185,9 +185,9 @@ pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
 }
 
 /// Half-width (nm) of the table used for wavelength importance sampling.
-const TABLE_HALF_WIDTH_NM: f64 = 60.0;
+const TABLE_HALF_WIDTH_NM: f64 = 40.0;
 /// Bins of that table.
-const TABLE_BINS: usize = 2400;
+const TABLE_BINS: usize = 800;
 
 /// Field rows at which the spectral throughput is tabulated.
 const TABLE_FIELDS: usize = 48;

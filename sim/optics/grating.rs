@@ -101,7 +101,7 @@ impl VolumeGrating {
             return None;
         }
         let k = self.k_rad_per_nm;
-        let lam = 4.0 * PI * (u.dot(k.truncate()) + nn.sqrt() * k.z) / k.length_squared();
+        let lam = (4.0 * PI / k.length_squared()) * (u.dot(k.truncate()) + nn.sqrt() * k.z);
         (lam > 0.0 && lam.is_finite()).then_some(lam)
     }
 
