@@ -145,7 +145,7 @@ fn to_json<T: serde::Serialize>(v: &T) -> Result<String, Failure> {
 #[allow(clippy::too_many_arguments)]
 fn cmd_render(
     scene: &SceneArgs,
-    out: &PathBuf,
+    out: &std::path::Path,
     spp: u32,
     seed: u64,
     threads: Option<usize>,

@@ -76,7 +76,7 @@ impl PixelSampler {
     pub fn new(kind: SamplerKind, seed: u64, pixel: u64) -> Self {
         let mut shift = [0.0; DIMS];
         for (d, s) in shift.iter_mut().enumerate() {
-            *s = to_unit(hash(&[seed, pixel, d as u64, 0x5348_4946_54]));
+            *s = to_unit(hash(&[seed, pixel, d as u64, 0x0053_4849_4654]));
         }
         PixelSampler {
             kind,
@@ -94,9 +94,9 @@ impl PixelSampler {
         match self.kind {
             SamplerKind::Lattice => {
                 let i = index as f64;
-                for d in 0..DIMS {
-                    let v = self.shift[d] + (i * self.alpha[d]).fract();
-                    u[d] = if v >= 1.0 { v - 1.0 } else { v };
+                for ((ud, shift), alpha) in u.iter_mut().zip(&self.shift).zip(&self.alpha) {
+                    let v = shift + (i * alpha).fract();
+                    *ud = if v >= 1.0 { v - 1.0 } else { v };
                 }
             }
             SamplerKind::Independent => {

@@ -265,7 +265,7 @@ impl System {
                 if i > 0.0 { 1.0 / i } else { 0.0 }
             })
             .collect();
-        if inv_integral.iter().any(|&v| v == 0.0) {
+        if inv_integral.contains(&0.0) {
             return Err(ls.key_error(
                 "sensor.response",
                 format!("has no sensitivity in the band {lo}-{hi} nm"),

@@ -76,9 +76,9 @@ proptest! {
         let mut total = [0.0f64; 2];
         let mut ok = true;
         let summary = trace_camera_path(&wg, -550.0, limits, origin, dir, lambda, |b| {
-            for p in 0..2 {
-                ok &= b.weight[p].is_finite() && (0.0..=1.0).contains(&b.weight[p]);
-                total[p] += b.weight[p];
+            for (t, w) in total.iter_mut().zip(b.weight) {
+                ok &= w.is_finite() && (0.0..=1.0).contains(&w);
+                *t += w;
             }
             ok &= b.object_point_mm.is_finite();
         });

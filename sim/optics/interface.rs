@@ -97,7 +97,7 @@ mod tests {
 
     proptest! {
         #[test]
-        fn energy_and_reciprocity(n_a in 1.0f64..2.0, n_b in 1.0f64..2.0, s in 0.0f64..0.999, phi in 0.0f64..6.283) {
+        fn energy_and_reciprocity(n_a in 1.0f64..2.0, n_b in 1.0f64..2.0, s in 0.0f64..0.999, phi in 0.0f64..std::f64::consts::TAU) {
             let u = DVec2::new(phi.cos(), phi.sin()) * (s * n_a.min(n_b));
             let r_ab = reflectance(n_a, n_b, u);
             let r_ba = reflectance(n_b, n_a, u);

@@ -294,8 +294,8 @@ pub(crate) mod tests {
     fn weak_grating_limit() {
         // ν ≪ 1: η ≈ ν² sin²ξ/ξ².
         let nu = 1e-3;
-        for &xi in &[0.5, 1.0, 2.0, 5.0] {
-            let approx = nu * nu * (xi as f64).sin().powi(2) / (xi * xi);
+        for &xi in &[0.5f64, 1.0, 2.0, 5.0] {
+            let approx = nu * nu * xi.sin().powi(2) / (xi * xi);
             assert!((reflection_lossless(nu, xi) - approx).abs() < 1e-9);
         }
     }
