@@ -15,7 +15,7 @@ use crate::io::{
 use crate::render::Capture;
 
 /// What one pixel value means (recorded in the EXR header and the JSON sidecar).
-pub const CAPTURE_UNITS: &str = "relative: 1 = a white display pixel seen straight on by an on-axis pixel through lossless optics (flat spectrum and response)";
+pub const CAPTURE_UNITS: &str = "relative irradiance: 1 = a white display pixel seen by an on-axis pixel through lossless optics with a vanishing aperture (flat spectrum and response); the finite aperture and the field angle add the cos^4 falloff";
 
 /// Encodes the capture as an EXR file in memory.
 pub fn encode_capture_exr(

@@ -5,8 +5,9 @@
 //!   E[ cos⁴θ · S(λ) · R_c(λ)/∫R_c · Σ_branches L_rel(x_b)·(f_TE W_b,TE + f_TM W_b,TM) / p(λ) ]
 //! with S the backlight spectrum (mean 1), R_c the sensor response, L_rel the display's relative
 //! radiance, W the branch weights of `trace`, f the display's polarisation fractions and p the
-//! wavelength density. Unit: 1 = a white display pixel seen straight on by an on-axis pixel
-//! through lossless optics (flat spectrum and response). Optional spectral channels hold the
+//! wavelength density. Unit: 1 = a white display pixel seen by an on-axis pixel through
+//! lossless optics with a vanishing aperture (flat spectrum and response); the finite aperture
+//! and the field angle add the cos⁴ falloff. Optional spectral channels hold the
 //! same estimate without R_c, per nm, binned by wavelength.
 //!
 //! Parallelism: rows are rendered by rayon and collected in row order; each pixel accumulates
@@ -17,7 +18,12 @@ use rayon::prelude::*;
 
 use crate::sampler::{PixelSampler, SamplerKind};
 use crate::system::System;
-use crate::trace::trace_camera_path;
+use crate::trace::{sees_through, trace_camera_path};
+
+/// Uniform fraction of the wavelength density for paths with a straight-through (broadband)
+/// view: the Bragg table and the uniform part get equal shares, so f/p stays within a factor of
+/// two of the best either alone would give.
+pub const BROADBAND_UNIFORM_FRACTION: f64 = 0.5;
 
 /// Render settings that are not part of the scene.
 #[derive(Clone, Debug)]
@@ -98,6 +104,7 @@ fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
     let mut stats = RenderStats::default();
     let pol = sys.display.polarization_weights;
     let disp = &sys.display;
+    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
     for col in 0..w {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel);
@@ -110,7 +117,15 @@ fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
                 .waveguide
                 .grating
                 .bragg_wavelength_nm(-ray.dir.truncate());
-            let (lambda, pdf) = sys.wavelengths.sample(u[4], lb);
+            // Paths that also see straight through the plate need a broadband wavelength density.
+            let fu = if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
+                sys.wavelengths
+                    .uniform_fraction()
+                    .max(BROADBAND_UNIFORM_FRACTION)
+            } else {
+                sys.wavelengths.uniform_fraction()
+            };
+            let (lambda, pdf) = sys.wavelengths.sample_mixed(u[4], lb, fu);
             if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
                 continue;
             }

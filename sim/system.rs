@@ -238,10 +238,16 @@ fn build_wavelength_sampler(
             Some((lb, curve))
         })
         .collect();
+    // Without index modulation nothing is Bragg-selective: sample the band uniformly.
+    let fu = if s.hoe.index_modulation > 0.0 {
+        sm.uniform_fraction
+    } else {
+        1.0
+    };
     WavelengthSampler::new(
         sm.lambda_min_nm,
         sm.lambda_max_nm,
-        sm.uniform_fraction,
+        fu,
         -TABLE_HALF_WIDTH_NM,
         bin,
         &shapes,

@@ -95,6 +95,19 @@ fn scale(a: [f64; 2], s: f64) -> [f64; 2] {
     [a[0] * s, a[1] * s]
 }
 
+/// Whether a camera ray also sees the user side straight through the plate (a broadband
+/// contribution): it misses the top vHOE, or the top vHOE is not covered. Uses the glass index
+/// at `lambda_nm` (the answer is needed before a wavelength is drawn; pass a fixed one).
+pub fn sees_through(wg: &Waveguide, origin: DVec3, dir: DVec3, lambda_nm: f64) -> bool {
+    if !wg.covered || dir.z >= 0.0 {
+        return true;
+    }
+    let u = -dir.truncate();
+    let p_back = origin.truncate() + dir.truncate() * ((origin.z - wg.thickness_mm) / -dir.z);
+    !wg.top
+        .contains(p_back - lateral_shift(u, wg.n_glass(lambda_nm), wg.thickness_mm))
+}
+
 /// Traces one camera ray (lens point `origin`, unit direction `dir` toward the screen) at
 /// `lambda_nm` backward to the display plane at `display_z_mm`, calling `visit` for every
 /// branch that reaches it.

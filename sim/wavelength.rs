@@ -163,10 +163,17 @@ impl WavelengthSampler {
     /// Draws a wavelength from one uniform number `u` ∈ [0,1); returns (λ in nm, pdf per nm).
     #[inline]
     pub fn sample(&self, u: f64, lambda_bragg_nm: Option<f64>) -> (f64, f64) {
+        self.sample_mixed(u, lambda_bragg_nm, self.uniform_fraction)
+    }
+
+    /// As [`Self::sample`] with the uniform fraction `fu` chosen by the caller (e.g. larger for
+    /// paths that also see the scene straight through the plate, a broadband contribution). The
+    /// choice must depend only on the camera ray, never on the wavelength drawn.
+    #[inline]
+    pub fn sample_mixed(&self, u: f64, lambda_bragg_nm: Option<f64>, fu: f64) -> (f64, f64) {
         let Some(lb) = lambda_bragg_nm else {
             return (self.lo_nm + u * self.band_nm(), 1.0 / self.band_nm());
         };
-        let fu = self.uniform_fraction;
         let table = self.table_for(lb);
         let lambda = if u < fu {
             self.lo_nm + (u / fu) * self.band_nm()
@@ -175,13 +182,18 @@ impl WavelengthSampler {
             let (i, frac) = table.invert(v);
             lb + self.table_start_nm + (i as f64 + frac) * self.bin_nm
         };
-        (lambda, self.pdf_in(table, lambda, lb))
+        (lambda, self.pdf_in(table, lambda, lb, fu))
+    }
+
+    /// The scene's uniform fraction.
+    pub fn uniform_fraction(&self) -> f64 {
+        self.uniform_fraction
     }
 
     #[inline]
-    fn pdf_in(&self, table: &Table, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
+    fn pdf_in(&self, table: &Table, lambda_nm: f64, lambda_bragg_nm: f64, fu: f64) -> f64 {
         let uni = if self.in_band(lambda_nm) {
-            self.uniform_fraction / self.band_nm()
+            fu / self.band_nm()
         } else {
             0.0
         };
@@ -191,12 +203,17 @@ impl WavelengthSampler {
         } else {
             0.0
         };
-        uni + (1.0 - self.uniform_fraction) * tab
+        uni + (1.0 - fu) * tab
     }
 
     /// Density (per nm) of drawing `lambda_nm` for a path with Bragg wavelength `lambda_bragg_nm`.
     pub fn pdf(&self, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
-        self.pdf_in(self.table_for(lambda_bragg_nm), lambda_nm, lambda_bragg_nm)
+        self.pdf_in(
+            self.table_for(lambda_bragg_nm),
+            lambda_nm,
+            lambda_bragg_nm,
+            self.uniform_fraction,
+        )
     }
 
     /// Whether λ lies in the simulation band.

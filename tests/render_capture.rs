@@ -171,3 +171,49 @@ fn single_bright_pixel_shows_replicas_at_the_predicted_pitch() {
     // The brightest replica is the one that left the guide first (lowest on the sensor).
     assert_eq!(peaks.last().cloned(), Some(top_peak), "{peaks:?}");
 }
+
+/// Radiometry against a closed form: with no grating (n1 = 0) and the cover off, the camera
+/// looks straight through plain glass at a white display. The centre pixel must read
+/// (1 − R)²·exp(−α w)·E[cos⁴θ] with R = ((n − 1)/(n + 1))² (normal incidence) and, for a uniform
+/// aperture of radius a at distance d0, E[cos⁴θ] = 1/(1 + a²/d0²).
+#[test]
+fn plain_glass_view_matches_fresnel_and_beer_lambert() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("glass");
+    let args = [
+        "--spp",
+        "64",
+        "--set",
+        "hoe.index_modulation=0",
+        "--set",
+        "top_hoe.covered=false",
+        "--set",
+        "plate.glass=1.5",
+        "--set",
+        "plate.absorption_per_mm=0.01",
+        "--set",
+        "display.image=white",
+        "--set",
+        "display.black_level=0",
+        "--set",
+        "display.spectrum=flat",
+        "--set",
+        "sensor.response=flat",
+        "--set",
+        "sensor.crop_px=5",
+    ];
+    render(&out, &args);
+    let (w, _, ch) = read_exr(&out.join("capture.exr")).unwrap();
+    let y = &ch.iter().find(|c| c.name == "Y").unwrap().data;
+    let centre = f64::from(y[2 * w + 2]);
+    let r = (0.5f64 / 2.5).powi(2);
+    let f = 6.0f64;
+    let focus = 32.0 + 2.0 * 2.0 / 1.5 + 550.0;
+    let d0 = f * focus / (focus - f);
+    let a = 0.5 * f / 4.0;
+    let expect = (1.0 - r).powi(2) * (-0.01f64 * 2.0).exp() / (1.0 + a * a / (d0 * d0));
+    assert!(
+        (centre / expect - 1.0).abs() < 1e-3,
+        "centre pixel {centre} vs closed form {expect}"
+    );
+}
