@@ -217,3 +217,50 @@ fn plain_glass_view_matches_fresnel_and_beer_lambert() {
         "centre pixel {centre} vs closed form {expect}"
     );
 }
+
+/// A PNG target file gives the same capture as the identical built-in target.
+#[test]
+fn png_target_file_equals_builtin_target() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = stscam::targets::builtin_target("checker:8").unwrap();
+    let samples: Vec<u16> = t
+        .values
+        .iter()
+        .map(|&v| (v * 65535.0).round() as u16)
+        .collect();
+    let png = stscam::io::encode_png16(t.width, t.height, 1, &samples).unwrap();
+    std::fs::write(dir.path().join("checker.png"), png).unwrap();
+    // A scene file next to the image refers to it by a relative path.
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(
+        &scene,
+        "[display]\nimage = \"checker.png\"\n[sensor]\ncrop_px = 48\n",
+    )
+    .unwrap();
+    let a = dir.path().join("a");
+    let b = dir.path().join("b");
+    let o = stscam(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--out",
+        a.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render(
+        &b,
+        &[
+            "--spp",
+            "2",
+            "--set",
+            "display.image=checker:8",
+            "--set",
+            "sensor.crop_px=48",
+        ],
+    );
+    let (_, _, ca) = read_exr(&a.join("capture.exr")).unwrap();
+    let (_, _, cb) = read_exr(&b.join("capture.exr")).unwrap();
+    assert_eq!(ca[0].data, cb[0].data);
+    assert!(ca[0].data.iter().any(|&v| v > 0.01));
+}
