@@ -61,7 +61,7 @@ enum Command {
         /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
-        /// Also write spectral channels (10 nm bins over the sampling band) into the EXR.
+        /// Also write spectral channels (bins of about 10 nm tiling the sampling band) into the EXR.
         #[arg(long)]
         spectral: bool,
         /// Sample sequence.
@@ -162,13 +162,14 @@ fn cmd_render(
             out.display()
         )));
     }
-    let (ls, sys) = load(scene)?;
     let pool = thread_pool(threads)?;
+    let (ls, sys) = pool.install(|| load(scene))?;
     let sm = &sys.scene.sampling;
     let bins = spectral.then(|| {
-        let width = 10.0;
-        let n = ((sm.lambda_max_nm - sm.lambda_min_nm) / width).ceil() as usize;
-        (sm.lambda_min_nm, width, n)
+        // Bins of about 10 nm that tile the band exactly.
+        let band = sm.lambda_max_nm - sm.lambda_min_nm;
+        let n = (band / 10.0).round().max(1.0) as usize;
+        (sm.lambda_min_nm, band / n as f64, n)
     });
     let settings = RenderSettings {
         spp,
@@ -207,8 +208,12 @@ fn cmd_render(
         "paths_per_second": cap.stats.camera_paths as f64 / render_s,
         "stats": cap.stats,
     });
-    write_capture(out, &cap, &scene_json, seed, spp, &sidecar)
-        .map_err(|e| bad_input(e.to_string()))?;
+    // A missing or unwritable output location is the user's to fix, but it is not bad input
+    // to the simulator: exit 1.
+    write_capture(out, &cap, &scene_json, seed, spp, &sidecar).map_err(|e| Failure {
+        code: 1,
+        message: e.to_string(),
+    })?;
     if cap.stats.nonfinite_samples > 0 {
         eprintln!(
             "warning: {} samples were NaN or infinite and were zeroed",

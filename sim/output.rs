@@ -2,15 +2,15 @@
 //! channels `S0.<nm>,<frac>nm`), `capture.png` (16-bit sRGB-encoded preview scaled to the
 //! 99.9th percentile) and `capture.json` (scene after overrides, seed, spp, version, timings).
 //!
-//! Every file is encoded in memory first and written atomically (temp file + rename), so a
-//! failure leaves no partial file. The EXR holds no timestamps or timings: equal inputs give
+//! Every file is encoded in memory first; the three are written under temporary names and
+//! renamed into place only when all writes succeeded, so a failure leaves nothing new behind. The EXR holds no timestamps or timings: equal inputs give
 //! byte-identical EXR files.
 
 use std::path::Path;
 
 use crate::io::{
     ExrAttr, ExrChannel, IoError, encode_exr, encode_png16, preview_u16, spectral_channel_name,
-    write_atomic,
+    write_all_atomic,
 };
 use crate::render::Capture;
 
@@ -89,12 +89,13 @@ pub fn write_capture(
         path: dir.join("capture.json"),
         message: e.to_string(),
     })?;
-    std::fs::create_dir_all(dir).map_err(|e| IoError::Io {
-        path: dir.to_path_buf(),
-        source: e,
-    })?;
-    write_atomic(&dir.join("capture.exr"), &exr)?;
-    write_atomic(&dir.join("capture.png"), &png)?;
-    write_atomic(&dir.join("capture.json"), &json)?;
+    write_all_atomic(
+        dir,
+        &[
+            ("capture.exr", &exr),
+            ("capture.png", &png),
+            ("capture.json", &json),
+        ],
+    )?;
     Ok(())
 }

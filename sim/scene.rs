@@ -279,11 +279,7 @@ pub struct LoadedScene {
 impl LoadedScene {
     /// The name to blame for a key: `--set` if it was overridden, else the scene source.
     pub fn origin_of(&self, key: &str) -> String {
-        if self
-            .overridden
-            .iter()
-            .any(|k| key == k || key.starts_with(&format!("{k}.")))
-        {
+        if is_overridden(&self.overridden, key) {
             format!("--set {key}")
         } else {
             self.source.clone()
@@ -298,6 +294,25 @@ impl LoadedScene {
             message: message.into(),
         }
     }
+}
+
+/// Whether `key` (possibly with a `.field` or `[index]` suffix) was set by `--set`.
+fn is_overridden(overridden: &BTreeSet<String>, key: &str) -> bool {
+    overridden.iter().any(|k| {
+        key == k
+            || key
+                .strip_prefix(k.as_str())
+                .is_some_and(|rest| rest.starts_with('.') || rest.starts_with('['))
+    })
+}
+
+/// The first of `keys` that was set by `--set`, else the first key: the one to name in an
+/// error about a relation between several keys.
+fn blame<'a>(ls: &LoadedScene, keys: &[&'a str]) -> &'a str {
+    keys.iter()
+        .copied()
+        .find(|k| is_overridden(&ls.overridden, k))
+        .unwrap_or(keys[0])
 }
 
 fn line_col(text: &str, offset: usize) -> String {
@@ -445,7 +460,7 @@ fn placeholder_free_deserialize(
 ) -> Result<Scene, SceneError> {
     serde_path_to_error::deserialize::<_, Scene>(table).map_err(|e| {
         let key = e.path().to_string();
-        let file = if overridden.iter().any(|k| &key == k) {
+        let file = if is_overridden(overridden, &key) {
             format!("--set {key}")
         } else {
             source.to_string()
@@ -576,9 +591,9 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     let (cw, ch) = s.sensor.crop_px.size();
     check(
         ls,
-        cw > 0 && ch > 0 && cw <= 16384 && ch <= 16384,
+        cw > 0 && ch > 0 && cw <= 8192 && ch <= 8192,
         "sensor.crop_px",
-        || format!("crop {cw}x{ch} must be 1..=16384 pixels each way"),
+        || format!("crop {cw}x{ch} must be 1..=8192 pixels each way"),
     )?;
     let [ox, oy] = s.sensor.crop_offset_px;
     let fits = |crop: u32, off: i32, full: u32| {
@@ -587,7 +602,15 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(
         ls,
         fits(cw, ox, s.sensor.width_px) && fits(ch, oy, s.sensor.height_px),
-        "sensor.crop_px",
+        blame(
+            ls,
+            &[
+                "sensor.crop_px",
+                "sensor.crop_offset_px",
+                "sensor.width_px",
+                "sensor.height_px",
+            ],
+        ),
         || {
             format!(
                 "crop {cw}x{ch} offset [{ox}, {oy}] does not fit the {}x{} sensor",
@@ -673,8 +696,8 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(
         ls,
         sm.lambda_max_nm > sm.lambda_min_nm,
-        "sampling.lambda_max_nm",
-        || "must exceed sampling.lambda_min_nm".into(),
+        blame(ls, &["sampling.lambda_max_nm", "sampling.lambda_min_nm"]),
+        || "sampling.lambda_max_nm must exceed sampling.lambda_min_nm".into(),
     )?;
     check(
         ls,

@@ -165,6 +165,16 @@ fn load_target(ls: &LoadedScene) -> Result<(usize, usize, Vec<f32>, bool), Scene
 pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
     let d = &ls.scene.display;
     let (w, h, values, linear) = load_target(ls)?;
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(ls.key_error(
+            "display.image",
+            format!(
+                "pixel ({}, {}) is not a finite number",
+                i % w.max(1),
+                i / w.max(1)
+            ),
+        ));
+    }
     let angle = match d.polarization {
         PolarizationSpec::AngleDeg(a) => Some(a),
         PolarizationSpec::Word(_) => None,
@@ -213,7 +223,10 @@ fn build_wavelength_sampler(
         .into_par_iter()
         .filter_map(|k| {
             let y = half_y * (2.0 * k as f64 / (TABLE_FIELDS - 1) as f64 - 1.0);
-            let chief = cam.ray_through(DVec2::new(0.0, y), DVec2::ZERO);
+            let chief = cam.ray_through(
+                DVec2::new(0.0, y) + cam.offset_px * cam.pitch_mm,
+                DVec2::ZERO,
+            );
             let lb = wg.grating.bragg_wavelength_nm(-chief.dir.truncate())?;
             let mut curve: Vec<f64> = (0..TABLE_BINS)
                 .map(|i| {
@@ -260,6 +273,17 @@ impl System {
         let s = &ls.scene;
         let waveguide = build_waveguide(s);
         let camera = build_camera(s, &waveguide);
+        if !(camera.focus_distance_mm > camera.focal_length_mm
+            && camera.sensor_distance_mm.is_finite())
+        {
+            return Err(ls.key_error(
+                "camera.focus_distance_mm",
+                format!(
+                    "the focus distance ({:.3} mm) must exceed the focal length ({} mm)",
+                    camera.focus_distance_mm, camera.focal_length_mm
+                ),
+            ));
+        }
         let display = build_display(ls)?;
         let r = spectra::sensor_response(response_kind(&s.sensor.response));
         let (lo, hi) = (s.sampling.lambda_min_nm, s.sampling.lambda_max_nm);

@@ -198,7 +198,7 @@ pub fn trace_camera_path(
     let toward_back = grating.undiffracted(u_g, 1.0, lambda_nm);
     let toward_front = grating.undiffracted_with(u_g, -1.0, lambda_nm, Some((-1, top.eta)));
     let cont_bottom = mul(mul(toward_back, r_film), toward_front);
-    let cont_top = if wg.cover_frustrates_tir {
+    let cont_top = if wg.covered && wg.cover_frustrates_tir {
         [0.0, 0.0]
     } else {
         cont_bottom

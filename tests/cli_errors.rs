@@ -88,6 +88,28 @@ fn bad_scenes_and_overrides() {
     );
     let e = fails(&["--set", "display.image=letter:@"], &out);
     assert!(e.contains("display.image"), "{e}");
+    // Errors inside arrays and between keys name the key that was overridden.
+    let e = fails(&["--set", "display.size_px=[1,-1]"], &out);
+    assert!(
+        e.starts_with("error: --set display.size_px[1]: display.size_px[1]:"),
+        "{e}"
+    );
+    let e = fails(&["--set", "sampling.lambda_min_nm=900"], &out);
+    assert!(
+        e.starts_with("error: --set sampling.lambda_min_nm: sampling.lambda_min_nm:"),
+        "{e}"
+    );
+    let e = fails(&["--set", "sensor.crop_offset_px=[600,0]"], &out);
+    assert!(
+        e.starts_with("error: --set sensor.crop_offset_px: sensor.crop_offset_px:"),
+        "{e}"
+    );
+    // A focal length beyond the auto focus distance would flip the image: refused.
+    let e = fails(&["--set", "camera.focal_length_mm=1000"], &out);
+    assert!(
+        e.contains("camera.focus_distance_mm: the focus distance"),
+        "{e}"
+    );
     let e = fails(&[dir.path().join("nope.toml").to_str().unwrap()], &out);
     assert!(e.contains("nope.toml: cannot read scene file"), "{e}");
 }
@@ -116,4 +138,33 @@ fn bad_arguments() {
     let o = stscam(&["render", "--spp", "1", "--out", f.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
+}
+
+#[test]
+fn failed_write_leaves_nothing_new() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(out.join("capture.png")).unwrap();
+    std::fs::write(out.join("keep.txt"), "x").unwrap();
+    let o = stscam(&[
+        "render",
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let mut names = files_in(&out);
+    names.sort();
+    assert_eq!(
+        names,
+        vec!["capture.png".to_string(), "keep.txt".to_string()]
+    );
 }

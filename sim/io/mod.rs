@@ -9,7 +9,7 @@ pub mod png;
 
 use std::path::{Path, PathBuf};
 
-pub use self::atomic::write_atomic;
+pub use self::atomic::{write_all_atomic, write_atomic};
 pub use self::exr::{ExrAttr, ExrChannel, encode_exr, read_exr, spectral_channel_name};
 pub use self::image_load::{LoadedImage, load_image};
 pub use self::png::{encode_png16, preview_u16};
