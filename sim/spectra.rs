@@ -271,8 +271,9 @@ const PYTHON1300_QE: [(f64, f64); 9] = [
     (780.0, 0.45),
 ];
 
-/// Piecewise-linear interpolation through sorted points, held constant outside.
-fn interp_clamped(points: &[(f64, f64)], x: f64) -> f64 {
+/// Piecewise-linear interpolation through sorted `(x, y)` points, held constant outside
+/// the first/last point; NaN input returns the first value.
+pub(crate) fn interp_clamped(points: &[(f64, f64)], x: f64) -> f64 {
     let (Some(&(x0, y0)), Some(&(xn, yn))) = (points.first(), points.last()) else {
         return 0.0;
     };

@@ -18,6 +18,8 @@
 //! - Intensity absorption α_int = 4πk/λ; bulk glass only (no surface or film losses).
 //! - Which glass the paper used is not stated; soda-lime is the safer default.
 
+use crate::spectra::interp_clamped;
+
 /// Soda-lime extinction table (λ in nm, k), Rubin (1985).
 const SODA_LIME_K: [(f64, f64); 5] = [
     (450.0, 1.925e-7),
@@ -123,24 +125,6 @@ impl Glass {
             Glass::Constant { n } => format!("{n}"),
         }
     }
-}
-
-/// Piecewise-linear interpolation through sorted `(x, y)` points, held constant
-/// outside the first/last point. NaN input returns the first value.
-fn interp_clamped(points: &[(f64, f64)], x: f64) -> f64 {
-    let (Some(&(x0, y0)), Some(&(xn, yn))) = (points.first(), points.last()) else {
-        return 0.0;
-    };
-    if x.is_nan() || x <= x0 {
-        return y0;
-    }
-    if x >= xn {
-        return yn;
-    }
-    points.windows(2).find(|w| x <= w[1].0).map_or(yn, |w| {
-        let ((xa, ya), (xb, yb)) = (w[0], w[1]);
-        ya + (yb - ya) * (x - xa) / (xb - xa)
-    })
 }
 
 #[cfg(test)]
