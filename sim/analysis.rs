@@ -232,7 +232,7 @@ pub fn point_replicas(sys: &System, object_mm: DVec2) -> Vec<PointReplica> {
     let v_of_row = |row: f64| (0.5 * cam.height_px as f64 - (row + 0.5) + cam.offset_px.y) * pitch;
     // Object y per contact number for the chief ray at image height v.
     let objects = |v: f64| -> Vec<(u32, f64, f64)> {
-        let ray = cam.ray_through(DVec2::new(0.0, v), DVec2::ZERO);
+        let ray = cam.ray_through(DVec2::new(cam.offset_px.x * pitch, v), DVec2::ZERO);
         let mut out = Vec::new();
         if let Some(lambda) = sys
             .waveguide
@@ -274,16 +274,17 @@ pub fn point_replicas(sys: &System, object_mm: DVec2) -> Vec<PointReplica> {
             let Some(&(_, y0, _)) = prev.iter().find(|o| o.0 == k) else {
                 continue;
             };
-            if (y0 - object_mm.y) * (y1 - object_mm.y) > 0.0 {
+            // A crossing of the object's y (half-open, so each is found once).
+            if (y0 > object_mm.y) == (y1 > object_mm.y) {
                 continue;
             }
             // Bisection on v for this contact number.
             let (mut a, mut b) = (v_prev, v);
-            let fa0 = y0 - object_mm.y;
+            let above0 = y0 > object_mm.y;
             for _ in 0..60 {
                 let m = 0.5 * (a + b);
                 match find(m, k) {
-                    Some((_, ym, _)) if (ym - object_mm.y) * fa0 > 0.0 => a = m,
+                    Some((_, ym, _)) if (ym > object_mm.y) == above0 => a = m,
                     Some(_) => b = m,
                     None => break,
                 }
