@@ -276,8 +276,17 @@ fn cmd_info(scene: &SceneArgs, json: bool) -> Result<(), Failure> {
             f.replicas_above_5pct
         );
     }
+    let rows: Vec<String> = info
+        .point_replicas
+        .iter()
+        .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
+        .collect();
     println!(
-        "replica spacing on the sensor at the centre: {:.1} px",
+        "a point at the display centre appears at rows (weight): {}",
+        rows.join(", ")
+    );
+    println!(
+        "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
         info.replica_pitch_sensor_px
     );
     println!(
