@@ -150,12 +150,14 @@ impl VolumeGrating {
         let eta = if self.alpha0_per_nm == 0.0 {
             let nu_s = kappa_s * d / (c_r * c_s.abs()).sqrt();
             let xi = 0.5 * dkz.abs() * d;
-            let f = if reflection {
-                kogelnik::reflection_lossless
+            if reflection {
+                [
+                    kogelnik::reflection_lossless(nu_s, xi),
+                    kogelnik::reflection_lossless(nu_s * cos_pp, xi),
+                ]
             } else {
-                kogelnik::transmission_lossless
-            };
-            [f(nu_s, xi), f(nu_s * cos_pp, xi)]
+                kogelnik::transmission_lossless_pair(nu_s, nu_s * cos_pp, xi)
+            }
         } else if reflection {
             let theta = c_s * dkz * z_sign;
             let cw = |kappa: f64| CoupledWave {

@@ -61,6 +61,31 @@ pub fn transmission_lossless(nu: f64, xi: f64) -> f64 {
     (nu * nu * s * s / r2).clamp(0.0, 1.0)
 }
 
+/// [`transmission_lossless`] for two coupling strengths (TE and TM) at the same ξ. Far off
+/// Bragg (ξ ≫ ν) both arguments √(ν² + ξ²) = ξ + δ lie close to ξ, so one `sin_cos(ξ)` and the
+/// angle-addition formula with series for sin δ and cos δ (|δ| < 0.05, truncation < 1e-13)
+/// replace two `sin` calls; otherwise each is evaluated directly.
+pub fn transmission_lossless_pair(nu_s: f64, nu_p: f64, xi: f64) -> [f64; 2] {
+    let xi = xi.abs();
+    let delta = |nu: f64| nu * nu / ((nu * nu + xi * xi).sqrt() + xi);
+    let (ds, dp) = (delta(nu_s), delta(nu_p));
+    if !(ds < 0.05 && dp < 0.05 && xi > 0.0) || nu_s <= 0.0 || nu_p <= 0.0 {
+        return [
+            transmission_lossless(nu_s, xi),
+            transmission_lossless(nu_p, xi),
+        ];
+    }
+    let (sx, cx) = xi.sin_cos();
+    let eta = |nu: f64, d: f64| {
+        let d2 = d * d;
+        let sin_d = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0));
+        let cos_d = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0));
+        let s = sx * cos_d + cx * sin_d;
+        (nu * nu * s * s / (nu * nu + xi * xi)).clamp(0.0, 1.0)
+    };
+    [eta(nu_s, ds), eta(nu_p, dp)]
+}
+
 /// Stable complex hyperbolic cotangent: coth z = (1 + e^{−2z})/(1 − e^{−2z}) for Re z ≥ 0, odd.
 fn coth(z: Complex64) -> Complex64 {
     if z.re < 0.0 {
@@ -288,6 +313,19 @@ pub(crate) mod tests {
         };
         let eta = cw.reflection_efficiency();
         assert!(eta.is_finite() && eta > 0.0 && eta <= 1.0);
+    }
+
+    #[test]
+    fn transmission_pair_matches_direct_evaluation() {
+        let mut rng = TestRng(11);
+        for _ in 0..100_000 {
+            let nu_s = 10f64.powf(rng.range(-4.0, 1.0));
+            let nu_p = nu_s * rng.next_f64();
+            let xi = 10f64.powf(rng.range(-2.0, 4.0));
+            let pair = transmission_lossless_pair(nu_s, nu_p, xi);
+            assert!((pair[0] - transmission_lossless(nu_s, xi)).abs() < 1e-13);
+            assert!((pair[1] - transmission_lossless(nu_p, xi)).abs() < 1e-13);
+        }
     }
 
     #[test]
