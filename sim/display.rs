@@ -42,14 +42,30 @@ pub struct Display {
 }
 
 impl Display {
-    /// Converts code values (or linear values if `linear`) into relative radiance.
-    pub fn linearise(values: &[f32], linear: bool, gamma: f64, black_level: f64) -> Vec<f64> {
+    /// Converts code values (or linear values if `linear`) into relative radiance. With three
+    /// channels (an RGB target) each is linearised first and then combined with the Rec. 709
+    /// luminance weights (0.2126, 0.7152, 0.0722).
+    pub fn linearise(
+        values: &[f32],
+        channels: usize,
+        linear: bool,
+        gamma: f64,
+        black_level: f64,
+    ) -> Vec<f64> {
+        const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+        let lin = |v: f32| {
+            let v = f64::from(v).clamp(0.0, 1.0);
+            if linear { v } else { v.powf(gamma) }
+        };
         values
-            .iter()
-            .map(|&v| {
-                let v = f64::from(v).clamp(0.0, 1.0);
-                let lin = if linear { v } else { v.powf(gamma) };
-                black_level + (1.0 - black_level) * lin
+            .chunks_exact(channels.max(1))
+            .map(|px| {
+                let l = if px.len() == 3 {
+                    px.iter().zip(LUMINANCE).map(|(&v, w)| w * lin(v)).sum()
+                } else {
+                    lin(px[0])
+                };
+                black_level + (1.0 - black_level) * l
             })
             .collect()
     }
@@ -106,7 +122,7 @@ mod tests {
             image_pixel_mm: 2.7,
             width_px: 2,
             height_px: 2,
-            radiance: Display::linearise(&[1.0, 0.5, 0.0, 0.0], false, 2.2, 0.001),
+            radiance: Display::linearise(&[1.0, 0.5, 0.0, 0.0], 1, false, 2.2, 0.001),
             black_level: 0.001,
             half_extent_mm: DVec2::new(259.2, 162.0),
             spectrum: display_spectrum(DisplaySpectrumKind::Flat),
@@ -127,6 +143,10 @@ mod tests {
         assert_eq!(d.radiance_at(DVec2::new(100.0, 0.0)), 0.001);
         assert_eq!(d.radiance_at(DVec2::new(300.0, 0.0)), 0.0);
         assert_eq!(Display::polarization_weights(Some(0.0)), [1.0, 0.0]);
+        // RGB: each channel is linearised before the luminance sum.
+        let rgb = Display::linearise(&[0.5, 0.5, 0.5, 1.0, 0.0, 0.0], 3, false, 2.2, 0.0);
+        assert!((rgb[0] - 0.5f64.powf(2.2)).abs() < 1e-12);
+        assert!((rgb[1] - 0.2126).abs() < 1e-12);
         let w = Display::polarization_weights(Some(90.0));
         assert!(w[0] < 1e-30 && (w[1] - 1.0).abs() < 1e-15);
     }

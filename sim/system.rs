@@ -11,7 +11,7 @@ use std::path::Path;
 
 use crate::camera::{Camera, sensor_distance_mm};
 use crate::display::Display;
-use crate::io::image_load::load_image;
+use crate::io::image_load::{LoadedImage, load_image};
 use crate::optics::glass::Glass;
 use crate::optics::grating::VolumeGrating;
 use crate::scene::{AutoOr, GlassSpec, LoadedScene, PolarizationSpec, Scene, SceneError};
@@ -144,7 +144,7 @@ pub fn is_image_path(spec: &str) -> bool {
 }
 
 /// Loads the target as (width, height, values, linear).
-fn load_target(ls: &LoadedScene) -> Result<(usize, usize, Vec<f32>, bool), SceneError> {
+fn load_target(ls: &LoadedScene) -> Result<LoadedImage, SceneError> {
     let spec = ls.scene.display.image.trim();
     if is_image_path(spec) {
         let path = if Path::new(spec).is_absolute() {
@@ -153,18 +153,30 @@ fn load_target(ls: &LoadedScene) -> Result<(usize, usize, Vec<f32>, bool), Scene
             ls.base_dir.join(spec)
         };
         let img = load_image(&path).map_err(|e| ls.key_error("display.image", e.to_string()))?;
-        Ok((img.width, img.height, img.values, img.linear))
+        Ok(img)
     } else {
         let t =
             crate::targets::builtin_target(spec).map_err(|e| ls.key_error("display.image", e))?;
-        Ok((t.width, t.height, t.values, false))
+        Ok(LoadedImage {
+            width: t.width,
+            height: t.height,
+            channels: 1,
+            values: t.values,
+            linear: false,
+        })
     }
 }
 
 /// Builds the display of a scene.
 pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
     let d = &ls.scene.display;
-    let (w, h, values, linear) = load_target(ls)?;
+    let LoadedImage {
+        width: w,
+        height: h,
+        channels,
+        values,
+        linear,
+    } = load_target(ls)?;
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
         return Err(ls.key_error(
             "display.image",
@@ -185,7 +197,7 @@ pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
         image_pixel_mm: d.pixel_pitch_mm * f64::from(d.lcd_pixels_per_image_pixel),
         width_px: w,
         height_px: h,
-        radiance: Display::linearise(&values, linear, d.gamma, d.black_level),
+        radiance: Display::linearise(&values, channels, linear, d.gamma, d.black_level),
         black_level: d.black_level,
         half_extent_mm: DVec2::new(f64::from(d.size_px[0]), f64::from(d.size_px[1]))
             * (0.5 * d.pixel_pitch_mm),

@@ -12,28 +12,30 @@ use super::{IoError, MAX_PIXELS};
 /// Rec. 709 luma weights for R, G, B.
 const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
 
-/// A single-channel image: `values[y * width + x]`, row 0 at the top.
+/// A grey or RGB image: `values[(y * width + x) * channels + c]`, row 0 at the top.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoadedImage {
     /// Width in pixels.
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Pixel values, row-major.
+    /// Channels per pixel: 1 (grey or luminance) or 3 (R, G, B code values of a PNG).
+    pub channels: usize,
+    /// Pixel values, row-major, channels interleaved.
     pub values: Vec<f32>,
     /// `true` for linear values (EXR); `false` for display code values in
     /// `[0, 1]` (PNG) to which the caller applies a display gamma.
     pub linear: bool,
 }
 
-/// Loads a `.png` or `.exr` file (extension matched case-insensitively) as a
-/// single-channel image.
+/// Loads a `.png` or `.exr` file (extension matched case-insensitively).
 ///
 /// PNG (any bit depth, gray/gray+alpha/RGB/RGBA/palette; alpha is ignored):
-/// values are code value / maximum code, RGB is reduced with the Rec. 709 luma
-/// weights on the code values, and `linear` is `false`. EXR: channel `Y` if
-/// present, else the luma of `R`, `G`, `B`, else the only channel; `linear` is
-/// `true`.
+/// values are code value / maximum code, one channel for grey and three for
+/// colour (the caller linearises each with its display gamma before forming
+/// luminance), and `linear` is `false`. EXR: channel `Y` if present, else the
+/// Rec. 709 luminance of the linear `R`, `G`, `B`, else the only channel, as
+/// one channel; `linear` is `true`.
 pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
     let ext = path
         .extension()
@@ -108,21 +110,20 @@ fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     if info.line_size < row_bytes || buf.len() < info.line_size * height {
         return Err(IoError::format(path, "PNG row size mismatch"));
     }
-    let mut values = Vec::with_capacity(width * height);
+    let out_channels = if channels >= 3 { 3 } else { 1 };
+    let mut values = Vec::with_capacity(width * height * out_channels);
     for row in buf.chunks_exact(info.line_size).take(height) {
         for x in 0..width {
             let base = x * channels;
-            let code = if channels >= 3 {
-                (0..3).map(|c| LUMA[c] * sample(row, base + c)).sum()
-            } else {
-                sample(row, base)
-            };
-            values.push((code / max) as f32);
+            for c in 0..out_channels {
+                values.push((sample(row, base + c) / max) as f32);
+            }
         }
     }
     Ok(LoadedImage {
         width,
         height,
+        channels: out_channels,
         values,
         linear: false,
     })
@@ -158,6 +159,7 @@ fn exr_to_gray(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     Ok(LoadedImage {
         width,
         height,
+        channels: 1,
         values,
         linear: true,
     })
@@ -194,17 +196,18 @@ mod tests {
     }
 
     #[test]
-    fn loads_16_bit_rgb_png_as_luma() {
+    fn loads_16_bit_rgb_png_as_three_channels() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("rgb.png");
         let rgb: [u16; 6] = [65535, 0, 0, 1000, 30000, 65535];
         write_atomic(&path, &encode_png16(2, 1, 3, &rgb).unwrap()).unwrap();
         let img = load_image(&path).unwrap();
-        let luma = |p: &[u16]| {
-            ((0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64) / 65535.0) as f32
-        };
-        assert_eq!((img.width, img.height), (2, 1));
-        assert_eq!(img.values, [luma(&rgb[..3]), luma(&rgb[3..])]);
+        assert_eq!((img.width, img.height, img.channels), (2, 1, 3));
+        let expect: Vec<f32> = rgb
+            .iter()
+            .map(|&v| (f64::from(v) / 65535.0) as f32)
+            .collect();
+        assert_eq!(img.values, expect);
     }
 
     #[test]
@@ -222,11 +225,12 @@ mod tests {
         let path = dir.path().join("pal.png");
         write_atomic(&path, &out).unwrap();
         let img = load_image(&path).unwrap();
-        let first = ((0.2126 * 10.0 + 0.7152 * 20.0 + 0.0722 * 30.0) / 255.0) as f32;
-        assert_eq!(
-            img.values,
-            [first, ((0.2126 + 0.7152 + 0.0722) * 255.0 / 255.0) as f32]
-        );
+        assert_eq!(img.channels, 3);
+        let expect: Vec<f32> = [10.0, 20.0, 30.0, 255.0, 255.0, 255.0]
+            .iter()
+            .map(|v: &f64| (v / 255.0) as f32)
+            .collect();
+        assert_eq!(img.values, expect);
     }
 
     #[test]
