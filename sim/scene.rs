@@ -546,7 +546,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     in_range(ls, s.hoe.mean_index, 1.0, 4.0, "hoe.mean_index")?;
     check(
         ls,
-        s.hoe.index_modulation >= 0.0 && s.hoe.index_modulation < s.hoe.mean_index - 1.0 + 1.0,
+        s.hoe.index_modulation >= 0.0 && s.hoe.index_modulation < s.hoe.mean_index,
         "hoe.index_modulation",
         || format!("must be in [0, mean_index), got {}", s.hoe.index_modulation),
     )?;
