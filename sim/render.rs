@@ -16,7 +16,7 @@
 
 use rayon::prelude::*;
 
-use crate::sampler::{PixelSampler, SamplerKind};
+use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
 use crate::trace::{sees_through, trace_camera_path};
 
@@ -105,9 +105,13 @@ fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
     let pol = sys.display.polarization_weights;
     let disp = &sys.display;
     let lambda0 = sys.scene.hoe.recording_wavelength_nm;
+    let rule = match set.sampler {
+        SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
+        SamplerKind::Independent => None,
+    };
     for col in 0..w {
         let pixel = (row * w + col) as u64;
-        let sampler = PixelSampler::new(set.sampler, set.seed, pixel);
+        let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         let mut acc = [0.0f64; 4];
         for i in 0..u64::from(set.spp) {
             let u = sampler.get(i);

@@ -8,6 +8,11 @@
 //!   per-pixel, per-dimension Cranley–Patterson shift from a hash of (seed, pixel, dimension).
 //!   Each sample is marginally uniform (unbiased); within a pixel the points are well spread
 //!   (quasi-Monte Carlo), which cuts the noise at edges and across the Bragg band.
+//!   When the sample count N is known (a render), the lattice is instead the rank-1 Korobov
+//!   lattice z = (1, a, a², a³, a⁴) mod N whose worst two-dimensional projection is best by the
+//!   Zaremba index (the smallest max(1,|h_j|)·max(1,|h_k|) over its dual vectors), found by
+//!   searching a; its 2-D projections integrate edges (vHOE and target boundaries) about twice
+//!   as accurately as those of R_5 at N = 64. Above `MAX_KOROBOV_N` samples R_5 is used.
 //! - `Independent`: every number an independent hash of (seed, pixel, index, dimension).
 //!
 //! Hash: the splitmix64/Murmur3 finaliser, applied to a chained combination of the inputs.
@@ -61,6 +66,93 @@ fn alphas() -> [f64; DIMS] {
     a
 }
 
+/// Largest sample count for which a Korobov lattice is searched (the search costs O(N²)).
+pub const MAX_KOROBOV_N: u64 = 4096;
+
+/// Smallest worst-projection Zaremba index, relative to N, for which a Korobov rule is used;
+/// below it (e.g. N = 16, 32, 128) R_5 gives lower render error.
+pub const KOROBOV_MIN_QUALITY: f64 = 0.15;
+
+/// A rank-1 Korobov lattice rule with N points in `DIMS` dimensions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LatticeRule {
+    /// Number of points.
+    pub n: u64,
+    /// Generating vector (1, a, a², …) mod N.
+    pub z: [u64; DIMS],
+}
+
+fn gcd(mut a: u64, mut b: u64) -> u64 {
+    while b != 0 {
+        (a, b) = (b, a % b);
+    }
+    a
+}
+
+fn mod_inverse(a: u64, n: u64) -> Option<u64> {
+    let (mut t, mut new_t, mut r, mut new_r) = (0i128, 1i128, i128::from(n), i128::from(a % n));
+    while new_r != 0 {
+        let q = r / new_r;
+        (t, new_t) = (new_t, t - q * new_t);
+        (r, new_r) = (new_r, r - q * new_r);
+    }
+    (r == 1).then(|| (if t < 0 { t + i128::from(n) } else { t }) as u64)
+}
+
+/// Zaremba index of the 2-D lattice {(i·zj, i·zk) mod N}: the smallest
+/// max(1,|h_j|)·max(1,|h_k|) over nonzero dual vectors h (h_j·zj + h_k·zk ≡ 0 mod N).
+fn zaremba_2d(zj: u64, zk: u64, n: u64) -> u64 {
+    let Some(inv) = mod_inverse(zk, n) else {
+        return 1;
+    };
+    let mut best = n;
+    let half = n as i64 / 2;
+    for hj in 1..=half {
+        // h_k ≡ −h_j·zj·zk⁻¹ (mod N), taken in (−N/2, N/2].
+        let r = ((n - (hj as u64 * zj % n) % n) % n) * inv % n;
+        let hk = if r as i64 > half {
+            r as i64 - n as i64
+        } else {
+            r as i64
+        };
+        best = best.min(hj as u64 * hk.unsigned_abs().max(1));
+    }
+    best
+}
+
+impl LatticeRule {
+    /// The Korobov rule for `n` points maximising the worst 2-D Zaremba index, or `None` for
+    /// n < 2 or n > `MAX_KOROBOV_N`. Deterministic: ties go to the smallest a.
+    pub fn korobov(n: u64) -> Option<LatticeRule> {
+        if !(2..=MAX_KOROBOV_N).contains(&n) {
+            return None;
+        }
+        let mut best: Option<(u64, LatticeRule)> = None;
+        for a in 2..n {
+            if gcd(a, n) != 1 {
+                continue;
+            }
+            let mut z = [1u64; DIMS];
+            for d in 1..DIMS {
+                z[d] = z[d - 1] * a % n;
+            }
+            let mut worst = u64::MAX;
+            for j in 0..DIMS {
+                for k in j + 1..DIMS {
+                    worst = worst.min(zaremba_2d(z[j], z[k], n));
+                }
+            }
+            if best.is_none_or(|(w, _)| worst > w) {
+                best = Some((worst, LatticeRule { n, z }));
+            }
+        }
+        // Small powers of two have no good 5-D Korobov rule (a⁴ ≡ 1 mod 16 collapses two
+        // dimensions): fall back to R_5 when the best rule is degenerate.
+        best.filter(|(w, _)| *w as f64 >= KOROBOV_MIN_QUALITY * n as f64)
+            .map(|(_, r)| r)
+    }
+}
+
 /// The sample stream of one pixel.
 #[derive(Clone, Copy, Debug)]
 pub struct PixelSampler {
@@ -69,6 +161,7 @@ pub struct PixelSampler {
     pixel: u64,
     shift: [f64; DIMS],
     alpha: [f64; DIMS],
+    rule: Option<LatticeRule>,
 }
 
 impl PixelSampler {
@@ -84,22 +177,37 @@ impl PixelSampler {
             pixel,
             shift,
             alpha: alphas(),
+            rule: None,
         }
+    }
+
+    /// Uses a Korobov lattice rule instead of R_5 (for `Lattice` only).
+    pub fn with_rule(mut self, rule: Option<LatticeRule>) -> Self {
+        self.rule = rule;
+        self
     }
 
     /// Sample `index`, all dimensions, each in [0, 1).
     #[inline]
     pub fn get(&self, index: u64) -> [f64; DIMS] {
         let mut u = [0.0; DIMS];
-        match self.kind {
-            SamplerKind::Lattice => {
+        match (self.kind, self.rule) {
+            (SamplerKind::Lattice, Some(rule)) => {
+                let i = index % rule.n;
+                let inv_n = 1.0 / rule.n as f64;
+                for ((ud, shift), z) in u.iter_mut().zip(&self.shift).zip(&rule.z) {
+                    let v = shift + ((i * z) % rule.n) as f64 * inv_n;
+                    *ud = if v >= 1.0 { v - 1.0 } else { v };
+                }
+            }
+            (SamplerKind::Lattice, None) => {
                 let i = index as f64;
                 for ((ud, shift), alpha) in u.iter_mut().zip(&self.shift).zip(&self.alpha) {
                     let v = shift + (i * alpha).fract();
                     *ud = if v >= 1.0 { v - 1.0 } else { v };
                 }
             }
-            SamplerKind::Independent => {
+            (SamplerKind::Independent, _) => {
                 for (d, v) in u.iter_mut().enumerate() {
                     *v = to_unit(hash(&[self.seed, self.pixel, index, d as u64]));
                 }
@@ -112,6 +220,39 @@ impl PixelSampler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn korobov_rule_stratifies_every_dimension() {
+        for n in [16u64, 32, 128] {
+            assert_eq!(LatticeRule::korobov(n), None, "n = {n} has no good 5-D Korobov rule");
+        }
+        for n in [64u64, 100, 257] {
+            let rule = LatticeRule::korobov(n).unwrap();
+            assert_eq!(rule.z[0], 1);
+            for &z in &rule.z {
+                // Each 1-D projection is a permutation of 0..n: one point per stratum.
+                let mut seen = vec![false; n as usize];
+                for i in 0..n {
+                    seen[(i * z % n) as usize] = true;
+                }
+                assert!(seen.iter().all(|&s| s), "n {n}, z {z}");
+            }
+            // The chosen rule's worst 2-D projection beats the plain (1, 1, …) diagonal by far.
+            let worst = (0..DIMS)
+                .flat_map(|j| (j + 1..DIMS).map(move |k| (j, k)))
+                .map(|(j, k)| zaremba_2d(rule.z[j], rule.z[k], n))
+                .min()
+                .unwrap();
+            eprintln!("n {n}: a = {}, worst Zaremba index {worst}", rule.z[1]);
+            assert!(
+                worst as f64 >= 0.08 * n as f64,
+                "n {n}: Zaremba index {worst}"
+            );
+        }
+        assert_eq!(LatticeRule::korobov(1), None);
+        assert_eq!(LatticeRule::korobov(MAX_KOROBOV_N + 1), None);
+        assert_eq!(zaremba_2d(1, 1, 64), 1);
+    }
 
     #[test]
     fn generator_root() {
@@ -138,7 +279,7 @@ mod tests {
             let spp = 8u64;
             let mut bins = [[0u64; 10]; DIMS];
             for p in 0..n_pix {
-                let s = PixelSampler::new(kind, 1, p);
+                let s = PixelSampler::new(kind, 1, p).with_rule(LatticeRule::korobov(spp));
                 for i in 0..spp {
                     for (d, v) in s.get(i).iter().enumerate() {
                         assert!((0.0..1.0).contains(v));
@@ -170,16 +311,21 @@ mod tests {
         let exact: f64 = (0..DIMS)
             .map(|d| ((d + 1) as f64).sin() / (d + 1) as f64 + 1.0 / 3.0)
             .sum();
-        let rms = |kind| {
+        let rms = |kind, rule| {
             let mut e2 = 0.0;
             for p in 0..500u64 {
-                let s = PixelSampler::new(kind, 3, p);
+                let s = PixelSampler::new(kind, 3, p).with_rule(rule);
                 let est: f64 = (0..64).map(|i| f(s.get(i))).sum::<f64>() / 64.0;
                 e2 += (est - exact).powi(2);
             }
             (e2 / 500.0).sqrt()
         };
-        let (lat, ind) = (rms(SamplerKind::Lattice), rms(SamplerKind::Independent));
+        let (lat, ind) = (
+            rms(SamplerKind::Lattice, None),
+            rms(SamplerKind::Independent, None),
+        );
+        let kor = rms(SamplerKind::Lattice, LatticeRule::korobov(64));
         assert!(lat < 0.25 * ind, "lattice {lat} independent {ind}");
+        assert!(kor < 0.25 * ind, "korobov {kor} independent {ind}");
     }
 }
