@@ -245,7 +245,7 @@ mod tests {
                 .unwrap();
             eprintln!("n {n}: a = {}, worst Zaremba index {worst}", rule.z[1]);
             assert!(
-                worst as f64 >= 0.08 * n as f64,
+                worst as f64 >= KOROBOV_MIN_QUALITY * n as f64,
                 "n {n}: Zaremba index {worst}"
             );
         }
