@@ -37,7 +37,7 @@ struct SceneArgs {
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
 enum SamplerArg {
-    /// Cranley–Patterson-rotated R_d lattice (quasi-Monte Carlo).
+    /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
     Lattice,
     /// Independent hashed random numbers.
     Independent,

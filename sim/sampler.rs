@@ -24,7 +24,7 @@ pub const DIMS: usize = 5;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SamplerKind {
-    /// Cranley–Patterson-rotated R_d lattice (quasi-Monte Carlo).
+    /// Cranley–Patterson-rotated rank-1 lattice (Korobov for the spp where good, else R_5).
     Lattice,
     /// Independent hashed uniforms.
     Independent,
