@@ -224,7 +224,11 @@ mod tests {
     #[test]
     fn korobov_rule_stratifies_every_dimension() {
         for n in [16u64, 32, 128] {
-            assert_eq!(LatticeRule::korobov(n), None, "n = {n} has no good 5-D Korobov rule");
+            assert_eq!(
+                LatticeRule::korobov(n),
+                None,
+                "n = {n} has no good 5-D Korobov rule"
+            );
         }
         for n in [64u64, 100, 257] {
             let rule = LatticeRule::korobov(n).unwrap();

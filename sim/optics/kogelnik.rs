@@ -313,6 +313,32 @@ pub(crate) mod tests {
         };
         let eta = cw.reflection_efficiency();
         assert!(eta.is_finite() && eta > 0.0 && eta <= 1.0);
+        // The lossy form over the same extreme range: ν up to 1e3, |ξ| up to 1e6, α0·d up to 1e3.
+        for _ in 0..20000 {
+            let d = 1.0;
+            let c_r = rng.range(0.01, 1.0);
+            let c_s = -rng.range(0.01, 1.0);
+            let nu = 10f64.powf(rng.range(-8.0, 3.0));
+            let xi =
+                10f64.powf(rng.range(-8.0, 6.0)) * if rng.next_f64() < 0.5 { -1.0 } else { 1.0 };
+            // An absorption grating needs α1 ≤ α0 (no gain anywhere); κ = πn1/λ − iα1/2.
+            let alpha0 = 10f64.powf(rng.range(-6.0, 3.0));
+            let alpha1 = alpha0 * rng.next_f64();
+            let cw = CoupledWave {
+                kappa: Complex64::new(nu * (c_r * c_s.abs()).sqrt() / d, -0.5 * alpha1),
+                alpha0,
+                theta: -2.0 * xi * c_s / d,
+                c_r,
+                c_s,
+                d,
+            };
+            // Before any clamping: finite, and at most 1 (a lossy grating only loses energy).
+            let raw = cw.c_s.abs() / cw.c_r * cw.reflection_amplitude().norm_sqr();
+            assert!(
+                raw.is_finite() && (0.0..=1.0 + 1e-9).contains(&raw),
+                "{cw:?}: {raw}"
+            );
+        }
     }
 
     #[test]
