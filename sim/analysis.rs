@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use crate::optics::interface::critical_angle;
 use crate::system::System;
-use crate::trace::{Branch, BranchKind, trace_camera_path};
+use crate::trace::{Branch, BranchKind, plate_crossing, trace_camera_path};
 
 /// One replica of a probed chief ray.
 #[derive(Clone, Debug, Serialize)]
@@ -343,11 +343,9 @@ fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option<&'static s
         }
     }
     let u = -dir.truncate();
-    let p_back = cam.lens_center_mm.truncate()
-        + dir.truncate() * ((cam.lens_center_mm.z - wg.thickness_mm) / -dir.z);
     let lambda = wg.grating.bragg_wavelength_nm(u);
     let n = wg.n_glass(lambda.unwrap_or(sys.scene.hoe.recording_wavelength_nm));
-    let p_top = p_back - crate::optics::interface::lateral_shift(u, n, wg.thickness_mm);
+    let (_, p_top) = plate_crossing(wg, cam.lens_center_mm, dir, n);
     if !wg.top.contains(p_top) {
         return Some("top vHOE aperture");
     }

@@ -94,7 +94,12 @@ struct RowResult {
     stats: RenderStats,
 }
 
-fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
+fn render_row(
+    sys: &System,
+    set: &RenderSettings,
+    rule: Option<LatticeRule>,
+    row: usize,
+) -> RowResult {
     let cam = &sys.camera;
     let w = cam.width_px;
     let nch = sys.response.curves.len();
@@ -105,10 +110,6 @@ fn render_row(sys: &System, set: &RenderSettings, row: usize) -> RowResult {
     let pol = sys.display.polarization_weights;
     let disp = &sys.display;
     let lambda0 = sys.scene.hoe.recording_wavelength_nm;
-    let rule = match set.sampler {
-        SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
-        SamplerKind::Independent => None,
-    };
     for col in 0..w {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
@@ -199,10 +200,15 @@ pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     } else {
         indicatif::ProgressBar::hidden()
     };
+    // The lattice rule depends only on the sample count: search it once (O(spp²)).
+    let rule = match set.sampler {
+        SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
+        SamplerKind::Independent => None,
+    };
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
-            let r = render_row(sys, set, row);
+            let r = render_row(sys, set, rule, row);
             pb.inc(1);
             r
         })

@@ -95,6 +95,17 @@ fn scale(a: [f64; 2], s: f64) -> [f64; 2] {
     [a[0] * s, a[1] * s]
 }
 
+/// Where a camera ray (from `origin` behind the plate, `dir` with z < 0) meets the back face
+/// and, refracted with glass index `n_glass`, the front face: (back, front) as (x, y) in mm.
+#[inline]
+pub fn plate_crossing(wg: &Waveguide, origin: DVec3, dir: DVec3, n_glass: f64) -> (DVec2, DVec2) {
+    let p_back = origin.truncate() + dir.truncate() * ((origin.z - wg.thickness_mm) / -dir.z);
+    (
+        p_back,
+        p_back - lateral_shift(-dir.truncate(), n_glass, wg.thickness_mm),
+    )
+}
+
 /// Whether a camera ray also sees the user side straight through the plate (a broadband
 /// contribution): it misses the top vHOE, or the top vHOE is not covered. Uses the glass index
 /// at `lambda_nm` (the answer is needed before a wavelength is drawn; pass a fixed one).
@@ -102,10 +113,8 @@ pub fn sees_through(wg: &Waveguide, origin: DVec3, dir: DVec3, lambda_nm: f64) -
     if !wg.covered || dir.z >= 0.0 {
         return true;
     }
-    let u = -dir.truncate();
-    let p_back = origin.truncate() + dir.truncate() * ((origin.z - wg.thickness_mm) / -dir.z);
     !wg.top
-        .contains(p_back - lateral_shift(u, wg.n_glass(lambda_nm), wg.thickness_mm))
+        .contains(plate_crossing(wg, origin, dir, wg.n_glass(lambda_nm)).1)
 }
 
 /// Traces one camera ray (lens point `origin`, unit direction `dir` toward the screen) at
