@@ -29,7 +29,10 @@ pub struct Display {
     pub width_px: usize,
     /// Target height in pixels.
     pub height_px: usize,
-    /// Relative linear radiance per target pixel (row-major, row 0 top).
+    /// Linear intensity per target pixel in [0, 1] (0 = black, 1 = white; display gamma
+    /// already applied), row-major, row 0 top. This is the object vector f of g = Hf.
+    pub intensity: Vec<f64>,
+    /// Relative linear radiance per target pixel: black + (1 − black)·intensity.
     pub radiance: Vec<f64>,
     /// Relative radiance of black LCD pixels.
     pub black_level: f64,
@@ -42,9 +45,8 @@ pub struct Display {
 }
 
 impl Display {
-    /// Converts code values (or linear values if `linear`) into relative radiance. With three
-    /// channels (an RGB target) each is linearised first and then combined with the Rec. 709
-    /// luminance weights (0.2126, 0.7152, 0.0722).
+    /// Converts code values (or linear values if `linear`) into relative radiance
+    /// black + (1 − black)·[`Display::intensity_of`].
     pub fn linearise(
         values: &[f32],
         channels: usize,
@@ -52,6 +54,16 @@ impl Display {
         gamma: f64,
         black_level: f64,
     ) -> Vec<f64> {
+        Self::intensity_of(values, channels, linear, gamma)
+            .into_iter()
+            .map(|l| black_level + (1.0 - black_level) * l)
+            .collect()
+    }
+
+    /// Converts code values (or linear values if `linear`) into linear intensity in [0, 1].
+    /// With three channels (an RGB target) each is linearised first and then combined with
+    /// the Rec. 709 luminance weights (0.2126, 0.7152, 0.0722).
+    pub fn intensity_of(values: &[f32], channels: usize, linear: bool, gamma: f64) -> Vec<f64> {
         const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
         let lin = |v: f32| {
             let v = f64::from(v).clamp(0.0, 1.0);
@@ -60,14 +72,26 @@ impl Display {
         values
             .chunks_exact(channels.max(1))
             .map(|px| {
-                let l = if px.len() == 3 {
+                if px.len() == 3 {
                     px.iter().zip(LUMINANCE).map(|(&v, w)| w * lin(v)).sum()
                 } else {
                     lin(px[0])
-                };
-                black_level + (1.0 - black_level) * l
+                }
             })
             .collect()
+    }
+
+    /// Shows a new object: linear intensities in [0, 1] (clamped), one per target pixel,
+    /// row-major. The target size does not change.
+    pub fn set_intensity(&mut self, intensity: &[f64]) {
+        debug_assert_eq!(intensity.len(), self.width_px * self.height_px);
+        let bl = self.black_level;
+        self.intensity = intensity.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        self.radiance = self
+            .intensity
+            .iter()
+            .map(|l| bl + (1.0 - bl) * l)
+            .collect();
     }
 
     /// TE/TM power fractions for a polariser at `angle_deg` from x, or unpolarised (`None`).
@@ -92,6 +116,13 @@ impl Display {
         } else {
             None
         }
+    }
+
+    /// True if `p` lies on the lit LCD (the target or the black surround around it).
+    #[inline]
+    pub fn on_lcd(&self, p: DVec2) -> bool {
+        let d = (p - self.center_mm).abs();
+        (d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y) || self.pixel_at(p).is_some()
     }
 
     /// Relative radiance (white = 1) at point `p` on the display plane.
@@ -122,6 +153,7 @@ mod tests {
             image_pixel_mm: 2.7,
             width_px: 2,
             height_px: 2,
+            intensity: Display::intensity_of(&[1.0, 0.5, 0.0, 0.0], 1, false, 2.2),
             radiance: Display::linearise(&[1.0, 0.5, 0.0, 0.0], 1, false, 2.2, 0.001),
             black_level: 0.001,
             half_extent_mm: DVec2::new(259.2, 162.0),

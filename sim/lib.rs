@@ -6,13 +6,19 @@
 
 pub mod analysis;
 pub mod camera;
+pub mod demo;
 pub mod display;
+pub mod hadamard;
 pub mod io;
+pub mod matrix;
+pub mod noise;
 pub mod optics;
 pub mod output;
+pub mod recon;
 pub mod render;
 pub mod sampler;
 pub mod scene;
+pub mod sparse;
 pub mod spectra;
 pub mod system;
 pub mod targets;

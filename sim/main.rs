@@ -68,6 +68,123 @@ enum Command {
         #[arg(long, value_enum, default_value = "lattice")]
         sampler: SamplerArg,
     },
+    /// Compute the system matrix H in one pass: DIR/H.npz (scipy CSR), H.json, offset.npy.
+    Matrix {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output directory.
+        #[arg(long, default_value = "out/matrix")]
+        out: PathBuf,
+        /// Samples (camera paths) per pixel.
+        #[arg(long, default_value_t = 64)]
+        spp: u32,
+        /// Sampler seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Object (display) distance in mm for this H; the camera focus stays as the scene
+        /// sets it. Default: `display.distance_mm`.
+        #[arg(long = "depth-mm")]
+        depth_mm: Option<f64>,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Simulate the paper's Hadamard calibration of H: DIR/H_est.npz and calibration.json.
+    Calibrate {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output directory.
+        #[arg(long, default_value = "out/calibrate")]
+        out: PathBuf,
+        /// H_true to calibrate (scipy CSR .npz with its offset.npy); default: computed here.
+        #[arg(long)]
+        matrix: Option<PathBuf>,
+        /// Samples per pixel when H_true is computed here (and for --render frames).
+        #[arg(long, default_value_t = 64)]
+        spp: u32,
+        /// Seed of H_true, the rendered frames and the noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Sensor noise: `sensor` (the scene's [noise] section) or `none` (ideal camera).
+        #[arg(long, value_enum, default_value = "sensor")]
+        noise: NoiseArg,
+        /// Store the estimate with a dark frame subtracted from every frame (the report always
+        /// gives the errors with and without it).
+        #[arg(long)]
+        dark_frame: bool,
+        /// Render every pattern with the Monte Carlo tracer instead of applying H_true.
+        #[arg(long)]
+        render: bool,
+        /// Keep entries of H_est above this many predicted noise standard deviations.
+        #[arg(long, default_value_t = stscam::hadamard::DEFAULT_THRESHOLD_SIGMA)]
+        threshold_sigma: f64,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Reconstruct the object from a capture: DIR/recon.{exr,png,json}.
+    Reconstruct {
+        /// System matrix (scipy CSR .npz); its offset.npy is used when present.
+        #[arg(long)]
+        matrix: PathBuf,
+        /// Capture: EXR (channels in H's row order) or float .npy.
+        #[arg(long)]
+        capture: PathBuf,
+        /// Method.
+        #[arg(long, value_enum, default_value = "admm-tv")]
+        method: MethodArg,
+        /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see the README).
+        #[arg(long)]
+        iters: Option<usize>,
+        /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free).
+        #[arg(long, default_value_t = stscam::recon::admm::DEFAULT_TAU_REL)]
+        tau: f64,
+        /// Total variation.
+        #[arg(long, value_enum, default_value = "iso")]
+        tv: TvArg,
+        /// Object shape WxH (default: from H.json, else square).
+        #[arg(long, value_name = "WxH")]
+        object: Option<String>,
+        /// Offset to subtract from the capture (default: offset.npy beside the matrix, if any).
+        #[arg(long)]
+        offset: Option<PathBuf>,
+        /// Ground truth for PSNR/SSIM: a PNG (display code values), an EXR (linear) or a
+        /// built-in target spec.
+        #[arg(long)]
+        truth: Option<String>,
+        /// Display gamma used to linearise a PNG or built-in truth.
+        #[arg(long, default_value_t = 2.2)]
+        gamma: f64,
+        /// Output directory.
+        #[arg(long, default_value = "out/reconstruct")]
+        out: PathBuf,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// The paper's experiment end to end: targets, captures, H, calibration, CGM and ADMM-TV,
+    /// a table like its Table 1 and a figure like its Fig. 9.
+    Demo {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output directory.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// Samples per pixel for H and the captures.
+        #[arg(long, default_value_t = 64)]
+        spp: u32,
+        /// Seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        which: BenchCommand,
+    },
     /// Design summary: angles, replica pitch and count, Bragg wavelengths, field of view.
     Info {
         #[command(flatten)]
@@ -99,6 +216,51 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+    },
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+enum NoiseArg {
+    /// The scene's [noise] section.
+    Sensor,
+    /// An ideal camera.
+    None,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+enum MethodArg {
+    /// Conjugate gradients on the normal equations (the paper's CGM).
+    Cg,
+    /// ADMM with total variation.
+    AdmmTv,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+enum TvArg {
+    /// Isotropic TV.
+    Iso,
+    /// Anisotropic TV.
+    Aniso,
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// H, calibration and reconstruction speed at the scene's size (medians).
+    Recon {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Samples per pixel of H.
+        #[arg(long, default_value_t = 64)]
+        spp: u32,
+        /// Timed runs per reconstruction figure.
+        #[arg(long, default_value_t = 21)]
+        runs: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
 
@@ -236,6 +398,617 @@ fn cmd_render(
         cap.stats.camera_paths as f64 / render_s / 1e6,
         pool.current_num_threads()
     );
+    Ok(())
+}
+
+fn check_out_dir(out: &std::path::Path) -> Result<(), Failure> {
+    if out.exists() && !out.is_dir() {
+        return Err(bad_input(format!(
+            "{}: --out exists and is not a directory",
+            out.display()
+        )));
+    }
+    Ok(())
+}
+
+fn write_failure(e: impl std::fmt::Display) -> Failure {
+    Failure {
+        code: 1,
+        message: e.to_string(),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_matrix(
+    scene: &SceneArgs,
+    out: &std::path::Path,
+    spp: u32,
+    seed: u64,
+    depth_mm: Option<f64>,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
+    let start = Instant::now();
+    if spp == 0 {
+        return Err(bad_input("--spp: must be at least 1"));
+    }
+    if let Some(d) = depth_mm {
+        if !(d.is_finite() && d > 0.0) {
+            return Err(bad_input(format!("--depth-mm {d}: must be a positive distance")));
+        }
+    }
+    check_out_dir(out)?;
+    let pool = thread_pool(threads)?;
+    let (ls, mut sys) = pool.install(|| load(scene))?;
+    if let Some(d) = depth_mm {
+        sys.display.z_mm = -d;
+    }
+    let settings = RenderSettings {
+        spp,
+        seed,
+        sampler: SamplerKind::Lattice,
+        spectral_bins: None,
+        progress: std::io::stderr().is_terminal(),
+    };
+    let t0 = Instant::now();
+    let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &settings));
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let sidecar = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "command": "matrix",
+        "scene_source": ls.source,
+        "overrides": scene.set,
+        "scene": sys.scene,
+        "seed": seed,
+        "spp": spp,
+        "sampler": settings.sampler,
+        "depth_mm": -sys.display.z_mm,
+        "focus_distance_mm": sys.camera.focus_distance_mm,
+        "shape": [m.h.rows, m.h.cols],
+        "nnz": m.h.nnz(),
+        "density": m.h.nnz() as f64 / (m.h.rows as f64 * m.h.cols as f64),
+        "crop_px": [m.crop.0, m.crop.1],
+        "object_px": [m.object.0, m.object.1],
+        "channels": m.channels,
+        "rows": "crop pixels, row-major (row 0 at the top, column 0 at the left as seen from the camera); with several channels the rows are channel-major: row = channel_index * width * height + pixel",
+        "columns": "object (target) pixels, row-major, same orientation; the display is monochrome, one column per object pixel",
+        "units": stscam::matrix::MATRIX_UNITS,
+        "offset_file": "offset.npy",
+        "files": {"H.npz": "scipy.sparse CSR (float32 data, int32 indices and indptr while they fit)", "offset.npy": "float32 vector, one value per row of H"},
+        "threads": pool.current_num_threads(),
+        "matrix_time_s": matrix_s,
+        "wall_time_s": start.elapsed().as_secs_f64(),
+        "paths_per_second": m.stats.camera_paths as f64 / matrix_s,
+        "stats": m.stats,
+    });
+    stscam::output::write_matrix(out, &m, &sidecar).map_err(write_failure)?;
+    eprintln!(
+        "wrote {}/H.{{npz,json}} and offset.npy: {} x {}, {} stored entries ({:.3} % dense), {} spp, {:.3} s ({} threads)",
+        out.display(),
+        m.h.rows,
+        m.h.cols,
+        m.h.nnz(),
+        100.0 * m.h.nnz() as f64 / (m.h.rows as f64 * m.h.cols as f64),
+        spp,
+        matrix_s,
+        pool.current_num_threads()
+    );
+    Ok(())
+}
+
+fn parse_object(spec: &str) -> Result<(usize, usize), Failure> {
+    let parsed = spec
+        .split_once(['x', 'X'])
+        .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
+        .filter(|&(a, b): &(usize, usize)| a > 0 && b > 0);
+    parsed.ok_or_else(|| bad_input(format!("--object {spec}: expected WxH, e.g. 64x64")))
+}
+
+/// Reads a capture as one vector in H's row order (EXR channels in file order, or .npy).
+fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    let values: Vec<f64> = if is_npy {
+        let (_, v) = stscam::io::npz::read_npy_f32(path).map_err(|e| bad_input(e.to_string()))?;
+        v.into_iter().map(f64::from).collect()
+    } else {
+        let (_, _, chans) = stscam::io::read_exr(path).map_err(|e| bad_input(e.to_string()))?;
+        // Sensor channels only (Y or R, G, B), in H's channel-major row order.
+        let order = ["Y", "R", "G", "B"];
+        let mut v = Vec::new();
+        for name in order {
+            if let Some(c) = chans.iter().find(|c| c.name == name) {
+                v.extend(c.data.iter().map(|&x| f64::from(x)));
+            }
+        }
+        if v.is_empty() {
+            return Err(bad_input(format!(
+                "{}: no Y or R, G, B channel",
+                path.display()
+            )));
+        }
+        v
+    };
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(bad_input(format!(
+            "{}: value {i} is not a finite number",
+            path.display()
+        )));
+    }
+    Ok(values)
+}
+
+/// Linear intensities of a truth image or built-in target.
+fn load_truth(spec: &str, gamma: f64, w: usize, h: usize) -> Result<Vec<f64>, Failure> {
+    let (tw, th, v) = if stscam::system::is_image_path(spec) {
+        let img = stscam::io::load_image(std::path::Path::new(spec))
+            .map_err(|e| bad_input(e.to_string()))?;
+        let v = stscam::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
+        (img.width, img.height, v)
+    } else {
+        let t = stscam::targets::builtin_target(spec)
+            .map_err(|e| bad_input(format!("--truth: {e}")))?;
+        let v = stscam::display::Display::intensity_of(&t.values, 1, false, gamma);
+        (t.width, t.height, v)
+    };
+    if (tw, th) != (w, h) {
+        return Err(bad_input(format!(
+            "--truth {spec}: size {tw}x{th} differs from the object size {w}x{h}"
+        )));
+    }
+    Ok(v)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_calibrate(
+    scene: &SceneArgs,
+    out: &std::path::Path,
+    matrix: Option<&std::path::Path>,
+    spp: u32,
+    seed: u64,
+    noise: NoiseArg,
+    dark_frame: bool,
+    render_frames: bool,
+    threshold_sigma: f64,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
+    use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, display_pattern};
+    let start = Instant::now();
+    if spp == 0 {
+        return Err(bad_input("--spp: must be at least 1"));
+    }
+    if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
+        return Err(bad_input("--threshold-sigma: must be a non-negative number"));
+    }
+    check_out_dir(out)?;
+    let pool = thread_pool(threads)?;
+    let (ls, sys) = pool.install(|| load(scene))?;
+    let progress = std::io::stderr().is_terminal();
+    let rs = RenderSettings {
+        spp,
+        seed,
+        sampler: SamplerKind::Lattice,
+        spectral_bins: None,
+        progress,
+    };
+    let n_obj = sys.display.width_px * sys.display.height_px;
+    let t0 = Instant::now();
+    let (h_true, offset, object, source_desc) = match matrix {
+        Some(p) => {
+            let lm = stscam::matrix::load_matrix(p, None, None).map_err(|e| bad_input(e.to_string()))?;
+            let off = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
+            (lm.h, off, lm.object, p.display().to_string())
+        }
+        None => {
+            if !n_obj.is_power_of_two() {
+                return Err(bad_input(format!(
+                    "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
+                    sys.display.width_px, sys.display.height_px
+                )));
+            }
+            let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
+            (m.h, m.offset, m.object, "computed".to_string())
+        }
+    };
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let n = h_true.cols;
+    if !n.is_power_of_two() {
+        return Err(bad_input(format!(
+            "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
+        )));
+    }
+    let sensor_noise = (noise == NoiseArg::Sensor).then(|| {
+        let white = pool.install(|| h_true.mul_vec(&vec![1.0; n]));
+        let peak = white
+            .iter()
+            .zip(&offset)
+            .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
+        stscam::noise::SensorNoise::new(&sys.scene.noise, peak)
+    });
+    let t0 = Instant::now();
+    let frames: Option<Vec<Vec<f32>>> = if render_frames {
+        if object != (sys.display.width_px, sys.display.height_px) {
+            return Err(bad_input(format!(
+                "--render: the matrix object {}x{} differs from the scene's display target {}x{}",
+                object.0, object.1, sys.display.width_px, sys.display.height_px
+            )));
+        }
+        let bytes = (n as u64 + 1) * h_true.rows as u64 * 4;
+        if bytes > 4 << 30 {
+            return Err(bad_input(format!(
+                "--render: {} frames of {} values need {:.1} GiB; use a smaller object (display.image=...@16) or crop (sensor.crop_px)",
+                n + 1,
+                h_true.rows,
+                bytes as f64 / f64::from(1u32 << 30)
+            )));
+        }
+        let pb = if progress {
+            indicatif::ProgressBar::new(n as u64 + 1)
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        let mut fr = Vec::with_capacity(n + 1);
+        let quiet = RenderSettings {
+            progress: false,
+            ..rs.clone()
+        };
+        for i in 0..=n {
+            let mut s = sys.clone();
+            let u = if i < n { display_pattern(n, i) } else { vec![0.0; n] };
+            s.display.set_intensity(&u);
+            let cap = pool.install(|| stscam::render::render(&s, &quiet));
+            fr.push(cap.channels.concat());
+            pb.inc(1);
+        }
+        pb.finish_and_clear();
+        Some(fr)
+    } else {
+        None
+    };
+    let render_s = t0.elapsed().as_secs_f64();
+    let source = match &frames {
+        Some(f) => FrameSource::Rendered(f),
+        None => FrameSource::Matrix,
+    };
+    let settings = CalibrationSettings {
+        noise: sensor_noise.clone(),
+        seed,
+        dark_frame,
+        threshold_sigma,
+    };
+    let t0 = Instant::now();
+    let cal = pool
+        .install(|| calibrate(&h_true, &offset, source, &settings))
+        .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
+    let calibrate_s = t0.elapsed().as_secs_f64();
+    let npz = stscam::io::npz::encode_csr_npz(
+        &out.join("H_est.npz"),
+        cal.h_est.rows,
+        cal.h_est.cols,
+        &cal.h_est.indptr,
+        &cal.h_est.indices,
+        &cal.h_est.data,
+    )
+    .map_err(write_failure)?;
+    let report = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "command": "calibrate",
+        "scene_source": ls.source,
+        "overrides": scene.set,
+        "matrix": source_desc,
+        "spp": spp,
+        "seed": seed,
+        "frames_from": if render_frames { "rendered patterns" } else { "H_true" },
+        "noise": if noise == NoiseArg::Sensor { serde_json::to_value(&sys.scene.noise).unwrap_or_default() } else { serde_json::Value::String("none".into()) },
+        "exposure_electrons_per_unit": sensor_noise.as_ref().map(|s| s.electrons_per_unit),
+        "stored_variant": if dark_frame { "dark frame subtracted" } else { "no dark frame (the paper's procedure)" },
+        "threshold_sigma": threshold_sigma,
+        "errors": "relative Frobenius norm ||H_est - H_true|| / ||H_true|| of the full (dense) estimate; column0 relative to ||H_true[:,0]||; stored_overall is the thresholded estimate written to H_est.npz",
+        "report": cal.report,
+        "timings_s": {"matrix": matrix_s, "render_frames": render_s, "calibration": calibrate_s, "wall": start.elapsed().as_secs_f64()},
+        "threads": pool.current_num_threads(),
+    });
+    let sidecar = serde_json::json!({"object_px": [object.0, object.1], "units": stscam::matrix::MATRIX_UNITS, "from": "stscam calibrate"});
+    let report_bytes = serde_json::to_vec_pretty(&report).map_err(write_failure)?;
+    let sidecar_bytes = serde_json::to_vec_pretty(&sidecar).map_err(write_failure)?;
+    stscam::io::write_all_atomic(
+        out,
+        &[
+            ("H_est.npz", &npz),
+            ("H_est.json", &sidecar_bytes),
+            ("calibration.json", &report_bytes),
+        ],
+    )
+    .map_err(write_failure)?;
+    let r = &cal.report;
+    eprintln!(
+        "wrote {}/H_est.npz ({} entries) and calibration.json: relative error {:.3e} without dark frame (column 0: {:.3e}), {:.3e} with (column 0: {:.3e}); {:.2} s calibration",
+        out.display(),
+        r.stored_nnz,
+        r.without_dark_frame.overall,
+        r.without_dark_frame.column0,
+        r.with_dark_frame.overall,
+        r.with_dark_frame.column0,
+        calibrate_s
+    );
+    if r.saturated_rows > 0 {
+        eprintln!(
+            "warning: {} rows had a saturated frame; lower noise.exposure_fraction",
+            r.saturated_rows
+        );
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_reconstruct(
+    matrix: &std::path::Path,
+    capture: &std::path::Path,
+    method: MethodArg,
+    iters: Option<usize>,
+    tau: f64,
+    tv: TvArg,
+    object: Option<&str>,
+    offset: Option<&std::path::Path>,
+    truth: Option<&str>,
+    gamma: f64,
+    out: &std::path::Path,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
+    use stscam::recon::{Problem, admm, cg};
+    if !(tau.is_finite() && tau >= 0.0) {
+        return Err(bad_input(format!("--tau {tau}: must be a non-negative number")));
+    }
+    if !(gamma.is_finite() && gamma > 0.0) {
+        return Err(bad_input(format!("--gamma {gamma}: must be positive")));
+    }
+    if iters == Some(0) {
+        return Err(bad_input("--iters: must be at least 1"));
+    }
+    check_out_dir(out)?;
+    let object = object.map(parse_object).transpose()?;
+    let pool = thread_pool(threads)?;
+    let lm = stscam::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
+    let mut g = load_capture(capture)?;
+    if g.len() != lm.h.rows {
+        return Err(bad_input(format!(
+            "{}: the capture has {} values but {} has {} rows (crop pixels x channels); they must match",
+            capture.display(),
+            g.len(),
+            matrix.display(),
+            lm.h.rows
+        )));
+    }
+    if let Some(o) = &lm.offset {
+        for (x, &v) in g.iter_mut().zip(o) {
+            *x -= f64::from(v);
+        }
+    }
+    let (w, h) = lm.object;
+    let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    let t0 = Instant::now();
+    let problem = pool.install(|| Problem::new(&lm.h, w, h));
+    let setup_s = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let (f, info) = pool.install(|| {
+        let htg = problem.back_project(&g);
+        match method {
+            MethodArg::Cg => {
+                let set = cg::CgSettings {
+                    iters: iters.unwrap_or(stscam::recon::cg::DEFAULT_CG_ITERS),
+                    tol: 0.0,
+                };
+                let r = cg::cg_normal(&problem, &htg, &set);
+                let info = serde_json::json!({"method": "cg", "iterations": r.iterations, "relative_residual": r.relative_residual});
+                (r.f, info)
+            }
+            MethodArg::AdmmTv => {
+                let set = admm::AdmmSettings {
+                    iters: iters.unwrap_or(50),
+                    tau_rel: tau,
+                    tv: if tv == TvArg::Iso { admm::TvKind::Iso } else { admm::TvKind::Aniso },
+                    ..Default::default()
+                };
+                let r = admm::admm_tv(&problem, &htg, &set);
+                let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": tau, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
+                (r.f, info)
+            }
+        }
+    });
+    let solve_s = t0.elapsed().as_secs_f64();
+    let metrics = truth_v.as_ref().map(|t| {
+        serde_json::json!({
+            "psnr_db": stscam::recon::metrics::psnr(&f, t),
+            "ssim": stscam::recon::metrics::ssim(&f, t, w, h),
+            "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
+        })
+    });
+    let json = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "command": "reconstruct",
+        "matrix": matrix.display().to_string(),
+        "capture": capture.display().to_string(),
+        "offset": lm.offset_path.as_ref().map(|p| p.display().to_string()),
+        "object_px": [w, h],
+        "solver": info,
+        "gram_layout": problem.gram_layout(),
+        "setup_time_s": setup_s,
+        "frame_time_s": solve_s,
+        "metrics": metrics,
+        "units": "linear object intensity (0 = black, 1 = white display pixel)",
+    });
+    let exr = stscam::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?;
+    let png = stscam::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?;
+    let jb = serde_json::to_vec_pretty(&json).map_err(write_failure)?;
+    stscam::io::write_all_atomic(out, &[("recon.exr", &exr), ("recon.png", &png), ("recon.json", &jb)])
+        .map_err(write_failure)?;
+    let m = metrics
+        .map(|m| format!(", PSNR {:.2} dB, SSIM {:.3}", m["psnr_db"].as_f64().unwrap_or(f64::NAN), m["ssim"].as_f64().unwrap_or(f64::NAN)))
+        .unwrap_or_default();
+    eprintln!(
+        "wrote {}/recon.{{exr,png,json}}: {}x{}, set-up {:.3} s, frame {:.2} ms{m}",
+        out.display(),
+        w,
+        h,
+        setup_s,
+        solve_s * 1e3
+    );
+    Ok(())
+}
+
+fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, spp: u32, seed: u64, threads: Option<usize>) -> Result<(), Failure> {
+    if spp == 0 {
+        return Err(bad_input("--spp: must be at least 1"));
+    }
+    check_out_dir(out)?;
+    let pool = thread_pool(threads)?;
+    let (_, sys) = pool.install(|| load(scene))?;
+    let set = stscam::demo::DemoSettings {
+        spp,
+        seed,
+        cg: stscam::recon::cg::CgSettings {
+            iters: stscam::recon::cg::DEFAULT_CG_ITERS,
+            tol: 0.0,
+        },
+        admm: stscam::recon::admm::AdmmSettings::default(),
+        progress: std::io::stderr().is_terminal(),
+    };
+    let res = pool.install(|| stscam::demo::run_demo(&sys, &set)).map_err(bad_input)?;
+    let refs: Vec<(&str, &[u8])> = res.files.iter().map(|(n, b)| (n.as_str(), b.as_slice())).collect();
+    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    println!("{}", stscam::demo::table_markdown(&res.rows));
+    let t = &res.summary["timings_s"];
+    eprintln!(
+        "wrote {} ({} files: table.md, table.json, figure.png, H.npz, H_est.npz, calibration.json, images); {:.1} s in total ({} threads)",
+        out.display(),
+        res.files.len(),
+        t["total"].as_f64().unwrap_or(f64::NAN),
+        pool.current_num_threads()
+    );
+    Ok(())
+}
+
+/// Peak resident memory of this process so far (VmHWM), MiB, where the OS reports it.
+fn peak_rss_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
+    v.sort_by(f64::total_cmp);
+    serde_json::json!({
+        "median_ms": v[v.len() / 2] * 1e3,
+        "min_ms": v[0] * 1e3,
+        "max_ms": v[v.len() - 1] * 1e3,
+        "runs": v.len(),
+    })
+}
+
+fn cmd_bench_recon(scene: &SceneArgs, spp: u32, runs: usize, json: bool, threads: Option<usize>) -> Result<(), Failure> {
+    use stscam::recon::{Problem, admm, cg};
+    if spp == 0 || runs == 0 {
+        return Err(bad_input("--spp and --runs must be at least 1"));
+    }
+    let pool = thread_pool(threads)?;
+    let (_, sys) = pool.install(|| load(scene))?;
+    let rs = RenderSettings {
+        spp,
+        seed: 1,
+        sampler: SamplerKind::Lattice,
+        spectral_bins: None,
+        progress: false,
+    };
+    let t0 = Instant::now();
+    let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let matrix_peak = peak_rss_mib();
+    let n = m.h.cols;
+    let t0 = Instant::now();
+    let cal = if n.is_power_of_two() {
+        pool.install(|| {
+            stscam::hadamard::calibrate(
+                &m.h,
+                &m.offset,
+                stscam::hadamard::FrameSource::Matrix,
+                &stscam::hadamard::CalibrationSettings {
+                    noise: None,
+                    seed: 1,
+                    dark_frame: true,
+                    threshold_sigma: 0.0,
+                },
+            )
+            .ok()
+        })
+    } else {
+        None
+    };
+    let calibration_s = cal.as_ref().map(|_| t0.elapsed().as_secs_f64());
+    let t0 = Instant::now();
+    let p = pool.install(|| Problem::new(&m.h, m.object.0, m.object.1));
+    let setup_s = t0.elapsed().as_secs_f64();
+    // One frame: the capture H f + o of the scene's target, offset removed.
+    let g = m.h.mul_vec(&sys.display.intensity);
+    let cg_set = cg::CgSettings {
+        iters: cg::DEFAULT_CG_ITERS,
+        tol: 0.0,
+    };
+    let admm_set = admm::AdmmSettings::default();
+    let mut t_cg = Vec::new();
+    let mut t_admm = Vec::new();
+    let mut t_bp = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        let htg = pool.install(|| p.back_project(&g));
+        t_bp.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        let f = pool.install(|| {
+            let htg = p.back_project(&g);
+            cg::cg_normal(&p, &htg, &cg_set).f
+        });
+        t_cg.push(t.elapsed().as_secs_f64());
+        std::hint::black_box((f, htg));
+        let t = Instant::now();
+        let f = pool.install(|| {
+            let htg = p.back_project(&g);
+            admm::admm_tv(&p, &htg, &admm_set).f
+        });
+        t_admm.push(t.elapsed().as_secs_f64());
+        std::hint::black_box(f);
+    }
+    let out = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "threads": pool.current_num_threads(),
+        "shape": [m.h.rows, m.h.cols],
+        "matrix": {"seconds": matrix_s, "spp": spp, "nnz": m.h.nnz(), "peak_rss_mib": matrix_peak},
+        "calibration": {"seconds": calibration_s, "frames_from": "H_true, no noise, dark frame, every entry kept"},
+        "setup": {"seconds": setup_s, "gram_nnz": p.gram_nnz, "gram_layout": p.gram_layout()},
+        "back_projection": median_ms(t_bp),
+        "cgm": {"iters": cg_set.iters, "timing": median_ms(t_cg)},
+        "admm_tv": {"iters": admm_set.iters, "inner_cg_iters": admm_set.inner_iters, "timing": median_ms(t_admm)},
+        "peak_rss_mib": peak_rss_mib(),
+    });
+    if json {
+        println!("{}", to_json(&out)?);
+    } else {
+        println!(
+            "H {}x{} ({} entries): {:.2} s, peak memory {:.0} MiB",
+            m.h.rows,
+            m.h.cols,
+            m.h.nnz(),
+            matrix_s,
+            matrix_peak.unwrap_or(f64::NAN)
+        );
+        if let Some(c) = calibration_s {
+            println!("calibration (frames from H, transform, errors): {c:.2} s");
+        }
+        println!("reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s", p.gram_nnz, p.gram_layout(), setup_s);
+        println!("per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
+            out["back_projection"]["median_ms"].as_f64().unwrap_or(f64::NAN),
+            cg_set.iters, out["cgm"]["timing"]["median_ms"].as_f64().unwrap_or(f64::NAN),
+            admm_set.iters, out["admm_tv"]["timing"]["median_ms"].as_f64().unwrap_or(f64::NAN));
+    }
     Ok(())
 }
 
@@ -418,6 +1191,80 @@ fn main() -> ExitCode {
             spectral,
             sampler,
         } => cmd_render(scene, out, *spp, *seed, *threads, *spectral, *sampler),
+        Command::Matrix {
+            scene,
+            out,
+            spp,
+            seed,
+            depth_mm,
+            threads,
+        } => cmd_matrix(scene, out, *spp, *seed, *depth_mm, *threads),
+        Command::Calibrate {
+            scene,
+            out,
+            matrix,
+            spp,
+            seed,
+            noise,
+            dark_frame,
+            render,
+            threshold_sigma,
+            threads,
+        } => cmd_calibrate(
+            scene,
+            out,
+            matrix.as_deref(),
+            *spp,
+            *seed,
+            *noise,
+            *dark_frame,
+            *render,
+            *threshold_sigma,
+            *threads,
+        ),
+        Command::Reconstruct {
+            matrix,
+            capture,
+            method,
+            iters,
+            tau,
+            tv,
+            object,
+            offset,
+            truth,
+            gamma,
+            out,
+            threads,
+        } => cmd_reconstruct(
+            matrix,
+            capture,
+            *method,
+            *iters,
+            *tau,
+            *tv,
+            object.as_deref(),
+            offset.as_deref(),
+            truth.as_deref(),
+            *gamma,
+            out,
+            *threads,
+        ),
+        Command::Demo {
+            scene,
+            out,
+            spp,
+            seed,
+            threads,
+        } => cmd_demo(scene, out, *spp, *seed, *threads),
+        Command::Bench { which } => match which {
+            BenchCommand::Recon {
+                scene,
+                spp,
+                runs,
+                json,
+                threads,
+            } => cmd_bench_recon(scene, *spp, *runs, *json, *threads),
+        },
         Command::Info { scene, json } => cmd_info(scene, *json),
         Command::Compare { a, b, map, json } => cmd_compare(a, b, map.as_deref(), *json),
         Command::Probe { scene, pixel, json } => cmd_probe(scene, pixel, *json),

@@ -99,3 +99,62 @@ pub fn write_capture(
     )?;
     Ok(())
 }
+
+/// Writes `H.npz` (scipy CSR), `offset.npy` and `H.json` into `dir`, all or nothing.
+pub fn write_matrix(
+    dir: &Path,
+    m: &crate::matrix::SystemMatrix,
+    sidecar: &serde_json::Value,
+) -> Result<(), IoError> {
+    let npz = crate::io::npz::encode_csr_npz(
+        &dir.join("H.npz"),
+        m.h.rows,
+        m.h.cols,
+        &m.h.indptr,
+        &m.h.indices,
+        &m.h.data,
+    )?;
+    let off = crate::io::npz::encode_npy_f32(&dir.join("offset.npy"), &[m.offset.len()], &m.offset)?;
+    let json = serde_json::to_vec_pretty(sidecar).map_err(|e| IoError::Format {
+        path: dir.join("H.json"),
+        message: e.to_string(),
+    })?;
+    write_all_atomic(
+        dir,
+        &[("H.npz", &npz), ("offset.npy", &off), ("H.json", &json)],
+    )
+}
+
+/// Encodes object intensities (linear, 0 = black, 1 = white display pixel) as a 16-bit grey
+/// PNG of display code values V = clamp(f, 0, 1)^(1/γ): the PNG shown on the scene's display
+/// reproduces the object.
+pub fn encode_object_png(
+    intensity: &[f64],
+    width: usize,
+    height: usize,
+    gamma: f64,
+) -> Result<Vec<u8>, String> {
+    let samples: Vec<u16> = intensity
+        .iter()
+        .map(|&v| (v.clamp(0.0, 1.0).powf(1.0 / gamma) * 65535.0).round() as u16)
+        .collect();
+    encode_png16(width, height, 1, &samples)
+}
+
+/// Encodes object intensities as a linear float32 EXR with one `Y` channel (not clipped).
+pub fn encode_object_exr(
+    intensity: &[f64],
+    width: usize,
+    height: usize,
+    attrs: &[(String, ExrAttr)],
+) -> Result<Vec<u8>, String> {
+    encode_exr(
+        width,
+        height,
+        vec![ExrChannel {
+            name: "Y".to_string(),
+            data: intensity.iter().map(|&v| v as f32).collect(),
+        }],
+        attrs,
+    )
+}

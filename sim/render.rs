@@ -60,7 +60,8 @@ pub struct RenderStats {
 }
 
 impl RenderStats {
-    fn merge(&mut self, o: &RenderStats) {
+    /// Adds the counters of `o` (maxima for the max fields).
+    pub fn merge(&mut self, o: &RenderStats) {
         self.camera_paths += o.camera_paths;
         self.branches += o.branches;
         self.contacts += o.contacts;
@@ -94,80 +95,154 @@ struct RowResult {
     stats: RenderStats,
 }
 
+/// One camera sample ready to trace: the ray, its wavelength and the factor
+/// cos⁴θ·S(λ)/p(λ) shared by every branch. Render and matrix draw samples with this one
+/// function, so equal seeds give equal samples (the contract H·f = render(f)).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CameraSample {
+    pub(crate) ray: crate::camera::CameraRay,
+    pub(crate) lambda_nm: f64,
+    pub(crate) factor: f64,
+}
+
+/// Sample `i` of pixel (col, row), or `None` when its wavelength falls outside the band.
+#[inline]
+pub(crate) fn camera_sample(
+    sys: &System,
+    sampler: &PixelSampler,
+    col: usize,
+    row: usize,
+    i: u64,
+) -> Option<CameraSample> {
+    let u = sampler.get(i);
+    let ray = sys.camera.generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
+    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
+    let lb = sys
+        .waveguide
+        .grating
+        .bragg_wavelength_nm(-ray.dir.truncate());
+    // Paths that also see straight through the plate need a broadband wavelength density.
+    let fu = if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
+        sys.wavelengths
+            .uniform_fraction()
+            .max(BROADBAND_UNIFORM_FRACTION)
+    } else {
+        sys.wavelengths.uniform_fraction()
+    };
+    let (lambda, pdf) = sys.wavelengths.sample_mixed(u[4], lb, fu);
+    if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
+        return None;
+    }
+    Some(CameraSample {
+        ray,
+        lambda_nm: lambda,
+        factor: ray.cos4 * sys.display.spectrum.eval(lambda) / pdf,
+    })
+}
+
+/// Traces one sample and calls `visit(weight, object_point)` for every branch that reaches the
+/// display plane, with the weight already averaged over the display's polarisation.
+#[inline]
+pub(crate) fn trace_sample(
+    sys: &System,
+    s: &CameraSample,
+    stats: &mut RenderStats,
+    mut visit: impl FnMut(f64, glam::DVec2),
+) {
+    let pol = sys.display.polarization_weights;
+    let mut max_w: f64 = 0.0;
+    let mut branches = 0u64;
+    stats.camera_paths += 1;
+    let summary = trace_camera_path(
+        &sys.waveguide,
+        sys.display.z_mm,
+        sys.limits,
+        s.ray.origin,
+        s.ray.dir,
+        s.lambda_nm,
+        |b| {
+            branches += 1;
+            max_w = max_w.max(b.weight[0]).max(b.weight[1]);
+            let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
+            if wt > 0.0 {
+                visit(wt, b.object_point_mm);
+            }
+        },
+    );
+    stats.branches += branches;
+    stats.contacts += u64::from(summary.contacts);
+    stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
+    stats.max_truncated_weight = stats.max_truncated_weight.max(summary.truncated_weight);
+    stats.max_branch_weight = stats.max_branch_weight.max(max_w);
+}
+
+/// Per-channel spectral weights R_c(λ)/∫R_c of the sensor response.
+#[inline]
+pub(crate) fn channel_weights(sys: &System, lambda_nm: f64) -> [f64; 4] {
+    let mut r = [0.0; 4];
+    for (c, w) in r.iter_mut().enumerate().take(sys.response.curves.len()) {
+        *w = sys.response.curves[c].eval(lambda_nm) * sys.response.inv_integral[c];
+    }
+    r
+}
+
+/// The lattice rule of a render (searched once; it depends only on the sample count).
+pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
+    match set.sampler {
+        SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
+        SamplerKind::Independent => None,
+    }
+}
+
+/// A progress bar over `len` rows, hidden unless `show`.
+pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    indicatif::ProgressBar::new(len as u64).with_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta_precise}}] {{per_sec}}"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    )
+}
+
 fn render_row(
     sys: &System,
     set: &RenderSettings,
     rule: Option<LatticeRule>,
     row: usize,
 ) -> RowResult {
-    let cam = &sys.camera;
-    let w = cam.width_px;
+    let w = sys.camera.width_px;
     let nch = sys.response.curves.len();
     let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let mut values = vec![0.0; w * nch];
     let mut spectral = vec![0.0; w * nbins];
     let mut stats = RenderStats::default();
-    let pol = sys.display.polarization_weights;
     let disp = &sys.display;
-    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
     for col in 0..w {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         let mut acc = [0.0f64; 4];
         for i in 0..u64::from(set.spp) {
-            let u = sampler.get(i);
-            let ray = cam.generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
-            stats.camera_paths += 1;
-            let lb = sys
-                .waveguide
-                .grating
-                .bragg_wavelength_nm(-ray.dir.truncate());
-            // Paths that also see straight through the plate need a broadband wavelength density.
-            let fu = if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
-                sys.wavelengths
-                    .uniform_fraction()
-                    .max(BROADBAND_UNIFORM_FRACTION)
-            } else {
-                sys.wavelengths.uniform_fraction()
-            };
-            let (lambda, pdf) = sys.wavelengths.sample_mixed(u[4], lb, fu);
-            if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
+            let Some(s) = camera_sample(sys, &sampler, col, row, i) else {
                 continue;
-            }
+            };
             let mut radiance = 0.0;
-            let mut max_w: f64 = 0.0;
-            let mut branches = 0u64;
-            let summary = trace_camera_path(
-                &sys.waveguide,
-                disp.z_mm,
-                sys.limits,
-                ray.origin,
-                ray.dir,
-                lambda,
-                |b| {
-                    branches += 1;
-                    max_w = max_w.max(b.weight[0]).max(b.weight[1]);
-                    let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
-                    if wt > 0.0 {
-                        radiance += wt * disp.radiance_at(b.object_point_mm);
-                    }
-                },
-            );
-            stats.branches += branches;
-            stats.contacts += u64::from(summary.contacts);
-            stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
-            stats.max_truncated_weight = stats.max_truncated_weight.max(summary.truncated_weight);
-            stats.max_branch_weight = stats.max_branch_weight.max(max_w);
-            let base = ray.cos4 * disp.spectrum.eval(lambda) * radiance / pdf;
+            trace_sample(sys, &s, &mut stats, |wt, x| {
+                radiance += wt * disp.radiance_at(x);
+            });
+            let base = s.factor * radiance;
             if !base.is_finite() {
                 stats.nonfinite_samples += 1;
                 continue;
             }
-            for (c, a) in acc.iter_mut().enumerate().take(nch) {
-                *a += base * sys.response.curves[c].eval(lambda) * sys.response.inv_integral[c];
+            let r = channel_weights(sys, s.lambda_nm);
+            for (a, rc) in acc.iter_mut().zip(r).take(nch) {
+                *a += base * rc;
             }
             if let Some((start, width, n)) = set.spectral_bins {
-                let k = ((lambda - start) / width).floor();
+                let k = ((s.lambda_nm - start) / width).floor();
                 if k >= 0.0 && (k as usize) < n {
                     spectral[col * nbins + k as usize] += base / width;
                 }
@@ -192,19 +267,8 @@ fn render_row(
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     let cam = &sys.camera;
     let (w, h) = (cam.width_px, cam.height_px);
-    let pb = if set.progress {
-        indicatif::ProgressBar::new(h as u64).with_style(
-            indicatif::ProgressStyle::with_template("{spinner} rendering rows {pos}/{len} [{elapsed_precise} < {eta_precise}] {per_sec}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        )
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    // The lattice rule depends only on the sample count: search it once (O(spp²)).
-    let rule = match set.sampler {
-        SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
-        SamplerKind::Independent => None,
-    };
+    let pb = row_progress(set.progress, h, "rendering rows");
+    let rule = lattice_rule(set);
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {

@@ -241,6 +241,24 @@ pub struct SamplingDesc {
     pub max_contacts: u32,
 }
 
+/// `[noise]`: the camera's sensor noise model, used when a command adds noise to captures or
+/// calibration frames (`calibrate`, `reconstruct`, `demo`, datasets).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseDesc {
+    /// Full-well capacity, electrons.
+    pub full_well_e: f64,
+    /// Exposure: the brightest pixel of the all-white capture reaches this fraction of full
+    /// scale (the exposure is set once from the all-white frame and kept for every frame).
+    pub exposure_fraction: f64,
+    /// Read noise, electrons RMS.
+    pub read_noise_e: f64,
+    /// Dark offset (camera black level), digital numbers.
+    pub dark_offset_dn: f64,
+    /// ADC bit depth; full scale 2^bits − 1 DN maps to the full well.
+    pub bit_depth: u32,
+}
+
 /// A complete scene description.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -261,6 +279,8 @@ pub struct Scene {
     pub display: DisplayDesc,
     /// Sampling.
     pub sampling: SamplingDesc,
+    /// Sensor noise.
+    pub noise: NoiseDesc,
 }
 
 /// A scene with the context needed to resolve its assets and report errors.
@@ -714,6 +734,28 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(ls, sm.max_contacts >= 1, "sampling.max_contacts", || {
         "must be at least 1".into()
     })?;
+    let nz = &s.noise;
+    positive(ls, nz.full_well_e, "noise.full_well_e")?;
+    check(
+        ls,
+        nz.exposure_fraction > 0.0 && nz.exposure_fraction <= 1.0,
+        "noise.exposure_fraction",
+        || format!("must be in (0, 1], got {}", nz.exposure_fraction),
+    )?;
+    in_range(ls, nz.read_noise_e, 0.0, 1e6, "noise.read_noise_e")?;
+    check(
+        ls,
+        (1..=24).contains(&nz.bit_depth),
+        "noise.bit_depth",
+        || format!("must be in [1, 24], got {}", nz.bit_depth),
+    )?;
+    let full_scale = f64::from((1u32 << nz.bit_depth) - 1);
+    check(
+        ls,
+        nz.dark_offset_dn.is_finite() && nz.dark_offset_dn >= 0.0 && nz.dark_offset_dn < full_scale,
+        "noise.dark_offset_dn",
+        || format!("must be in [0, {full_scale}) (the ADC range), got {}", nz.dark_offset_dn),
+    )?;
     Ok(())
 }
 

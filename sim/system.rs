@@ -197,6 +197,7 @@ pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
         image_pixel_mm: d.pixel_pitch_mm * f64::from(d.lcd_pixels_per_image_pixel),
         width_px: w,
         height_px: h,
+        intensity: Display::intensity_of(&values, channels, linear, d.gamma),
         radiance: Display::linearise(&values, channels, linear, d.gamma, d.black_level),
         black_level: d.black_level,
         half_extent_mm: DVec2::new(f64::from(d.size_px[0]), f64::from(d.size_px[1]))

@@ -12,6 +12,8 @@
 //!   largest integer factor that fits (`letter` keeps a one-glyph margin).
 //! - `siemens:N` — binary Siemens star with N spoke pairs.
 //! - `gradient` — horizontal ramp from 0 (left pixel centre) to 1 (right).
+//! - `shape:NAME` — a filled binary shape: `disk`, `ring`, `triangle`, `star` (five-pointed),
+//!   `cross`, `heart`; a pixel is lit when its centre is inside.
 //! - `smooth:SEED` — smooth photo-like field from a seeded PRNG, in
 //!   `[0.05, 0.95]`, bit-identical on every platform.
 
@@ -56,6 +58,7 @@ const NAMES: &[&str] = &[
     "siemens:N",
     "gradient",
     "smooth:SEED",
+    "shape:disk|ring|triangle|star|cross|heart",
 ];
 
 /// The name patterns accepted by [`builtin_target`], for help text.
@@ -132,6 +135,7 @@ fn parse(spec: &str) -> Result<Target, String> {
         ("text", Some(a)) if !a.is_empty() => draw_text(size, a, false)?,
         ("siemens", Some(a)) => siemens(size, bars(a)?),
         ("gradient", None) => Target::from_fn(size, |x, _| (x as f64 / (size - 1) as f64) as f32),
+        ("shape", Some(a)) => shape(size, a)?,
         ("smooth", Some(a)) => match a.parse::<u64>() {
             Ok(seed) => smooth(size, seed),
             Err(_) => return Err(format!("seed {a:?} is not an unsigned integer")),
@@ -182,6 +186,88 @@ fn draw_text(size: usize, text: &str, margin: bool) -> Result<Target, String> {
         let on = col < GLYPH_W && (glyphs[index][fy] >> (GLYPH_W - 1 - col)) & 1 == 1;
         if on { 1.0 } else { 0.0 }
     }))
+}
+
+/// Point-in-polygon by the crossing rule.
+fn inside_polygon(p: (f64, f64), poly: &[(f64, f64)]) -> bool {
+    let mut inside = false;
+    let mut j = poly.len() - 1;
+    for i in 0..poly.len() {
+        let (a, b) = (poly[i], poly[j]);
+        if (a.1 > p.1) != (b.1 > p.1) && p.0 < (b.0 - a.0) * (p.1 - a.1) / (b.1 - a.1) + a.0 {
+            inside = !inside;
+        }
+        j = i;
+    }
+    inside
+}
+
+fn shape(size: usize, name: &str) -> Result<Target, String> {
+    // Normalised coordinates: x right, y up, the image spans [-1, 1]².
+    let star: Vec<(f64, f64)> = (0..10)
+        .map(|k| {
+            let r = if k % 2 == 0 { 0.85 } else { 0.34 };
+            let a = PI / 2.0 + k as f64 * PI / 5.0;
+            (r * a.cos(), r * a.sin() - 0.05)
+        })
+        .collect();
+    let test: Box<dyn Fn(f64, f64) -> bool> = match name {
+        "disk" => Box::new(|x, y| x * x + y * y < 0.75 * 0.75),
+        "ring" => Box::new(|x, y| (0.45 * 0.45..0.8 * 0.8).contains(&(x * x + y * y))),
+        "triangle" => Box::new(|x, y| {
+            inside_polygon((x, y), &[(-0.8, -0.6), (0.8, -0.6), (0.0, 0.78)])
+        }),
+        "star" => Box::new(move |x, y| inside_polygon((x, y), &star)),
+        "cross" => Box::new(|x, y| {
+            (x.abs() < 0.22 && y.abs() < 0.8) || (y.abs() < 0.22 && x.abs() < 0.8)
+        }),
+        "heart" => Box::new(|x, y| {
+            let (x, y) = (x / 0.8, (y + 0.1) / 0.8);
+            (x * x + y * y - 1.0).powi(3) - x * x * y * y * y < 0.0
+        }),
+        _ => {
+            return Err(format!(
+                "shape {name:?} is not one of disk, ring, triangle, star, cross, heart"
+            ));
+        }
+    };
+    let s = size as f64;
+    Ok(Target::from_fn(size, |c, r| {
+        let x = (c as f64 + 0.5) / s * 2.0 - 1.0;
+        let y = 1.0 - (r as f64 + 0.5) / s * 2.0;
+        if test(x, y) { 1.0 } else { 0.0 }
+    }))
+}
+
+/// Renders `text` with the embedded 5×7 font at `scale` pixels per font pixel, as a
+/// (width, height, values) image with one font pixel of margin; characters the font lacks are
+/// drawn as spaces. For labels in figures.
+pub fn label(text: &str, scale: usize) -> (usize, usize, Vec<f32>) {
+    let glyphs: Vec<[u8; GLYPH_H]> = text
+        .chars()
+        .map(|c| glyph(c).unwrap_or([0; GLYPH_H]))
+        .collect();
+    let scale = scale.max(1);
+    let cols = (glyphs.len() * (GLYPH_W + 1)).max(1) + 1;
+    let rows = GLYPH_H + 2;
+    let (w, h) = (cols * scale, rows * scale);
+    let mut v = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (fx, fy) = (x / scale, y / scale);
+            if fx == 0 || fy == 0 || fy > GLYPH_H {
+                continue;
+            }
+            let (index, col) = ((fx - 1) / (GLYPH_W + 1), (fx - 1) % (GLYPH_W + 1));
+            if index < glyphs.len()
+                && col < GLYPH_W
+                && (glyphs[index][fy - 1] >> (GLYPH_W - 1 - col)) & 1 == 1
+            {
+                v[y * w + x] = 1.0;
+            }
+        }
+    }
+    (w, h, v)
 }
 
 /// Binary Siemens star: lit where `floor(n * angle / pi)` is even, with the
@@ -552,6 +638,30 @@ mod tests {
                 .unwrap_err()
                 .contains("unknown target name")
         );
-        assert_eq!(builtin_names().len(), 13);
+        assert_eq!(builtin_names().len(), 14);
+    }
+
+    #[test]
+    fn shapes_have_the_expected_area_and_symmetry() {
+        let n = 256;
+        let frac = |t: &Target| t.values.iter().filter(|&&v| v > 0.5).count() as f64 / (n * n) as f64;
+        let disk = builtin_target("shape:disk@256").unwrap();
+        // π·0.75²/4 of the square [-1, 1]².
+        assert!((frac(&disk) - PI * 0.75 * 0.75 / 4.0).abs() < 0.005);
+        let ring = builtin_target("shape:ring@256").unwrap();
+        assert!((frac(&ring) - PI * (0.64 - 0.2025) / 4.0).abs() < 0.005);
+        let tri = builtin_target("shape:triangle@256").unwrap();
+        assert!((frac(&tri) - 0.5 * 1.6 * 1.38 / 4.0).abs() < 0.005);
+        for name in ["star", "heart", "cross", "triangle"] {
+            let t = builtin_target(&format!("shape:{name}@{n}")).unwrap();
+            // Left-right mirror symmetry; the centre region is lit.
+            for r in 0..n {
+                for c in 0..n {
+                    assert_eq!(t.values[r * n + c], t.values[r * n + n - 1 - c], "{name}");
+                }
+            }
+            assert_eq!(t.values[(n / 2) * n + n / 2], 1.0, "{name}");
+        }
+        assert!(builtin_target("shape:blob").unwrap_err().contains("not one of"));
     }
 }

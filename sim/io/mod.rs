@@ -1,10 +1,12 @@
 //! File input/output for the simulator: atomic writes, OpenEXR (including the
 //! spectral-EXR channel layout), 16-bit PNG encoding with a preview tone map,
-//! and loading of display images from PNG or EXR.
+//! loading of display images from PNG or EXR, and NumPy `.npy`/`.npz` files
+//! (including scipy.sparse CSR matrices).
 
 pub mod atomic;
 pub mod exr;
 pub mod image_load;
+pub mod npz;
 pub mod png;
 
 use std::path::{Path, PathBuf};
@@ -12,6 +14,10 @@ use std::path::{Path, PathBuf};
 pub use self::atomic::{write_all_atomic, write_atomic};
 pub use self::exr::{ExrAttr, ExrChannel, encode_exr, read_exr, spectral_channel_name};
 pub use self::image_load::{LoadedImage, load_image};
+pub use self::npz::{
+    CsrParts, decode_csr_npz, decode_npy_f32, encode_csr_npz, encode_npy_f32, read_csr_npz,
+    read_npy_f32,
+};
 pub use self::png::{encode_png16, preview_u16};
 
 /// Largest pixel count accepted when reading an image, so that a corrupt or

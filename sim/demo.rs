@@ -1,0 +1,434 @@
+//! The paper's experiment end to end (its §4, Fig. 9 and Table 1), on a simulated camera.
+//!
+//! 1. H of the scene (`matrix`, seed s) and its offset (LCD black leakage).
+//! 2. Four built-in targets (two binary: a glyph and a shape; two grayscale: a Siemens star
+//!    and a smooth photo-like field), each rendered by the Monte Carlo tracer with an
+//!    *independent* seed (s + 1), so the captures do not share H's sampling noise (no
+//!    "inverse crime"), then measured by the sensor noise model with the exposure set from the
+//!    all-white capture; a noisy dark frame (all-black display) is subtracted.
+//! 3. The Hadamard calibration (`hadamard.rs`) from H with the same noise model, with the dark
+//!    frame subtracted, giving H_est.
+//! 4. CGM and ADMM-TV with H and with H_est; PSNR and SSIM against the object (`metrics.rs`:
+//!    linear intensities in [0, 1], reconstruction clipped, not rescaled).
+//! Outputs: a Markdown and JSON table (like the paper's Table 1), a figure (object | capture |
+//! CGM | ADMM-TV per row, for H and H_est), every image, H, H_est and the calibration report.
+
+use std::time::Instant;
+
+use crate::hadamard::{CalibrationReport, CalibrationSettings, FrameSource, calibrate};
+use crate::matrix::{SystemMatrix, compute_matrix};
+use crate::noise::{NoiseRng, SensorNoise};
+use crate::recon::Problem;
+use crate::recon::admm::{AdmmSettings, admm_tv};
+use crate::recon::cg::{CgSettings, cg_normal};
+use crate::recon::metrics::{psnr, ssim};
+use crate::render::{RenderSettings, render};
+use crate::system::System;
+
+/// The demo's targets: (name, kind, built-in spec without size).
+pub const DEMO_TARGETS: [(&str, &str, &str); 4] = [
+    ("glyph", "binary", "letter:A"),
+    ("heart", "binary", "shape:heart"),
+    ("siemens", "grayscale", "siemens:12"),
+    ("smooth", "grayscale", "smooth:7"),
+];
+
+/// Settings of the demo.
+#[derive(Clone, Debug)]
+pub struct DemoSettings {
+    /// Samples per pixel for H and the captures.
+    pub spp: u32,
+    /// Seed (H uses it, captures use seed + 1, noise uses it too).
+    pub seed: u64,
+    /// CGM settings.
+    pub cg: CgSettings,
+    /// ADMM-TV settings.
+    pub admm: AdmmSettings,
+    /// Show progress bars.
+    pub progress: bool,
+}
+
+/// One row of the table.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DemoRow {
+    /// Target name.
+    pub target: String,
+    /// "binary" or "grayscale".
+    pub kind: String,
+    /// Built-in spec.
+    pub spec: String,
+    /// "true" (the H of the model) or "calibrated" (H_est).
+    pub matrix: String,
+    /// "cgm" or "admm-tv".
+    pub method: String,
+    /// PSNR, dB.
+    pub psnr_db: f64,
+    /// SSIM.
+    pub ssim: f64,
+    /// Per-frame solve time (back-projection + iterations), ms.
+    pub frame_ms: f64,
+}
+
+/// Everything the demo produced, in memory: files (name, bytes) and the summary.
+pub struct DemoOutput {
+    /// Files to write, flat names.
+    pub files: Vec<(String, Vec<u8>)>,
+    /// Table rows.
+    pub rows: Vec<DemoRow>,
+    /// Calibration report.
+    pub calibration: CalibrationReport,
+    /// Summary JSON (timings, settings).
+    pub summary: serde_json::Value,
+}
+
+fn intensity_of_spec(spec: &str, gamma: f64) -> Result<(usize, usize, Vec<f64>), String> {
+    let t = crate::targets::builtin_target(spec)?;
+    Ok((
+        t.width,
+        t.height,
+        crate::display::Display::intensity_of(&t.values, 1, false, gamma),
+    ))
+}
+
+/// Runs the demo on `sys` (its display target fixes the object size, which must be square).
+pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> {
+    let t_all = Instant::now();
+    let (ow, oh) = (sys.display.width_px, sys.display.height_px);
+    if ow != oh {
+        return Err(format!(
+            "display.image: the demo needs a square object, got {ow}x{oh}"
+        ));
+    }
+    let gamma = sys.scene.display.gamma;
+    let rs = |seed: u64| RenderSettings {
+        spp: set.spp,
+        seed,
+        sampler: crate::sampler::SamplerKind::Lattice,
+        spectral_bins: None,
+        progress: set.progress,
+    };
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+    // 1. H.
+    let t0 = Instant::now();
+    let m: SystemMatrix = compute_matrix(sys, &rs(set.seed));
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let rows_per_channel = m.crop.0 * m.crop.1;
+    let white = m.capture_of(&vec![1.0; ow * oh]);
+    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
+    let noise = SensorNoise::new(&sys.scene.noise, white_peak);
+    let dark: Vec<f64> = m
+        .offset
+        .iter()
+        .enumerate()
+        .map(|(i, &o)| {
+            noise.measure(
+                f64::from(o),
+                &mut NoiseRng::new(&[set.seed, 0x4441_524B, i as u64]),
+            )
+        })
+        .collect();
+    // 2. Captures.
+    let t0 = Instant::now();
+    struct Shot {
+        name: &'static str,
+        kind: &'static str,
+        spec: String,
+        truth: Vec<f64>,
+        g: Vec<f64>,
+        noisy: Vec<f64>,
+    }
+    let mut shots = Vec::new();
+    for (ti, (name, kind, spec)) in DEMO_TARGETS.iter().enumerate() {
+        let spec = format!("{spec}@{ow}");
+        let (_, _, truth) = intensity_of_spec(&spec, gamma)?;
+        let mut s = sys.clone();
+        s.display.set_intensity(&truth);
+        let cap = render(&s, &rs(set.seed + 1));
+        let clean: Vec<f64> = cap
+            .channels
+            .iter()
+            .flat_map(|c| c.iter().map(|&v| f64::from(v)))
+            .collect();
+        let noisy: Vec<f64> = clean
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                noise.measure(
+                    v,
+                    &mut NoiseRng::new(&[set.seed, 0x4341_5054, ti as u64, i as u64]),
+                )
+            })
+            .collect();
+        let g: Vec<f64> = noisy.iter().zip(&dark).map(|(a, d)| a - d).collect();
+        shots.push(Shot {
+            name,
+            kind,
+            spec,
+            truth,
+            g,
+            noisy,
+        });
+    }
+    let capture_s = t0.elapsed().as_secs_f64();
+    // 3. Calibration.
+    let t0 = Instant::now();
+    let cal = calibrate(
+        &m.h,
+        &m.offset,
+        FrameSource::Matrix,
+        &CalibrationSettings {
+            noise: Some(noise.clone()),
+            seed: set.seed,
+            dark_frame: true,
+            threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
+        },
+    )
+    .map_err(|e| format!("display.image: {e}"))?;
+    let calibration_s = t0.elapsed().as_secs_f64();
+    // 4. Reconstructions.
+    let t0 = Instant::now();
+    let p_true = Problem::new(&m.h, ow, oh);
+    let p_est = Problem::new(&cal.h_est, ow, oh);
+    let setup_s = t0.elapsed().as_secs_f64();
+    let mut table = Vec::new();
+    let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
+    for shot in &shots {
+        let mut per = Vec::new();
+        for (mname, p) in [("true", &p_true), ("calibrated", &p_est)] {
+            for method in ["cgm", "admm-tv"] {
+                let t = Instant::now();
+                let htg = p.back_project(&shot.g);
+                let f = if method == "cgm" {
+                    cg_normal(p, &htg, &set.cg).f
+                } else {
+                    admm_tv(p, &htg, &set.admm).f
+                };
+                let frame_ms = 1e3 * t.elapsed().as_secs_f64();
+                table.push(DemoRow {
+                    target: shot.name.to_string(),
+                    kind: shot.kind.to_string(),
+                    spec: shot.spec.clone(),
+                    matrix: mname.to_string(),
+                    method: method.to_string(),
+                    psnr_db: psnr(&f, &shot.truth),
+                    ssim: ssim(&f, &shot.truth, ow, oh),
+                    frame_ms,
+                });
+                per.push(f);
+            }
+        }
+        recons.push(per);
+    }
+    let recon_s = t0.elapsed().as_secs_f64();
+    // Files.
+    let png = |f: &[f64]| crate::output::encode_object_png(f, ow, oh, gamma);
+    for (shot, per) in shots.iter().zip(&recons) {
+        files.push((format!("object_{}.png", shot.name), png(&shot.truth)?));
+        let cap_png = crate::io::encode_png16(
+            m.crop.0,
+            m.crop.1,
+            1,
+            &crate::io::preview_u16(
+                &[&shot.noisy[..rows_per_channel]
+                    .iter()
+                    .map(|&v| v as f32)
+                    .collect::<Vec<f32>>()],
+                0.999,
+            ),
+        )?;
+        files.push((format!("capture_{}.png", shot.name), cap_png));
+        let names = ["cgm_true", "admm-tv_true", "cgm_calibrated", "admm-tv_calibrated"];
+        for (f, n) in per.iter().zip(names) {
+            files.push((format!("recon_{}_{n}.png", shot.name), png(f)?));
+        }
+    }
+    files.push((
+        "figure.png".to_string(),
+        figure(&shots.iter().map(|s| (&s.truth[..], &s.noisy[..rows_per_channel])).collect::<Vec<_>>(), &recons, (ow, oh), m.crop, gamma)?,
+    ));
+    let markdown = table_markdown(&table);
+    files.push(("table.md".to_string(), markdown.into_bytes()));
+    files.push((
+        "table.json".to_string(),
+        serde_json::to_vec_pretty(&table).map_err(|e| e.to_string())?,
+    ));
+    let summary = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "command": "demo",
+        "spp": set.spp,
+        "seed": set.seed,
+        "capture_seed": set.seed + 1,
+        "object_px": [ow, oh],
+        "crop_px": [m.crop.0, m.crop.1],
+        "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),
+        "noise": sys.scene.noise,
+        "exposure_electrons_per_unit": noise.electrons_per_unit,
+        "cgm": {"iters": set.cg.iters, "tol": set.cg.tol},
+        "admm_tv": {"iters": set.admm.iters, "tau_rel": set.admm.tau_rel, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
+        "metrics": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM of Wang et al. 2004 (Gaussian sigma 1.5, 11x11, K1 0.01, K2 0.03), mean over the pixels where the window fits",
+        "matrix_nnz": m.h.nnz(),
+        "h_est_nnz": cal.h_est.nnz(),
+        "gram_layout": {"true": p_true.gram_layout(), "calibrated": p_est.gram_layout()},
+        "timings_s": {"matrix": matrix_s, "captures": capture_s, "calibration": calibration_s, "reconstruction_setup": setup_s, "reconstructions": recon_s, "total": t_all.elapsed().as_secs_f64()},
+        "calibration": cal.report,
+    });
+    files.push((
+        "calibration.json".to_string(),
+        serde_json::to_vec_pretty(&cal.report).map_err(|e| e.to_string())?,
+    ));
+    let h_npz = crate::io::npz::encode_csr_npz(
+        std::path::Path::new("H.npz"),
+        m.h.rows,
+        m.h.cols,
+        &m.h.indptr,
+        &m.h.indices,
+        &m.h.data,
+    )
+    .map_err(|e| e.to_string())?;
+    files.push(("H.npz".to_string(), h_npz));
+    let npy = |name: &str, v: &[f64]| {
+        let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+        crate::io::npz::encode_npy_f32(std::path::Path::new(name), &[v32.len()], &v32)
+            .map_err(|e| e.to_string())
+    };
+    files.push(("dark.npy".to_string(), npy("dark.npy", &dark)?));
+    for shot in &shots {
+        let name = format!("capture_{}.npy", shot.name);
+        files.push((name.clone(), npy(&name, &shot.noisy)?));
+    }
+    let est = crate::io::npz::encode_csr_npz(
+        std::path::Path::new("H_est.npz"),
+        cal.h_est.rows,
+        cal.h_est.cols,
+        &cal.h_est.indptr,
+        &cal.h_est.indices,
+        &cal.h_est.data,
+    )
+    .map_err(|e| e.to_string())?;
+    files.push(("H_est.npz".to_string(), est));
+    let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS});
+    let sc = serde_json::to_vec_pretty(&sidecar).map_err(|e| e.to_string())?;
+    files.push(("H.json".to_string(), sc.clone()));
+    files.push(("H_est.json".to_string(), sc));
+    files.push((
+        "demo.json".to_string(),
+        serde_json::to_vec_pretty(&summary).map_err(|e| e.to_string())?,
+    ));
+    Ok(DemoOutput {
+        files,
+        rows: table,
+        calibration: cal.report,
+        summary,
+    })
+}
+
+/// The table as Markdown: one row per target, PSNR / SSIM per method and matrix.
+pub fn table_markdown(rows: &[DemoRow]) -> String {
+    let mut s = String::from(
+        "| target | kind | CGM, H true | ADMM-TV, H true | CGM, H calibrated | ADMM-TV, H calibrated |\n|---|---|---|---|---|---|\n",
+    );
+    let mut targets: Vec<&str> = rows.iter().map(|r| r.target.as_str()).collect();
+    targets.dedup();
+    for t in targets {
+        let kind = rows.iter().find(|r| r.target == t).map_or("", |r| r.kind.as_str());
+        let cell = |m: &str, method: &str| {
+            rows.iter()
+                .find(|r| r.target == t && r.matrix == m && r.method == method)
+                .map_or("–".to_string(), |r| format!("{:.2} dB / {:.3}", r.psnr_db, r.ssim))
+        };
+        s += &format!(
+            "| {t} | {kind} | {} | {} | {} | {} |\n",
+            cell("true", "cgm"),
+            cell("true", "admm-tv"),
+            cell("calibrated", "cgm"),
+            cell("calibrated", "admm-tv")
+        );
+    }
+    s += "\nPSNR (peak 1) / SSIM of the reconstruction clipped to [0, 1] against the object, both in linear display intensity.\n";
+    s
+}
+
+/// Area (box) resampling of a `w`×`h` image to `tw`×`th`.
+fn resample(src: &[f64], w: usize, h: usize, tw: usize, th: usize) -> Vec<f64> {
+    let (sx, sy) = (w as f64 / tw as f64, h as f64 / th as f64);
+    let mut out = vec![0.0; tw * th];
+    for ty in 0..th {
+        let (y0, y1) = (ty as f64 * sy, (ty + 1) as f64 * sy);
+        for tx in 0..tw {
+            let (x0, x1) = (tx as f64 * sx, (tx + 1) as f64 * sx);
+            let (mut acc, mut area) = (0.0, 0.0);
+            for y in y0.floor() as usize..(y1.ceil() as usize).min(h) {
+                let wy = (y1.min(y as f64 + 1.0) - y0.max(y as f64)).max(0.0);
+                for x in x0.floor() as usize..(x1.ceil() as usize).min(w) {
+                    let wx = (x1.min(x as f64 + 1.0) - x0.max(x as f64)).max(0.0);
+                    acc += wx * wy * src[y * w + x];
+                    area += wx * wy;
+                }
+            }
+            out[ty * tw + tx] = if area > 0.0 { acc / area } else { 0.0 };
+        }
+    }
+    out
+}
+
+/// Tile size of the figure, pixels.
+const TILE: usize = 192;
+/// Gap between tiles, pixels.
+const GAP: usize = 6;
+
+/// The Fig. 9-like figure: per target a row object | capture | CGM | ADMM-TV (H true) |
+/// CGM | ADMM-TV (H calibrated), with column labels; grey 16-bit PNG, display code values.
+fn figure(
+    shots: &[(&[f64], &[f64])],
+    recons: &[Vec<Vec<f64>>],
+    object: (usize, usize),
+    crop: (usize, usize),
+    gamma: f64,
+) -> Result<Vec<u8>, String> {
+    let labels = ["OBJECT", "CAPTURE", "CGM H TRUE", "ADMM TV H TRUE", "CGM H CAL", "ADMM TV H CAL"];
+    let cols = labels.len();
+    let label_h = 9 * 2 + 4;
+    let w = cols * TILE + (cols + 1) * GAP;
+    let h = label_h + shots.len() * (TILE + GAP) + GAP;
+    let mut img = vec![1.0f64; w * h];
+    let mut blit = |tile: &[f64], x0: usize, y0: usize, tw: usize, th: usize| {
+        for y in 0..th {
+            for x in 0..tw {
+                img[(y0 + y) * w + x0 + x] = tile[y * tw + x];
+            }
+        }
+    };
+    for (c, l) in labels.iter().enumerate() {
+        let (lw, lh, v) = crate::targets::label(l, 2);
+        let x0 = GAP + c * (TILE + GAP) + TILE.saturating_sub(lw) / 2;
+        let inv: Vec<f64> = v.iter().map(|&p| 1.0 - f64::from(p)).collect();
+        if lw <= TILE {
+            blit(&inv, x0, 2, lw, lh);
+        }
+    }
+    let code = |v: f64| v.clamp(0.0, 1.0).powf(1.0 / gamma);
+    for (r, ((truth, capture), rec)) in shots.iter().zip(recons).enumerate() {
+        let y0 = label_h + r * (TILE + GAP);
+        let mut tiles: Vec<Vec<f64>> = Vec::new();
+        tiles.push(resample(truth, object.0, object.1, TILE, TILE));
+        let peak = {
+            let mut s: Vec<f64> = capture.to_vec();
+            s.sort_by(f64::total_cmp);
+            s[((s.len() as f64 - 1.0) * 0.999) as usize].max(f64::MIN_POSITIVE)
+        };
+        let cap: Vec<f64> = capture.iter().map(|v| v / peak).collect();
+        tiles.push(resample(&cap, crop.0, crop.1, TILE, TILE));
+        for f in rec {
+            tiles.push(resample(f, object.0, object.1, TILE, TILE));
+        }
+        for (c, t) in tiles.iter().enumerate() {
+            let t: Vec<f64> = t.iter().map(|&v| code(v)).collect();
+            blit(&t, GAP + c * (TILE + GAP), y0, TILE, TILE);
+        }
+    }
+    let samples: Vec<u16> = img
+        .iter()
+        .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+        .collect();
+    crate::io::encode_png16(w, h, 1, &samples)
+}

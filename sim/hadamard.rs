@@ -1,0 +1,388 @@
+//! The paper's Hadamard measurement of H (physics.md §7), simulated.
+//!
+//! Patterns: Sylvester's Hadamard matrix of order N = object pixels (N must be 2^k), entry
+//! h_i[k] = (−1)^popcount(i & k); row 0 is all ones and H_N H_Nᵀ = N·I. Row-major, pattern
+//! i = a·W + b of a W×W object is the outer product of rows a and b of H_W (separable 2-D Walsh
+//! patterns in natural order). The display shows u_i = (h_i + 1)/2 ∈ {0, 1} (black/white).
+//!
+//! Frames: v_i = H u_i + o, where o is the capture of an all-black display (LCD black leakage);
+//! from H_true they are evaluated per sensor pixel m with one fast Walsh–Hadamard transform
+//! (FWHT) of row m: (H u_i)[m] = (FWHT(H[m,:])_i + Σ_k H[m,k])/2. Or they are rendered.
+//! The sensor noise model (`noise.rs`) then adds shot and read noise, the dark offset,
+//! quantisation and saturation.
+//!
+//! Estimate (paper Eqs. 12–16 with the normalisation corrected, physics.md §7.2):
+//! v'_0 = v_0, v'_i = 2v_i − v_0, H_est = V'U'ᵀ/N, i.e. row m of H_est is FWHT(v'[m,:])/N.
+//! Offsets are not cancelled (§7.3): with v_i = H u_i + c, H_est = H + c e_0ᵀ, so the whole
+//! offset (LCD black + camera dark level) lands in column 0. Subtracting a dark frame (all-black
+//! display) from every frame removes it; by linearity that changes column 0 only,
+//! H_est,dark = H_est − d e_0ᵀ, so both variants come from one transform.
+//!
+//! H_est is dense (the noise floor covers every element). It is never stored dense: errors
+//! against H_true are accumulated row by row on the full estimate, and the written H_est keeps
+//! the entries above `threshold_sigma` times the noise standard deviation predicted by the noise
+//! model for that row, σ_m² = (4/N²)·Σ_i Var(v_i[m]) (§7.3), and above 10⁻⁹ of the row's largest
+//! entry (transform rounding).
+
+use rayon::prelude::*;
+
+use crate::noise::{NoiseRng, SensorNoise};
+use crate::sparse::CsrMatrix;
+
+/// In-place fast Walsh–Hadamard transform in Sylvester (natural) order, unnormalised:
+/// x ← H_N x. `x.len()` must be a power of two.
+pub fn fwht(x: &mut [f64]) {
+    let n = x.len();
+    debug_assert!(n.is_power_of_two());
+    let mut h = 1;
+    while h < n {
+        for block in x.chunks_exact_mut(2 * h) {
+            let (a, b) = block.split_at_mut(h);
+            for (p, q) in a.iter_mut().zip(b.iter_mut()) {
+                let (u, v) = (*p, *q);
+                *p = u + v;
+                *q = u - v;
+            }
+        }
+        h *= 2;
+    }
+}
+
+/// Entry (i, k) of Sylvester's Hadamard matrix: (−1)^popcount(i & k).
+#[inline]
+pub fn sylvester(i: usize, k: usize) -> f64 {
+    if (i & k).count_ones() % 2 == 0 { 1.0 } else { -1.0 }
+}
+
+/// The displayed 0/1 pattern u_i = (h_i + 1)/2 of order `n`.
+pub fn display_pattern(n: usize, i: usize) -> Vec<f64> {
+    (0..n)
+        .map(|k| if sylvester(i, k) > 0.0 { 1.0 } else { 0.0 })
+        .collect()
+}
+
+/// Default threshold of stored H_est entries, in predicted noise standard deviations: at 5σ
+/// a Gaussian floor leaves about 5.7·10⁻⁷ of the pure-noise elements (≈ 450 of the paper's
+/// 7.9·10⁸), so H_est stays as sparse as H.
+pub const DEFAULT_THRESHOLD_SIGMA: f64 = 5.0;
+
+/// Where the noiseless frames come from.
+pub enum FrameSource<'a> {
+    /// From H_true and the offset (capture of an all-black display), one FWHT per row.
+    Matrix,
+    /// Rendered frames: `frames[i]` for pattern i (N of them), then the dark frame; each a
+    /// vector over the rows of H.
+    Rendered(&'a [Vec<f32>]),
+}
+
+/// Settings of a simulated calibration.
+#[derive(Clone, Debug)]
+pub struct CalibrationSettings {
+    /// Sensor noise (exposure already fixed), or none for an ideal camera.
+    pub noise: Option<SensorNoise>,
+    /// Seed of the noise.
+    pub seed: u64,
+    /// Store the dark-frame-subtracted estimate (else the paper's procedure without it).
+    pub dark_frame: bool,
+    /// Keep stored entries above this many predicted noise standard deviations (0 keeps all
+    /// entries above the rounding floor).
+    pub threshold_sigma: f64,
+}
+
+/// Relative Frobenius errors ‖H_est − H_true‖/‖H_true‖ of one variant.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct ErrorPair {
+    /// Over the whole matrix (the full, dense estimate).
+    pub overall: f64,
+    /// Column 0 only (relative to ‖H_true[:,0]‖).
+    pub column0: f64,
+    /// All columns but 0 (relative to ‖H_true[:,1:]‖).
+    pub other_columns: f64,
+}
+
+/// What the calibration reports.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct CalibrationReport {
+    /// Number of patterns N (object pixels).
+    pub patterns: usize,
+    /// Frames taken (N patterns, plus the dark frame).
+    pub frames: usize,
+    /// Rows (sensor pixels × channels).
+    pub rows: usize,
+    /// Errors without dark-frame subtraction (the paper's procedure).
+    pub without_dark_frame: ErrorPair,
+    /// Errors with a dark frame subtracted from every frame.
+    pub with_dark_frame: ErrorPair,
+    /// Error of the stored (thresholded) estimate, for the stored variant.
+    pub stored_overall: f64,
+    /// Stored entries.
+    pub stored_nnz: usize,
+    /// Rows with at least one saturated frame.
+    pub saturated_rows: usize,
+    /// Median over rows of the predicted noise standard deviation of an H_est element.
+    pub median_sigma: f64,
+    /// Predicted column-0 error from offsets, ‖c‖/‖H_true[:,0]‖ with c = mean offset per row
+    /// (LCD black + dark offset), for the variant without dark frame.
+    pub predicted_column0: f64,
+}
+
+/// Result: the stored estimate and the report.
+pub struct Calibration {
+    /// H_est (thresholded), same shape as H_true.
+    pub h_est: CsrMatrix,
+    /// Errors and counts.
+    pub report: CalibrationReport,
+}
+
+/// An error of the calibration set-up.
+#[derive(Debug, thiserror::Error)]
+pub enum HadamardError {
+    /// The object size is not a power of two.
+    #[error("the object has {0} pixels, not a power of two; Sylvester's Hadamard construction needs N = 2^k (e.g. a 64x64 object)")]
+    NotPowerOfTwo(usize),
+    /// Rendered frames do not fit.
+    #[error("expected {expected} rendered frames of {rows} values, got {got}")]
+    FrameShape {
+        /// Frames expected (N + 1).
+        expected: usize,
+        /// Values per frame.
+        rows: usize,
+        /// Frames given.
+        got: usize,
+    },
+}
+
+struct RowOut {
+    cols: Vec<u32>,
+    vals: Vec<f32>,
+    // Sums: err² without dark (col 0, others), err² with dark (col 0), true² (col 0, others),
+    // stored err², offset².
+    e0_nodark: f64,
+    e_rest: f64,
+    e0_dark: f64,
+    t0: f64,
+    t_rest: f64,
+    e_stored: f64,
+    c2: f64,
+    saturated: bool,
+    sigma: f64,
+}
+
+/// Rows per task.
+const CHUNK: usize = 64;
+
+/// Simulates the calibration of `h_true` (with `offset`, the all-black capture per row).
+pub fn calibrate(
+    h_true: &CsrMatrix,
+    offset: &[f32],
+    source: FrameSource<'_>,
+    set: &CalibrationSettings,
+) -> Result<Calibration, HadamardError> {
+    let n = h_true.cols;
+    if !n.is_power_of_two() {
+        return Err(HadamardError::NotPowerOfTwo(n));
+    }
+    if let FrameSource::Rendered(fr) = &source {
+        if fr.len() != n + 1 || fr.iter().any(|f| f.len() != h_true.rows) {
+            return Err(HadamardError::FrameShape {
+                expected: n + 1,
+                rows: h_true.rows,
+                got: fr.len(),
+            });
+        }
+    }
+    let inv_n = 1.0 / n as f64;
+    let rows: Vec<RowOut> = (0..h_true.rows)
+        .into_par_iter()
+        .with_min_len(CHUNK)
+        .map_init(
+            || (vec![0.0f64; n], vec![0.0f64; n]),
+            |(truth, v), m| {
+                h_true.row_dense_into(m, truth);
+                let o = f64::from(offset[m]);
+                // Noiseless frames v_i and dark frame d.
+                let mut d = o;
+                match &source {
+                    FrameSource::Matrix => {
+                        v.copy_from_slice(truth);
+                        fwht(v);
+                        let s = v[0];
+                        for x in v.iter_mut() {
+                            *x = 0.5 * (*x + s) + o;
+                        }
+                    }
+                    FrameSource::Rendered(fr) => {
+                        for (i, x) in v.iter_mut().enumerate() {
+                            *x = f64::from(fr[i][m]);
+                        }
+                        d = f64::from(fr[n][m]);
+                    }
+                }
+                // Camera.
+                let mut var_sum = 0.0;
+                let mut saturated = false;
+                if let Some(nz) = &set.noise {
+                    // One random stream per row, frames in order (dark frame last).
+                    let mut rng = NoiseRng::new(&[set.seed, 0x4841, m as u64]);
+                    let inv_g = 1.0 / nz.electrons_per_unit;
+                    let read2 = nz.read_noise_e * nz.read_noise_e;
+                    let q = 1.0 / (12.0 * nz.dn_per_unit().powi(2));
+                    let sat = (nz.full_scale_dn - nz.dark_offset_dn) / nz.dn_per_unit();
+                    let mut e_sum = 0.0;
+                    for x in v.iter_mut() {
+                        saturated |= *x > sat;
+                        e_sum += x.max(0.0);
+                        *x = nz.measure(*x, &mut rng);
+                    }
+                    var_sum = (e_sum * nz.electrons_per_unit + n as f64 * read2) * inv_g * inv_g
+                        + n as f64 * q;
+                    d = nz.measure(d, &mut rng);
+                }
+                let sigma = (4.0 * var_sum).sqrt() * inv_n;
+                // v' and the inverse transform.
+                let v0 = v[0];
+                for x in v.iter_mut().skip(1) {
+                    *x = 2.0 * *x - v0;
+                }
+                fwht(v);
+                v.iter_mut().for_each(|x| *x *= inv_n);
+                // Errors: columns other than 0 are the same in both variants.
+                let mut e_rest = 0.0;
+                let mut t_rest = 0.0;
+                for k in 1..n {
+                    let e = v[k] - truth[k];
+                    e_rest += e * e;
+                    t_rest += truth[k] * truth[k];
+                }
+                let e0_nodark = (v[0] - truth[0]).powi(2);
+                let e0_dark = (v[0] - d - truth[0]).powi(2);
+                if set.dark_frame {
+                    v[0] -= d;
+                }
+                let peak = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+                let thr = (set.threshold_sigma * sigma).max(1e-9 * peak);
+                let mut cols = Vec::new();
+                let mut vals = Vec::new();
+                let mut e_stored = 0.0;
+                for k in 0..n {
+                    let kept = v[k].abs() > thr;
+                    let est = if kept { v[k] as f32 } else { 0.0 };
+                    if kept && est != 0.0 {
+                        cols.push(k as u32);
+                        vals.push(est);
+                    }
+                    let e = f64::from(est) - truth[k];
+                    e_stored += e * e;
+                }
+                let c = o + set.noise.as_ref().map_or(0.0, |nz| nz.dark_offset_units());
+                RowOut {
+                    cols,
+                    vals,
+                    e0_nodark,
+                    e_rest,
+                    e0_dark,
+                    t0: truth[0] * truth[0],
+                    t_rest,
+                    e_stored,
+                    c2: c * c,
+                    saturated,
+                    sigma,
+                }
+            },
+        )
+        .collect();
+    let mut h_est = CsrMatrix {
+        rows: h_true.rows,
+        cols: n,
+        indptr: Vec::with_capacity(h_true.rows + 1),
+        indices: Vec::new(),
+        data: Vec::new(),
+    };
+    h_est.indptr.push(0);
+    let (mut e0n, mut er, mut e0d, mut t0, mut tr, mut es, mut c2) =
+        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut saturated_rows = 0;
+    let mut sigmas = Vec::with_capacity(rows.len());
+    for r in &rows {
+        h_est.indices.extend_from_slice(&r.cols);
+        h_est.data.extend_from_slice(&r.vals);
+        h_est.indptr.push(h_est.indices.len() as u64);
+        e0n += r.e0_nodark;
+        er += r.e_rest;
+        e0d += r.e0_dark;
+        t0 += r.t0;
+        tr += r.t_rest;
+        es += r.e_stored;
+        c2 += r.c2;
+        saturated_rows += usize::from(r.saturated);
+        sigmas.push(r.sigma);
+    }
+    sigmas.sort_by(f64::total_cmp);
+    let rel = |e: f64, t: f64| if t > 0.0 { (e / t).sqrt() } else { f64::NAN };
+    let report = CalibrationReport {
+        patterns: n,
+        frames: n + 1,
+        rows: h_true.rows,
+        without_dark_frame: ErrorPair {
+            overall: rel(e0n + er, t0 + tr),
+            column0: rel(e0n, t0),
+            other_columns: rel(er, tr),
+        },
+        with_dark_frame: ErrorPair {
+            overall: rel(e0d + er, t0 + tr),
+            column0: rel(e0d, t0),
+            other_columns: rel(er, tr),
+        },
+        stored_overall: rel(es, t0 + tr),
+        stored_nnz: h_est.nnz(),
+        saturated_rows,
+        median_sigma: sigmas.get(sigmas.len() / 2).copied().unwrap_or(0.0),
+        predicted_column0: rel(c2, t0),
+    };
+    Ok(Calibration { h_est, report })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fwht_matches_dense_product_and_is_orthogonal() {
+        let n = 64;
+        let x: Vec<f64> = (0..n).map(|i| ((i * 37 + 11) % 17) as f64 - 8.0).collect();
+        let mut y = x.clone();
+        fwht(&mut y);
+        for i in 0..n {
+            let d: f64 = (0..n).map(|k| sylvester(i, k) * x[k]).sum();
+            assert!((y[i] - d).abs() < 1e-12);
+        }
+        // H H = N I: transforming twice gives N x.
+        fwht(&mut y);
+        for i in 0..n {
+            assert!((y[i] - n as f64 * x[i]).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn patterns_are_orthogonal_and_separable() {
+        // U Uᵀ = N I for the ±1 patterns of order 64 (an 8×8 object).
+        let n = 64;
+        for i in 0..n {
+            for j in 0..n {
+                let dot: f64 = (0..n).map(|k| sylvester(i, k) * sylvester(j, k)).sum();
+                assert_eq!(dot, if i == j { n as f64 } else { 0.0 });
+            }
+        }
+        assert!(display_pattern(n, 0).iter().all(|&u| u == 1.0));
+        // Pattern a·8 + b is the outer product of rows a and b of H_8.
+        for a in 0..8 {
+            for b in 0..8 {
+                for r in 0..8 {
+                    for c in 0..8 {
+                        assert_eq!(sylvester(a * 8 + b, r * 8 + c), sylvester(a, r) * sylvester(b, c));
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,391 @@
+//! The system matrix H of g = H·f + o, computed in one pass over the sensor.
+//!
+//! Model: the same estimator as `render` (same camera rays, wavelengths and replica branches for
+//! the same seed and spp), but each branch's contribution goes to the column of the object
+//! (target) pixel it lands on instead of being multiplied by that pixel's radiance. With the
+//! display relative radiance L = b + (1 − b)·f inside the target (b = black level), b on the
+//! rest of the LCD and 0 beyond it,
+//!
+//!   render(f) = Σ_branches c·L(x) = H·f + o,
+//!   H[m, k]  = (1 − b)·Σ_{branches of pixel m landing in object pixel k} c / spp,
+//!   o[m]     = b·Σ_{branches of pixel m landing on the LCD} c / spp,
+//!
+//! where c = cos⁴θ·S(λ)·R(λ)/∫R·W/p(λ) is the branch's sample weight. So H maps the linear
+//! object intensity f ∈ [0, 1] (display gamma applied; 0 = black, 1 = white pixel) to the
+//! capture in the units of `render`, and o is the capture of an all-black target (LCD black
+//! leakage). This is the contract between `matrix` and `render`, tested to float rounding.
+//!
+//! Rows are crop pixels, row-major (row 0 at the top); with several sensor channels (RGB) the
+//! rows are channel-major: row = c·(W·H) + pixel. Columns are object pixels, row-major. The
+//! display is monochrome (its spectrum is the backlight's), so there is one column per object
+//! pixel whatever the sensor.
+//!
+//! Memory grows with the number of stored entries, never with rows × columns: each pixel
+//! accumulates into a small open-addressing table keyed by column, summed in sample order
+//! (deterministic for any thread count).
+
+use rayon::prelude::*;
+
+use crate::render::{
+    RenderSettings, RenderStats, camera_sample, channel_weights, lattice_rule, row_progress,
+    trace_sample,
+};
+use crate::sampler::PixelSampler;
+use crate::sparse::CsrMatrix;
+use crate::system::System;
+
+/// What one unit of H means (recorded in `H.json`).
+pub const MATRIX_UNITS: &str = "H[m,k] is the capture value of crop pixel m (units of `stscam render`: relative irradiance, 1 = a white display pixel seen on axis through lossless optics with a vanishing aperture) per unit linear intensity of object pixel k (0 = black, 1 = white, display gamma already applied); the capture of object f is H f + offset, offset = the capture of an all-black object (LCD black level)";
+
+/// H with its offset vector and the shapes that give its rows and columns meaning.
+#[derive(Clone, Debug)]
+pub struct SystemMatrix {
+    /// H (rows = channels × crop pixels, columns = object pixels).
+    pub h: CsrMatrix,
+    /// Capture of an all-black object, one value per row of H.
+    pub offset: Vec<f32>,
+    /// Crop size (width, height) in pixels.
+    pub crop: (usize, usize),
+    /// Object size (width, height) in pixels.
+    pub object: (usize, usize),
+    /// Sensor channel names (row blocks, in order).
+    pub channels: Vec<&'static str>,
+    /// Counters of the pass.
+    pub stats: RenderStats,
+}
+
+/// Per-pixel accumulator: columns → per-channel sums, in first-visit order.
+struct ColumnTable {
+    slots: Vec<u32>,
+    keys: Vec<u32>,
+    sums: Vec<[f64; 4]>,
+}
+
+const EMPTY: u32 = u32::MAX;
+
+impl ColumnTable {
+    fn new() -> Self {
+        ColumnTable {
+            slots: vec![EMPTY; 64],
+            keys: Vec::new(),
+            sums: Vec::new(),
+        }
+    }
+
+    #[inline]
+    fn slot_of(&self, key: u32) -> usize {
+        let mask = self.slots.len() - 1;
+        let mut s = (key.wrapping_mul(0x9E37_79B1) >> 7) as usize & mask;
+        loop {
+            let e = self.slots[s];
+            if e == EMPTY || self.keys[e as usize] == key {
+                return s;
+            }
+            s = (s + 1) & mask;
+        }
+    }
+
+    #[inline]
+    fn entry(&mut self, key: u32) -> &mut [f64; 4] {
+        let s = self.slot_of(key);
+        if self.slots[s] == EMPTY {
+            if 2 * (self.keys.len() + 1) > self.slots.len() {
+                self.grow();
+                return self.entry(key);
+            }
+            self.slots[s] = self.keys.len() as u32;
+            self.keys.push(key);
+            self.sums.push([0.0; 4]);
+        }
+        let e = self.slots[s] as usize;
+        &mut self.sums[e]
+    }
+
+    fn grow(&mut self) {
+        let n = self.slots.len() * 2;
+        self.slots = vec![EMPTY; n];
+        for i in 0..self.keys.len() {
+            let s = self.slot_of(self.keys[i]);
+            self.slots[s] = i as u32;
+        }
+    }
+
+    fn clear(&mut self) {
+        // Find every slot before emptying any: emptying breaks later probe chains.
+        let used: Vec<usize> = self.keys.iter().map(|&k| self.slot_of(k)).collect();
+        for s in used {
+            self.slots[s] = EMPTY;
+        }
+        self.keys.clear();
+        self.sums.clear();
+    }
+}
+
+/// One sensor row of H: per channel, the entries of each pixel (sorted by column).
+struct RowBlock {
+    /// Per channel: entry count per pixel.
+    counts: Vec<Vec<u32>>,
+    /// Per channel: columns and values.
+    entries: Vec<(Vec<u32>, Vec<f32>)>,
+    /// Per channel: offset per pixel.
+    offset: Vec<Vec<f64>>,
+    stats: RenderStats,
+}
+
+fn matrix_row(
+    sys: &System,
+    set: &RenderSettings,
+    rule: Option<crate::sampler::LatticeRule>,
+    row: usize,
+) -> RowBlock {
+    let w = sys.camera.width_px;
+    let nch = sys.response.curves.len();
+    let disp = &sys.display;
+    let bl = disp.black_level;
+    let inv_spp = 1.0 / f64::from(set.spp.max(1));
+    let mut stats = RenderStats::default();
+    let mut table = ColumnTable::new();
+    let mut block = RowBlock {
+        counts: vec![Vec::with_capacity(w); nch],
+        entries: vec![(Vec::new(), Vec::new()); nch],
+        offset: vec![vec![0.0; w]; nch],
+        stats: RenderStats::default(),
+    };
+    let mut hits: Vec<(f64, Option<u32>)> = Vec::with_capacity(64);
+    let mut order: Vec<usize> = Vec::new();
+    for col in 0..w {
+        let pixel = (row * w + col) as u64;
+        let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
+        let mut off = [0.0f64; 4];
+        for i in 0..u64::from(set.spp) {
+            let Some(s) = camera_sample(sys, &sampler, col, row, i) else {
+                continue;
+            };
+            hits.clear();
+            let mut total = 0.0;
+            trace_sample(sys, &s, &mut stats, |wt, x| {
+                if disp.on_lcd(x) {
+                    let k = disp
+                        .pixel_at(x)
+                        .map(|(c, r)| (r * disp.width_px + c) as u32);
+                    hits.push((wt, k));
+                    total += wt;
+                }
+            });
+            if !(s.factor * total).is_finite() {
+                stats.nonfinite_samples += 1;
+                continue;
+            }
+            let r = channel_weights(sys, s.lambda_nm);
+            for &(wt, k) in &hits {
+                let c = s.factor * wt;
+                for ch in 0..nch {
+                    off[ch] += c * r[ch] * bl;
+                }
+                if let Some(k) = k {
+                    let e = table.entry(k);
+                    for ch in 0..nch {
+                        e[ch] += c * r[ch];
+                    }
+                }
+            }
+        }
+        order.clear();
+        order.extend(0..table.keys.len());
+        order.sort_unstable_by_key(|&i| table.keys[i]);
+        for ch in 0..nch {
+            let (cols, vals) = &mut block.entries[ch];
+            let mut n = 0u32;
+            for &i in &order {
+                let v = (table.sums[i][ch] * (1.0 - bl) * inv_spp) as f32;
+                if v != 0.0 {
+                    cols.push(table.keys[i]);
+                    vals.push(v);
+                    n += 1;
+                }
+            }
+            block.counts[ch].push(n);
+            block.offset[ch][col] = off[ch] * inv_spp;
+        }
+        table.clear();
+    }
+    block.stats = stats;
+    block
+}
+
+/// Computes H and the offset of `sys` for the object size of its display target.
+/// Deterministic for a given seed, whatever the thread count.
+pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
+    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+    let nch = sys.response.curves.len();
+    let cols = sys.display.width_px * sys.display.height_px;
+    let pb = row_progress(set.progress, h, "matrix rows");
+    let rule = lattice_rule(set);
+    let blocks: Vec<RowBlock> = (0..h)
+        .into_par_iter()
+        .map(|row| {
+            let b = matrix_row(sys, set, rule, row);
+            pb.inc(1);
+            b
+        })
+        .collect();
+    pb.finish_and_clear();
+    let nnz: usize = blocks
+        .iter()
+        .map(|b| b.entries.iter().map(|e| e.0.len()).sum::<usize>())
+        .sum();
+    let mut m = CsrMatrix {
+        rows: nch * w * h,
+        cols,
+        indptr: Vec::with_capacity(nch * w * h + 1),
+        indices: Vec::with_capacity(nnz),
+        data: Vec::with_capacity(nnz),
+    };
+    m.indptr.push(0);
+    let mut offset = Vec::with_capacity(nch * w * h);
+    let mut stats = RenderStats::default();
+    for b in &blocks {
+        stats.merge(&b.stats);
+    }
+    for ch in 0..nch {
+        for b in &blocks {
+            let mut last = *m.indptr.last().unwrap_or(&0);
+            for &n in &b.counts[ch] {
+                last += u64::from(n);
+                m.indptr.push(last);
+            }
+            m.indices.extend_from_slice(&b.entries[ch].0);
+            m.data.extend_from_slice(&b.entries[ch].1);
+            offset.extend(b.offset[ch].iter().map(|&v| v as f32));
+        }
+    }
+    SystemMatrix {
+        h: m,
+        offset,
+        crop: (w, h),
+        object: (sys.display.width_px, sys.display.height_px),
+        channels: sys.response.names.clone(),
+        stats,
+    }
+}
+
+impl SystemMatrix {
+    /// The capture H·f + offset of object `f` (linear intensities, row-major), as one vector
+    /// per channel (row-major crop images).
+    pub fn capture_of(&self, f: &[f64]) -> Vec<Vec<f64>> {
+        let g = self.h.mul_vec(f);
+        let p = self.crop.0 * self.crop.1;
+        g.chunks(p.max(1))
+            .zip(self.offset.chunks(p.max(1)))
+            .map(|(gc, oc)| gc.iter().zip(oc).map(|(a, &b)| a + f64::from(b)).collect())
+            .collect()
+    }
+}
+
+/// An H read back from disk with what is known about its shape.
+#[derive(Clone, Debug)]
+pub struct LoadedMatrix {
+    /// H.
+    pub h: CsrMatrix,
+    /// Object size (width, height).
+    pub object: (usize, usize),
+    /// Offset vector (capture of an all-black object), if found.
+    pub offset: Option<Vec<f32>>,
+    /// Where the offset came from.
+    pub offset_path: Option<std::path::PathBuf>,
+}
+
+/// The offset file that belongs to a matrix file: `H.npz` → `offset.npy`,
+/// `H_est.npz` → `offset_est.npy` (same directory; the part of the stem after "H" is kept).
+pub fn default_offset_path(matrix: &std::path::Path) -> std::path::PathBuf {
+    let stem = matrix
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("H");
+    let suffix = stem.strip_prefix('H').unwrap_or("");
+    matrix.with_file_name(format!("offset{suffix}.npy"))
+}
+
+/// Reads H from a scipy CSR `.npz`. The object shape comes from `object` if given, else from
+/// the JSON sidecar (`object_px` in `<stem>.json`), else a square object is assumed if the
+/// column count is a perfect square. The offset is read from `offset` if given, else from
+/// [`default_offset_path`] if that file exists.
+pub fn load_matrix(
+    path: &std::path::Path,
+    object: Option<(usize, usize)>,
+    offset: Option<&std::path::Path>,
+) -> Result<LoadedMatrix, crate::io::IoError> {
+    use crate::io::IoError;
+    let parts = crate::io::npz::read_csr_npz(path)?;
+    let h = CsrMatrix {
+        rows: parts.rows,
+        cols: parts.cols,
+        indptr: parts.indptr,
+        indices: parts.indices,
+        data: parts.data,
+    };
+    h.check().map_err(|m| IoError::format(path, m))?;
+    if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
+        return Err(IoError::format(
+            path,
+            format!("data.npy: entry {i} is not a finite number"),
+        ));
+    }
+    let sidecar_shape = || -> Option<(usize, usize)> {
+        let text = std::fs::read_to_string(path.with_extension("json")).ok()?;
+        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+        let o = v.get("object_px")?.as_array()?;
+        Some((o.first()?.as_u64()? as usize, o.get(1)?.as_u64()? as usize))
+    };
+    let object = match object.or_else(sidecar_shape) {
+        Some(o) => o,
+        None => {
+            let s = (h.cols as f64).sqrt().round() as usize;
+            if s * s != h.cols {
+                return Err(IoError::format(
+                    path,
+                    format!(
+                        "{} columns are not a square object and no sidecar gives object_px; pass --object WxH",
+                        h.cols
+                    ),
+                ));
+            }
+            (s, s)
+        }
+    };
+    if object.0 * object.1 != h.cols {
+        return Err(IoError::format(
+            path,
+            format!(
+                "the object {}x{} has {} pixels but H has {} columns",
+                object.0,
+                object.1,
+                object.0 * object.1,
+                h.cols
+            ),
+        ));
+    }
+    let off_path = match offset {
+        Some(p) => Some(p.to_path_buf()),
+        None => Some(default_offset_path(path)).filter(|p| p.exists()),
+    };
+    let offset = match &off_path {
+        Some(p) => {
+            let (_, v) = crate::io::npz::read_npy_f32(p)?;
+            if v.len() != h.rows {
+                return Err(IoError::format(
+                    p,
+                    format!("has {} values but H has {} rows", v.len(), h.rows),
+                ));
+            }
+            Some(v)
+        }
+        None => None,
+    };
+    Ok(LoadedMatrix {
+        h,
+        object,
+        offset,
+        offset_path: off_path,
+    })
+}

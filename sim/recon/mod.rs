@@ -1,0 +1,227 @@
+//! Reconstruction of the object f from a capture g = H·f + n (physics.md §8).
+//!
+//! Set-up (once per H, reported separately from the per-frame cost): Hᵀ in CSR form for the
+//! back-projection Hᵀg, and the Gram matrix G = HᵀH (N×N, sparse: two object pixels interact
+//! only if their replicas overlap on the sensor). G is stored by diagonals when that is compact
+//! (the replica structure makes G nearly shift-invariant, so few distinct offsets carry all
+//! entries and the product runs as contiguous multiply-adds), else in CSR form.
+//! Per frame: one back-projection Hᵀg, then CG (`cg.rs`) or ADMM-TV (`admm.rs`) iterating
+//! with G only, never with H.
+
+pub mod admm;
+pub mod cg;
+pub mod metrics;
+
+use rayon::prelude::*;
+
+use crate::sparse::CsrMatrix;
+
+/// The Gram matrix G = HᵀH in the faster of two layouts.
+#[derive(Clone, Debug)]
+pub enum Gram {
+    /// By diagonals: `diags[j][a]` = G[a, a + offsets[j]] (0 outside the matrix).
+    Diagonal {
+        /// Offsets b − a of the stored diagonals, increasing.
+        offsets: Vec<isize>,
+        /// One length-N vector per offset.
+        diags: Vec<Vec<f64>>,
+    },
+    /// Compressed rows (f64 values).
+    Rows {
+        /// Row pointers.
+        indptr: Vec<usize>,
+        /// Columns.
+        indices: Vec<u32>,
+        /// Values.
+        data: Vec<f64>,
+    },
+}
+
+/// A reconstruction problem: H's transpose, its Gram matrix and the object shape.
+#[derive(Clone, Debug)]
+pub struct Problem {
+    /// Hᵀ (rows = object pixels).
+    pub ht: CsrMatrix,
+    /// G = HᵀH.
+    pub gram: Gram,
+    /// Diagonal of G.
+    pub gram_diag: Vec<f64>,
+    /// Object width in pixels.
+    pub width: usize,
+    /// Object height in pixels.
+    pub height: usize,
+    /// Stored entries of G.
+    pub gram_nnz: usize,
+}
+
+/// Rows of G per parallel task.
+const GRAM_CHUNK: usize = 64;
+
+impl Problem {
+    /// Prepares H (rows = captures values, columns = object pixels, object `width`×`height`).
+    pub fn new(h: &CsrMatrix, width: usize, height: usize) -> Problem {
+        assert_eq!(width * height, h.cols, "object shape does not match H");
+        let ht = h.transpose();
+        let n = h.cols;
+        // Row a of G: Σ_m H[m,a]·H[m,:], accumulated in a fixed order (m increasing).
+        let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..n)
+            .into_par_iter()
+            .with_min_len(GRAM_CHUNK)
+            .map_init(
+                || (vec![0.0f64; n], vec![false; n], Vec::<u32>::new()),
+                |(acc, seen, touched), a| {
+                    for e in ht.row_range(a) {
+                        let m = ht.indices[e] as usize;
+                        let va = f64::from(ht.data[e]);
+                        for f in h.row_range(m) {
+                            let b = h.indices[f] as usize;
+                            if !seen[b] {
+                                seen[b] = true;
+                                touched.push(b as u32);
+                            }
+                            acc[b] += va * f64::from(h.data[f]);
+                        }
+                    }
+                    touched.sort_unstable();
+                    let vals: Vec<f64> = touched.iter().map(|&b| acc[b as usize]).collect();
+                    for &b in touched.iter() {
+                        acc[b as usize] = 0.0;
+                        seen[b as usize] = false;
+                    }
+                    let cols = std::mem::take(touched);
+                    (cols, vals)
+                },
+            )
+            .collect();
+        let gram_nnz: usize = rows.iter().map(|r| r.0.len()).sum();
+        let mut gram_diag = vec![0.0; n];
+        for (a, (c, v)) in rows.iter().enumerate() {
+            if let Ok(p) = c.binary_search(&(a as u32)) {
+                gram_diag[a] = v[p];
+            }
+        }
+        let mut offsets: Vec<isize> = rows
+            .iter()
+            .enumerate()
+            .flat_map(|(a, (c, _))| c.iter().map(move |&b| b as isize - a as isize))
+            .collect();
+        offsets.sort_unstable();
+        offsets.dedup();
+        // Diagonal storage costs offsets·N multiply-adds on contiguous data; CSR costs
+        // nnz gathers, each about three times as expensive.
+        let gram = if offsets.len() * n <= 3 * gram_nnz {
+            let mut diags = vec![vec![0.0; n]; offsets.len()];
+            for (a, (c, v)) in rows.iter().enumerate() {
+                for (&b, &x) in c.iter().zip(v) {
+                    let j = offsets
+                        .binary_search(&(b as isize - a as isize))
+                        .unwrap_or(0);
+                    diags[j][a] = x;
+                }
+            }
+            Gram::Diagonal { offsets, diags }
+        } else {
+            let mut indptr = Vec::with_capacity(n + 1);
+            indptr.push(0);
+            let mut indices = Vec::with_capacity(gram_nnz);
+            let mut data = Vec::with_capacity(gram_nnz);
+            for (c, v) in rows {
+                indices.extend(c);
+                data.extend(v);
+                indptr.push(indices.len());
+            }
+            Gram::Rows {
+                indptr,
+                indices,
+                data,
+            }
+        };
+        Problem {
+            ht,
+            gram,
+            gram_diag,
+            width,
+            height,
+            gram_nnz,
+        }
+    }
+
+    /// Number of unknowns (object pixels).
+    pub fn n(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// Hᵀg.
+    pub fn back_project(&self, g: &[f64]) -> Vec<f64> {
+        self.ht.mul_vec(g)
+    }
+
+    /// y = G·x.
+    pub fn gram_mul(&self, x: &[f64], y: &mut [f64]) {
+        match &self.gram {
+            Gram::Diagonal { offsets, diags } => {
+                let n = x.len();
+                y.par_chunks_mut(512).enumerate().for_each(|(chunk, ys)| {
+                    let a0 = chunk * 512;
+                    let a1 = a0 + ys.len();
+                    ys.iter_mut().for_each(|v| *v = 0.0);
+                    for (&d, diag) in offsets.iter().zip(diags) {
+                        // Rows a with 0 ≤ a + d < n.
+                        let lo = a0.max((-d).max(0) as usize);
+                        let hi = a1.min((n as isize - d).max(0) as usize);
+                        if lo >= hi {
+                            continue;
+                        }
+                        let xs = &x[(lo as isize + d) as usize..(hi as isize + d) as usize];
+                        let ds = &diag[lo..hi];
+                        for ((yv, &dv), &xv) in ys[lo - a0..hi - a0].iter_mut().zip(ds).zip(xs) {
+                            *yv += dv * xv;
+                        }
+                    }
+                });
+            }
+            Gram::Rows {
+                indptr,
+                indices,
+                data,
+            } => {
+                y.par_chunks_mut(512).enumerate().for_each(|(chunk, ys)| {
+                    for (k, yv) in ys.iter_mut().enumerate() {
+                        let a = chunk * 512 + k;
+                        let mut acc = 0.0;
+                        for e in indptr[a]..indptr[a + 1] {
+                            acc += data[e] * x[indices[e] as usize];
+                        }
+                        *yv = acc;
+                    }
+                });
+            }
+        }
+    }
+
+    /// Describes the Gram layout (for reports).
+    pub fn gram_layout(&self) -> String {
+        match &self.gram {
+            Gram::Diagonal { offsets, .. } => format!("{} diagonals", offsets.len()),
+            Gram::Rows { .. } => "compressed rows".to_string(),
+        }
+    }
+}
+
+/// Dot product in f64 (fixed order).
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    // Four partial sums in a fixed pattern: vectorisable and deterministic.
+    let mut s = [0.0f64; 4];
+    let chunks = a.len() / 4;
+    for i in 0..chunks {
+        for j in 0..4 {
+            s[j] += a[4 * i + j] * b[4 * i + j];
+        }
+    }
+    let mut t = (s[0] + s[1]) + (s[2] + s[3]);
+    for i in 4 * chunks..a.len() {
+        t += a[i] * b[i];
+    }
+    t
+}
