@@ -10,8 +10,9 @@
 //!    frame subtracted, giving H_est.
 //! 4. CGM and ADMM-TV with H and with H_est; PSNR and SSIM against the object (`metrics.rs`:
 //!    linear intensities in [0, 1], reconstruction clipped, not rescaled).
-//! Outputs: a Markdown and JSON table (like the paper's Table 1), a figure (object | capture |
-//! CGM | ADMM-TV per row, for H and H_est), every image, H, H_est and the calibration report.
+//!
+//! Outputs: a Markdown and JSON table (like the paper's Table 1), a figure (object, capture,
+//! CGM and ADMM-TV per row, for H and H_est), every image, H, H_est and the calibration report.
 
 use std::time::Instant;
 

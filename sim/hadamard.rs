@@ -51,7 +51,7 @@ pub fn fwht(x: &mut [f64]) {
 /// Entry (i, k) of Sylvester's Hadamard matrix: (−1)^popcount(i & k).
 #[inline]
 pub fn sylvester(i: usize, k: usize) -> f64 {
-    if (i & k).count_ones() % 2 == 0 { 1.0 } else { -1.0 }
+    if (i & k).count_ones().is_multiple_of(2) { 1.0 } else { -1.0 }
 }
 
 /// The displayed 0/1 pattern u_i = (h_i + 1)/2 of order `n`.
@@ -121,6 +121,9 @@ pub struct CalibrationReport {
     pub saturated_rows: usize,
     /// Median over rows of the predicted noise standard deviation of an H_est element.
     pub median_sigma: f64,
+    /// Predicted error of the columns other than 0 from noise alone,
+    /// √(Σ_m (N − 1)·σ_m²)/‖H_true[:,1:]‖ with σ_m² = (4/N²)·Σ_i Var(v_i[m]) (§7.3).
+    pub predicted_noise_other_columns: f64,
     /// Predicted column-0 error from offsets, ‖c‖/‖H_true[:,0]‖ with c = mean offset per row
     /// (LCD black + dark offset), for the variant without dark frame.
     pub predicted_column0: f64,
@@ -182,14 +185,14 @@ pub fn calibrate(
     if !n.is_power_of_two() {
         return Err(HadamardError::NotPowerOfTwo(n));
     }
-    if let FrameSource::Rendered(fr) = &source {
-        if fr.len() != n + 1 || fr.iter().any(|f| f.len() != h_true.rows) {
-            return Err(HadamardError::FrameShape {
-                expected: n + 1,
-                rows: h_true.rows,
-                got: fr.len(),
-            });
-        }
+    if let FrameSource::Rendered(fr) = &source
+        && (fr.len() != n + 1 || fr.iter().any(|f| f.len() != h_true.rows))
+    {
+        return Err(HadamardError::FrameShape {
+            expected: n + 1,
+            rows: h_true.rows,
+            got: fr.len(),
+        });
     }
     let inv_n = 1.0 / n as f64;
     let rows: Vec<RowOut> = (0..h_true.rows)
@@ -317,6 +320,7 @@ pub fn calibrate(
         saturated_rows += usize::from(r.saturated);
         sigmas.push(r.sigma);
     }
+    let noise_sq: f64 = sigmas.iter().map(|s| (n - 1) as f64 * s * s).sum();
     sigmas.sort_by(f64::total_cmp);
     let rel = |e: f64, t: f64| if t > 0.0 { (e / t).sqrt() } else { f64::NAN };
     let report = CalibrationReport {
@@ -338,6 +342,7 @@ pub fn calibrate(
         saturated_rows,
         median_sigma: sigmas.get(sigmas.len() / 2).copied().unwrap_or(0.0),
         predicted_column0: rel(c2, t0),
+        predicted_noise_other_columns: rel(noise_sq, tr),
     };
     Ok(Calibration { h_est, report })
 }

@@ -85,6 +85,11 @@ enum Command {
         /// sets it. Default: `display.distance_mm`.
         #[arg(long = "depth-mm")]
         depth_mm: Option<f64>,
+        /// Also render the scene's target with the same seed and spp and check that
+        /// H·f + offset equals it to float rounding (the matrix–render contract); the
+        /// difference is recorded in H.json, and a failure exits with code 1.
+        #[arg(long)]
+        check: bool,
         /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
@@ -425,6 +430,7 @@ fn cmd_matrix(
     spp: u32,
     seed: u64,
     depth_mm: Option<f64>,
+    check: bool,
     threads: Option<usize>,
 ) -> Result<(), Failure> {
     let start = Instant::now();
@@ -452,9 +458,26 @@ fn cmd_matrix(
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &settings));
     let matrix_s = t0.elapsed().as_secs_f64();
+    let linearity = if check {
+        let cap = pool.install(|| stscam::render::render(&sys, &settings));
+        let pred = m.capture_of(&sys.display.intensity);
+        let (mut diff, mut peak) = (0.0f64, 0.0f64);
+        for (p, c) in pred.iter().zip(&cap.channels) {
+            for (a, &b) in p.iter().zip(c) {
+                diff = diff.max((a - f64::from(b)).abs());
+                peak = peak.max(f64::from(b).abs());
+            }
+        }
+        let rel = if peak > 0.0 { diff / peak } else { diff };
+        eprintln!("linearity check: max |H f + offset - render(f)| = {rel:.3e} of the capture's peak");
+        Some(rel)
+    } else {
+        None
+    };
     let sidecar = serde_json::json!({
         "stscam_version": stscam::VERSION,
         "command": "matrix",
+        "linearity_check_max_rel_diff": linearity,
         "scene_source": ls.source,
         "overrides": scene.set,
         "scene": sys.scene,
@@ -481,6 +504,15 @@ fn cmd_matrix(
         "stats": m.stats,
     });
     stscam::output::write_matrix(out, &m, &sidecar).map_err(write_failure)?;
+    if let Some(rel) = linearity {
+        // f32 storage of H, the offset and the capture: a few ulps.
+        if !(rel < 1e-5) {
+            return Err(Failure {
+                code: 1,
+                message: format!("linearity check failed: H f + offset differs from the render by {rel:.3e} of its peak"),
+            });
+        }
+    }
     eprintln!(
         "wrote {}/H.{{npz,json}} and offset.npy: {} x {}, {} stored entries ({:.3} % dense), {} spp, {:.3} s ({} threads)",
         out.display(),
@@ -1197,8 +1229,9 @@ fn main() -> ExitCode {
             spp,
             seed,
             depth_mm,
+            check,
             threads,
-        } => cmd_matrix(scene, out, *spp, *seed, *depth_mm, *threads),
+        } => cmd_matrix(scene, out, *spp, *seed, *depth_mm, *check, *threads),
         Command::Calibrate {
             scene,
             out,

@@ -179,8 +179,8 @@ fn matrix_row(
             let r = channel_weights(sys, s.lambda_nm);
             for &(wt, k) in &hits {
                 let c = s.factor * wt;
-                for ch in 0..nch {
-                    off[ch] += c * r[ch] * bl;
+                for (o, rc) in off.iter_mut().zip(r).take(nch) {
+                    *o += c * rc * bl;
                 }
                 if let Some(k) = k {
                     let e = table.entry(k);
@@ -205,7 +205,9 @@ fn matrix_row(
                 }
             }
             block.counts[ch].push(n);
-            block.offset[ch][col] = off[ch] * inv_spp;
+        }
+        for (o, &v) in block.offset.iter_mut().zip(&off) {
+            o[col] = v * inv_spp;
         }
         table.clear();
     }

@@ -73,7 +73,7 @@ mod tests {
     #[test]
     fn psnr_and_ssim_values() {
         let (w, h) = (32, 32);
-        let t: Vec<f64> = (0..w * h).map(|i| ((i % w) as f64 / w as f64)).collect();
+        let t: Vec<f64> = (0..w * h).map(|i| (i % w) as f64 / w as f64).collect();
         assert_eq!(psnr(&t, &t), f64::INFINITY);
         assert!((ssim(&t, &t, w, h) - 1.0).abs() < 1e-12);
         // A uniform error of 0.1 gives 20 dB.
