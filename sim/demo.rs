@@ -238,14 +238,28 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
             ),
         )?;
         files.push((format!("capture_{}.png", shot.name), cap_png));
-        let names = ["cgm_true", "admm-tv_true", "cgm_calibrated", "admm-tv_calibrated"];
+        let names = [
+            "cgm_true",
+            "admm-tv_true",
+            "cgm_calibrated",
+            "admm-tv_calibrated",
+        ];
         for (f, n) in per.iter().zip(names) {
             files.push((format!("recon_{}_{n}.png", shot.name), png(f)?));
         }
     }
     files.push((
         "figure.png".to_string(),
-        figure(&shots.iter().map(|s| (&s.truth[..], &s.noisy[..rows_per_channel])).collect::<Vec<_>>(), &recons, (ow, oh), m.crop, gamma)?,
+        figure(
+            &shots
+                .iter()
+                .map(|s| (&s.truth[..], &s.noisy[..rows_per_channel]))
+                .collect::<Vec<_>>(),
+            &recons,
+            (ow, oh),
+            m.crop,
+            gamma,
+        )?,
     ));
     let markdown = table_markdown(&table);
     files.push(("table.md".to_string(), markdown.into_bytes()));
@@ -277,15 +291,9 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         "calibration.json".to_string(),
         serde_json::to_vec_pretty(&cal.report).map_err(|e| e.to_string())?,
     ));
-    let h_npz = crate::io::npz::encode_csr_npz(
-        std::path::Path::new("H.npz"),
-        m.h.rows,
-        m.h.cols,
-        &m.h.indptr,
-        &m.h.indices,
-        &m.h.data,
-    )
-    .map_err(|e| e.to_string())?;
+    let h_npz =
+        m.h.encode_npz(std::path::Path::new("H.npz"))
+            .map_err(|e| e.to_string())?;
     files.push(("H.npz".to_string(), h_npz));
     let npy = |name: &str, v: &[f64]| {
         let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();
@@ -297,15 +305,10 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         let name = format!("capture_{}.npy", shot.name);
         files.push((name.clone(), npy(&name, &shot.noisy)?));
     }
-    let est = crate::io::npz::encode_csr_npz(
-        std::path::Path::new("H_est.npz"),
-        cal.h_est.rows,
-        cal.h_est.cols,
-        &cal.h_est.indptr,
-        &cal.h_est.indices,
-        &cal.h_est.data,
-    )
-    .map_err(|e| e.to_string())?;
+    let est = cal
+        .h_est
+        .encode_npz(std::path::Path::new("H_est.npz"))
+        .map_err(|e| e.to_string())?;
     files.push(("H_est.npz".to_string(), est));
     let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS});
     let sc = serde_json::to_vec_pretty(&sidecar).map_err(|e| e.to_string())?;
@@ -331,11 +334,16 @@ pub fn table_markdown(rows: &[DemoRow]) -> String {
     let mut targets: Vec<&str> = rows.iter().map(|r| r.target.as_str()).collect();
     targets.dedup();
     for t in targets {
-        let kind = rows.iter().find(|r| r.target == t).map_or("", |r| r.kind.as_str());
+        let kind = rows
+            .iter()
+            .find(|r| r.target == t)
+            .map_or("", |r| r.kind.as_str());
         let cell = |m: &str, method: &str| {
             rows.iter()
                 .find(|r| r.target == t && r.matrix == m && r.method == method)
-                .map_or("–".to_string(), |r| format!("{:.2} dB / {:.3}", r.psnr_db, r.ssim))
+                .map_or("–".to_string(), |r| {
+                    format!("{:.2} dB / {:.3}", r.psnr_db, r.ssim)
+                })
         };
         s += &format!(
             "| {t} | {kind} | {} | {} | {} | {} |\n",
@@ -386,7 +394,14 @@ fn figure(
     crop: (usize, usize),
     gamma: f64,
 ) -> Result<Vec<u8>, String> {
-    let labels = ["OBJECT", "CAPTURE", "CGM H TRUE", "ADMM TV H TRUE", "CGM H CAL", "ADMM TV H CAL"];
+    let labels = [
+        "OBJECT",
+        "CAPTURE",
+        "CGM H TRUE",
+        "ADMM TV H TRUE",
+        "CGM H CAL",
+        "ADMM TV H CAL",
+    ];
     let cols = labels.len();
     let label_h = 9 * 2 + 4;
     let w = cols * TILE + (cols + 1) * GAP;

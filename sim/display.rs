@@ -87,11 +87,7 @@ impl Display {
         debug_assert_eq!(intensity.len(), self.width_px * self.height_px);
         let bl = self.black_level;
         self.intensity = intensity.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-        self.radiance = self
-            .intensity
-            .iter()
-            .map(|l| bl + (1.0 - bl) * l)
-            .collect();
+        self.radiance = self.intensity.iter().map(|l| bl + (1.0 - bl) * l).collect();
     }
 
     /// TE/TM power fractions for a polariser at `angle_deg` from x, or unpolarised (`None`).

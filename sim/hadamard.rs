@@ -51,7 +51,11 @@ pub fn fwht(x: &mut [f64]) {
 /// Entry (i, k) of Sylvester's Hadamard matrix: (−1)^popcount(i & k).
 #[inline]
 pub fn sylvester(i: usize, k: usize) -> f64 {
-    if (i & k).count_ones().is_multiple_of(2) { 1.0 } else { -1.0 }
+    if (i & k).count_ones().is_multiple_of(2) {
+        1.0
+    } else {
+        -1.0
+    }
 }
 
 /// The displayed 0/1 pattern u_i = (h_i + 1)/2 of order `n`.
@@ -141,7 +145,9 @@ pub struct Calibration {
 #[derive(Debug, thiserror::Error)]
 pub enum HadamardError {
     /// The object size is not a power of two.
-    #[error("the object has {0} pixels, not a power of two; Sylvester's Hadamard construction needs N = 2^k (e.g. a 64x64 object)")]
+    #[error(
+        "the object has {0} pixels, not a power of two; Sylvester's Hadamard construction needs N = 2^k (e.g. a 64x64 object)"
+    )]
     NotPowerOfTwo(usize),
     /// Rendered frames do not fit.
     #[error("expected {expected} rendered frames of {rows} values, got {got}")]
@@ -384,7 +390,10 @@ mod tests {
             for b in 0..8 {
                 for r in 0..8 {
                     for c in 0..8 {
-                        assert_eq!(sylvester(a * 8 + b, r * 8 + c), sylvester(a, r) * sylvester(b, c));
+                        assert_eq!(
+                            sylvester(a * 8 + b, r * 8 + c),
+                            sylvester(a, r) * sylvester(b, c)
+                        );
                     }
                 }
             }

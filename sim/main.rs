@@ -35,6 +35,20 @@ struct SceneArgs {
     set: Vec<String>,
 }
 
+/// Monte Carlo and threading options shared by the commands that trace.
+#[derive(Args, Debug, Clone)]
+struct RunArgs {
+    /// Samples (camera paths) per pixel.
+    #[arg(long, default_value_t = 64)]
+    spp: u32,
+    /// Seed of the sampler (and of the sensor noise, where there is noise).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
 #[derive(ValueEnum, Clone, Copy, Debug)]
 enum SamplerArg {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
@@ -52,15 +66,8 @@ enum Command {
         /// Output directory.
         #[arg(long, default_value = "out/render")]
         out: PathBuf,
-        /// Samples (camera paths) per pixel.
-        #[arg(long, default_value_t = 64)]
-        spp: u32,
-        /// Sampler seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
+        #[command(flatten)]
+        run: RunArgs,
         /// Also write spectral channels (bins of about 10 nm tiling the sampling band) into the EXR.
         #[arg(long)]
         spectral: bool,
@@ -75,12 +82,8 @@ enum Command {
         /// Output directory.
         #[arg(long, default_value = "out/matrix")]
         out: PathBuf,
-        /// Samples (camera paths) per pixel.
-        #[arg(long, default_value_t = 64)]
-        spp: u32,
-        /// Sampler seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        run: RunArgs,
         /// Object (display) distance in mm for this H; the camera focus stays as the scene
         /// sets it. Default: `display.distance_mm`.
         #[arg(long = "depth-mm")]
@@ -90,9 +93,6 @@ enum Command {
         /// difference is recorded in H.json, and a failure exits with code 1.
         #[arg(long)]
         check: bool,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
     },
     /// Simulate the paper's Hadamard calibration of H: DIR/H_est.npz and calibration.json.
     Calibrate {
@@ -104,12 +104,8 @@ enum Command {
         /// H_true to calibrate (scipy CSR .npz with its offset.npy); default: computed here.
         #[arg(long)]
         matrix: Option<PathBuf>,
-        /// Samples per pixel when H_true is computed here (and for --render frames).
-        #[arg(long, default_value_t = 64)]
-        spp: u32,
-        /// Seed of H_true, the rendered frames and the noise.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        run: RunArgs,
         /// Sensor noise: `sensor` (the scene's [noise] section) or `none` (ideal camera).
         #[arg(long, value_enum, default_value = "sensor")]
         noise: NoiseArg,
@@ -123,9 +119,6 @@ enum Command {
         /// Keep entries of H_est above this many predicted noise standard deviations.
         #[arg(long, default_value_t = stscam::hadamard::DEFAULT_THRESHOLD_SIGMA)]
         threshold_sigma: f64,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
     },
     /// Reconstruct the object from a capture: DIR/recon.{exr,png,json}.
     Reconstruct {
@@ -175,15 +168,8 @@ enum Command {
         /// Output directory.
         #[arg(long, default_value = "out/demo")]
         out: PathBuf,
-        /// Samples per pixel for H and the captures.
-        #[arg(long, default_value_t = 64)]
-        spp: u32,
-        /// Seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
+        #[command(flatten)]
+        run: RunArgs,
     },
     /// Benchmarks.
     Bench {
@@ -313,12 +299,11 @@ fn to_json<T: serde::Serialize>(v: &T) -> Result<String, Failure> {
 fn cmd_render(
     scene: &SceneArgs,
     out: &std::path::Path,
-    spp: u32,
-    seed: u64,
-    threads: Option<usize>,
+    run: &RunArgs,
     spectral: bool,
     sampler: SamplerArg,
 ) -> Result<(), Failure> {
+    let RunArgs { spp, seed, threads } = run.clone();
     let start = Instant::now();
     if spp == 0 {
         return Err(bad_input("--spp: must be at least 1"));
@@ -427,20 +412,21 @@ fn write_failure(e: impl std::fmt::Display) -> Failure {
 fn cmd_matrix(
     scene: &SceneArgs,
     out: &std::path::Path,
-    spp: u32,
-    seed: u64,
+    run: &RunArgs,
     depth_mm: Option<f64>,
     check: bool,
-    threads: Option<usize>,
 ) -> Result<(), Failure> {
+    let RunArgs { spp, seed, threads } = run.clone();
     let start = Instant::now();
     if spp == 0 {
         return Err(bad_input("--spp: must be at least 1"));
     }
-    if let Some(d) = depth_mm {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(bad_input(format!("--depth-mm {d}: must be a positive distance")));
-        }
+    if let Some(d) = depth_mm
+        && !(d.is_finite() && d > 0.0)
+    {
+        return Err(bad_input(format!(
+            "--depth-mm {d}: must be a positive distance"
+        )));
     }
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
@@ -469,7 +455,9 @@ fn cmd_matrix(
             }
         }
         let rel = if peak > 0.0 { diff / peak } else { diff };
-        eprintln!("linearity check: max |H f + offset - render(f)| = {rel:.3e} of the capture's peak");
+        eprintln!(
+            "linearity check: max |H f + offset - render(f)| = {rel:.3e} of the capture's peak"
+        );
         Some(rel)
     } else {
         None
@@ -506,10 +494,12 @@ fn cmd_matrix(
     stscam::output::write_matrix(out, &m, &sidecar).map_err(write_failure)?;
     if let Some(rel) = linearity {
         // f32 storage of H, the offset and the capture: a few ulps.
-        if !(rel < 1e-5) {
+        if rel.is_nan() || rel >= 1e-5 {
             return Err(Failure {
                 code: 1,
-                message: format!("linearity check failed: H f + offset differs from the render by {rel:.3e} of its peak"),
+                message: format!(
+                    "linearity check failed: H f + offset differs from the render by {rel:.3e} of its peak"
+                ),
             });
         }
     }
@@ -575,7 +565,8 @@ fn load_truth(spec: &str, gamma: f64, w: usize, h: usize) -> Result<Vec<f64>, Fa
     let (tw, th, v) = if stscam::system::is_image_path(spec) {
         let img = stscam::io::load_image(std::path::Path::new(spec))
             .map_err(|e| bad_input(e.to_string()))?;
-        let v = stscam::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
+        let v =
+            stscam::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
         (img.width, img.height, v)
     } else {
         let t = stscam::targets::builtin_target(spec)
@@ -596,21 +587,22 @@ fn cmd_calibrate(
     scene: &SceneArgs,
     out: &std::path::Path,
     matrix: Option<&std::path::Path>,
-    spp: u32,
-    seed: u64,
+    run: &RunArgs,
     noise: NoiseArg,
     dark_frame: bool,
     render_frames: bool,
     threshold_sigma: f64,
-    threads: Option<usize>,
 ) -> Result<(), Failure> {
+    let RunArgs { spp, seed, threads } = run.clone();
     use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, display_pattern};
     let start = Instant::now();
     if spp == 0 {
         return Err(bad_input("--spp: must be at least 1"));
     }
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
-        return Err(bad_input("--threshold-sigma: must be a non-negative number"));
+        return Err(bad_input(
+            "--threshold-sigma: must be a non-negative number",
+        ));
     }
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
@@ -627,7 +619,8 @@ fn cmd_calibrate(
     let t0 = Instant::now();
     let (h_true, offset, object, source_desc) = match matrix {
         Some(p) => {
-            let lm = stscam::matrix::load_matrix(p, None, None).map_err(|e| bad_input(e.to_string()))?;
+            let lm =
+                stscam::matrix::load_matrix(p, None, None).map_err(|e| bad_input(e.to_string()))?;
             let off = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
             (lm.h, off, lm.object, p.display().to_string())
         }
@@ -686,7 +679,11 @@ fn cmd_calibrate(
         };
         for i in 0..=n {
             let mut s = sys.clone();
-            let u = if i < n { display_pattern(n, i) } else { vec![0.0; n] };
+            let u = if i < n {
+                display_pattern(n, i)
+            } else {
+                vec![0.0; n]
+            };
             s.display.set_intensity(&u);
             let cap = pool.install(|| stscam::render::render(&s, &quiet));
             fr.push(cap.channels.concat());
@@ -713,15 +710,10 @@ fn cmd_calibrate(
         .install(|| calibrate(&h_true, &offset, source, &settings))
         .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
     let calibrate_s = t0.elapsed().as_secs_f64();
-    let npz = stscam::io::npz::encode_csr_npz(
-        &out.join("H_est.npz"),
-        cal.h_est.rows,
-        cal.h_est.cols,
-        &cal.h_est.indptr,
-        &cal.h_est.indices,
-        &cal.h_est.data,
-    )
-    .map_err(write_failure)?;
+    let npz = cal
+        .h_est
+        .encode_npz(&out.join("H_est.npz"))
+        .map_err(write_failure)?;
     let report = serde_json::json!({
         "stscam_version": stscam::VERSION,
         "command": "calibrate",
@@ -789,7 +781,9 @@ fn cmd_reconstruct(
 ) -> Result<(), Failure> {
     use stscam::recon::{Problem, admm, cg};
     if !(tau.is_finite() && tau >= 0.0) {
-        return Err(bad_input(format!("--tau {tau}: must be a non-negative number")));
+        return Err(bad_input(format!(
+            "--tau {tau}: must be a non-negative number"
+        )));
     }
     if !(gamma.is_finite() && gamma > 0.0) {
         return Err(bad_input(format!("--gamma {gamma}: must be positive")));
@@ -800,7 +794,8 @@ fn cmd_reconstruct(
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
     let pool = thread_pool(threads)?;
-    let lm = stscam::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
+    let lm = stscam::matrix::load_matrix(matrix, object, offset)
+        .map_err(|e| bad_input(e.to_string()))?;
     let mut g = load_capture(capture)?;
     if g.len() != lm.h.rows {
         return Err(bad_input(format!(
@@ -872,10 +867,23 @@ fn cmd_reconstruct(
     let exr = stscam::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?;
     let png = stscam::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?;
     let jb = serde_json::to_vec_pretty(&json).map_err(write_failure)?;
-    stscam::io::write_all_atomic(out, &[("recon.exr", &exr), ("recon.png", &png), ("recon.json", &jb)])
-        .map_err(write_failure)?;
+    stscam::io::write_all_atomic(
+        out,
+        &[
+            ("recon.exr", &exr),
+            ("recon.png", &png),
+            ("recon.json", &jb),
+        ],
+    )
+    .map_err(write_failure)?;
     let m = metrics
-        .map(|m| format!(", PSNR {:.2} dB, SSIM {:.3}", m["psnr_db"].as_f64().unwrap_or(f64::NAN), m["ssim"].as_f64().unwrap_or(f64::NAN)))
+        .map(|m| {
+            format!(
+                ", PSNR {:.2} dB, SSIM {:.3}",
+                m["psnr_db"].as_f64().unwrap_or(f64::NAN),
+                m["ssim"].as_f64().unwrap_or(f64::NAN)
+            )
+        })
         .unwrap_or_default();
     eprintln!(
         "wrote {}/recon.{{exr,png,json}}: {}x{}, set-up {:.3} s, frame {:.2} ms{m}",
@@ -888,7 +896,8 @@ fn cmd_reconstruct(
     Ok(())
 }
 
-fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, spp: u32, seed: u64, threads: Option<usize>) -> Result<(), Failure> {
+fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(), Failure> {
+    let RunArgs { spp, seed, threads } = run.clone();
     if spp == 0 {
         return Err(bad_input("--spp: must be at least 1"));
     }
@@ -905,8 +914,14 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, spp: u32, seed: u64, threa
         admm: stscam::recon::admm::AdmmSettings::default(),
         progress: std::io::stderr().is_terminal(),
     };
-    let res = pool.install(|| stscam::demo::run_demo(&sys, &set)).map_err(bad_input)?;
-    let refs: Vec<(&str, &[u8])> = res.files.iter().map(|(n, b)| (n.as_str(), b.as_slice())).collect();
+    let res = pool
+        .install(|| stscam::demo::run_demo(&sys, &set))
+        .map_err(bad_input)?;
+    let refs: Vec<(&str, &[u8])> = res
+        .files
+        .iter()
+        .map(|(n, b)| (n.as_str(), b.as_slice()))
+        .collect();
     stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
     println!("{}", stscam::demo::table_markdown(&res.rows));
     let t = &res.summary["timings_s"];
@@ -938,7 +953,13 @@ fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
     })
 }
 
-fn cmd_bench_recon(scene: &SceneArgs, spp: u32, runs: usize, json: bool, threads: Option<usize>) -> Result<(), Failure> {
+fn cmd_bench_recon(
+    scene: &SceneArgs,
+    spp: u32,
+    runs: usize,
+    json: bool,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
     use stscam::recon::{Problem, admm, cg};
     if spp == 0 || runs == 0 {
         return Err(bad_input("--spp and --runs must be at least 1"));
@@ -1035,11 +1056,26 @@ fn cmd_bench_recon(scene: &SceneArgs, spp: u32, runs: usize, json: bool, threads
         if let Some(c) = calibration_s {
             println!("calibration (frames from H, transform, errors): {c:.2} s");
         }
-        println!("reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s", p.gram_nnz, p.gram_layout(), setup_s);
-        println!("per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
-            out["back_projection"]["median_ms"].as_f64().unwrap_or(f64::NAN),
-            cg_set.iters, out["cgm"]["timing"]["median_ms"].as_f64().unwrap_or(f64::NAN),
-            admm_set.iters, out["admm_tv"]["timing"]["median_ms"].as_f64().unwrap_or(f64::NAN));
+        println!(
+            "reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s",
+            p.gram_nnz,
+            p.gram_layout(),
+            setup_s
+        );
+        println!(
+            "per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
+            out["back_projection"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN),
+            cg_set.iters,
+            out["cgm"]["timing"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN),
+            admm_set.iters,
+            out["admm_tv"]["timing"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
+        );
     }
     Ok(())
 }
@@ -1217,43 +1253,35 @@ fn main() -> ExitCode {
         Command::Render {
             scene,
             out,
-            spp,
-            seed,
-            threads,
+            run,
             spectral,
             sampler,
-        } => cmd_render(scene, out, *spp, *seed, *threads, *spectral, *sampler),
+        } => cmd_render(scene, out, run, *spectral, *sampler),
         Command::Matrix {
             scene,
             out,
-            spp,
-            seed,
+            run,
             depth_mm,
             check,
-            threads,
-        } => cmd_matrix(scene, out, *spp, *seed, *depth_mm, *check, *threads),
+        } => cmd_matrix(scene, out, run, *depth_mm, *check),
         Command::Calibrate {
             scene,
             out,
             matrix,
-            spp,
-            seed,
+            run,
             noise,
             dark_frame,
             render,
             threshold_sigma,
-            threads,
         } => cmd_calibrate(
             scene,
             out,
             matrix.as_deref(),
-            *spp,
-            *seed,
+            run,
             *noise,
             *dark_frame,
             *render,
             *threshold_sigma,
-            *threads,
         ),
         Command::Reconstruct {
             matrix,
@@ -1282,13 +1310,7 @@ fn main() -> ExitCode {
             out,
             *threads,
         ),
-        Command::Demo {
-            scene,
-            out,
-            spp,
-            seed,
-            threads,
-        } => cmd_demo(scene, out, *spp, *seed, *threads),
+        Command::Demo { scene, out, run } => cmd_demo(scene, out, run),
         Command::Bench { which } => match which {
             BenchCommand::Recon {
                 scene,

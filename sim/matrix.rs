@@ -300,10 +300,7 @@ pub struct LoadedMatrix {
 /// The offset file that belongs to a matrix file: `H.npz` → `offset.npy`,
 /// `H_est.npz` → `offset_est.npy` (same directory; the part of the stem after "H" is kept).
 pub fn default_offset_path(matrix: &std::path::Path) -> std::path::PathBuf {
-    let stem = matrix
-        .file_stem()
-        .and_then(|s| s.to_str())
-        .unwrap_or("H");
+    let stem = matrix.file_stem().and_then(|s| s.to_str()).unwrap_or("H");
     let suffix = stem.strip_prefix('H').unwrap_or("");
     matrix.with_file_name(format!("offset{suffix}.npy"))
 }

@@ -220,7 +220,11 @@ mod tests {
                 + 0.254_829_592)
                 * t
                 * (-z * z).exp();
-        if x >= 0.0 { 0.5 * (1.0 + y) } else { 0.5 * (1.0 - y) }
+        if x >= 0.0 {
+            0.5 * (1.0 + y)
+        } else {
+            0.5 * (1.0 - y)
+        }
     }
 
     #[test]
@@ -260,7 +264,10 @@ mod tests {
         assert!(chi2 < 72.0, "chi2 = {chi2}");
         let mean = s1 / n as f64;
         let var = s2 / n as f64 - mean * mean;
-        assert!(mean.abs() < 0.01 && (var - 1.0).abs() < 0.01, "{mean} {var}");
+        assert!(
+            mean.abs() < 0.01 && (var - 1.0).abs() < 0.01,
+            "{mean} {var}"
+        );
         // The tail beyond R is reached.
         let far = (0..2_000_000u64)
             .filter(|&i| NoiseRng::new(&[9, i]).normal().abs() > ZIG_R)

@@ -106,15 +106,9 @@ pub fn write_matrix(
     m: &crate::matrix::SystemMatrix,
     sidecar: &serde_json::Value,
 ) -> Result<(), IoError> {
-    let npz = crate::io::npz::encode_csr_npz(
-        &dir.join("H.npz"),
-        m.h.rows,
-        m.h.cols,
-        &m.h.indptr,
-        &m.h.indices,
-        &m.h.data,
-    )?;
-    let off = crate::io::npz::encode_npy_f32(&dir.join("offset.npy"), &[m.offset.len()], &m.offset)?;
+    let npz = m.h.encode_npz(&dir.join("H.npz"))?;
+    let off =
+        crate::io::npz::encode_npy_f32(&dir.join("offset.npy"), &[m.offset.len()], &m.offset)?;
     let json = serde_json::to_vec_pretty(sidecar).map_err(|e| IoError::Format {
         path: dir.join("H.json"),
         message: e.to_string(),

@@ -115,7 +115,9 @@ pub(crate) fn camera_sample(
     i: u64,
 ) -> Option<CameraSample> {
     let u = sampler.get(i);
-    let ray = sys.camera.generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
+    let ray = sys
+        .camera
+        .generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
     let lambda0 = sys.scene.hoe.recording_wavelength_nm;
     let lb = sys
         .waveguide

@@ -754,7 +754,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         ls,
         nz.dark_offset_dn.is_finite() && nz.dark_offset_dn >= 0.0 && nz.dark_offset_dn < full_scale,
         "noise.dark_offset_dn",
-        || format!("must be in [0, {full_scale}) (the ADC range), got {}", nz.dark_offset_dn),
+        || {
+            format!(
+                "must be in [0, {full_scale}) (the ADC range), got {}",
+                nz.dark_offset_dn
+            )
+        },
     )?;
     Ok(())
 }

@@ -130,7 +130,10 @@ impl CsrMatrix {
             }
         }
         if let Some(&c) = self.indices.iter().find(|&&c| c as usize >= self.cols) {
-            return Err(format!("column index {c} is out of range (cols = {})", self.cols));
+            return Err(format!(
+                "column index {c} is out of range (cols = {})",
+                self.cols
+            ));
         }
         Ok(())
     }
@@ -141,6 +144,19 @@ impl CsrMatrix {
         for e in self.row_range(r) {
             out[self.indices[e] as usize] += f64::from(self.data[e]);
         }
+    }
+
+    /// Encodes the matrix as a `scipy.sparse.load_npz` CSR file in memory (`path` names the
+    /// file in error messages).
+    pub fn encode_npz(&self, path: &std::path::Path) -> Result<Vec<u8>, crate::io::IoError> {
+        crate::io::npz::encode_csr_npz(
+            path,
+            self.rows,
+            self.cols,
+            &self.indptr,
+            &self.indices,
+            &self.data,
+        )
     }
 
     /// Sum of squares of all entries (f64, in order).

@@ -214,13 +214,13 @@ fn shape(size: usize, name: &str) -> Result<Target, String> {
     let test: Box<dyn Fn(f64, f64) -> bool> = match name {
         "disk" => Box::new(|x, y| x * x + y * y < 0.75 * 0.75),
         "ring" => Box::new(|x, y| (0.45 * 0.45..0.8 * 0.8).contains(&(x * x + y * y))),
-        "triangle" => Box::new(|x, y| {
-            inside_polygon((x, y), &[(-0.8, -0.6), (0.8, -0.6), (0.0, 0.78)])
-        }),
+        "triangle" => {
+            Box::new(|x, y| inside_polygon((x, y), &[(-0.8, -0.6), (0.8, -0.6), (0.0, 0.78)]))
+        }
         "star" => Box::new(move |x, y| inside_polygon((x, y), &star)),
-        "cross" => Box::new(|x, y| {
-            (x.abs() < 0.22 && y.abs() < 0.8) || (y.abs() < 0.22 && x.abs() < 0.8)
-        }),
+        "cross" => {
+            Box::new(|x, y| (x.abs() < 0.22 && y.abs() < 0.8) || (y.abs() < 0.22 && x.abs() < 0.8))
+        }
         "heart" => Box::new(|x, y| {
             let (x, y) = (x / 0.8, (y + 0.1) / 0.8);
             (x * x + y * y - 1.0).powi(3) - x * x * y * y * y < 0.0
@@ -644,7 +644,8 @@ mod tests {
     #[test]
     fn shapes_have_the_expected_area_and_symmetry() {
         let n = 256;
-        let frac = |t: &Target| t.values.iter().filter(|&&v| v > 0.5).count() as f64 / (n * n) as f64;
+        let frac =
+            |t: &Target| t.values.iter().filter(|&&v| v > 0.5).count() as f64 / (n * n) as f64;
         let disk = builtin_target("shape:disk@256").unwrap();
         // π·0.75²/4 of the square [-1, 1]².
         assert!((frac(&disk) - PI * 0.75 * 0.75 / 4.0).abs() < 0.005);
@@ -662,6 +663,10 @@ mod tests {
             }
             assert_eq!(t.values[(n / 2) * n + n / 2], 1.0, "{name}");
         }
-        assert!(builtin_target("shape:blob").unwrap_err().contains("not one of"));
+        assert!(
+            builtin_target("shape:blob")
+                .unwrap_err()
+                .contains("not one of")
+        );
     }
 }

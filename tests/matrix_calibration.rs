@@ -185,17 +185,28 @@ fn noisy_calibration_puts_the_dark_offset_in_column_zero() {
         c_sum += f64::from(m.offset[i]) + dark;
     }
     assert!((err_sum / c_sum - 1.0).abs() < 0.05, "{err_sum} vs {c_sum}");
-    assert!(r.without_dark_frame.column0 > 0.95 * r.predicted_column0, "{r:?}");
+    assert!(
+        r.without_dark_frame.column0 > 0.95 * r.predicted_column0,
+        "{r:?}"
+    );
     assert!(r.without_dark_frame.column0 > 10.0 * r.without_dark_frame.other_columns);
     // The dark frame removes the offset: column 0 keeps only noise.
-    assert!(r.with_dark_frame.column0 < 0.7 * r.without_dark_frame.column0, "{r:?}");
+    assert!(
+        r.with_dark_frame.column0 < 0.7 * r.without_dark_frame.column0,
+        "{r:?}"
+    );
     // Other columns: shot, read and quantisation noise spread over the row as predicted,
     // Var(H_est[m,k]) = (4/N²)·Σ_i Var(v_i[m]) (the multiplex formula of physics.md §7.3).
     assert_eq!(r.saturated_rows, 0);
     let ratio = r.without_dark_frame.other_columns / r.predicted_noise_other_columns;
     assert!((ratio - 1.0).abs() < 0.05, "measured / predicted = {ratio}");
     // Thresholding at 5σ keeps H_est about as sparse as H.
-    assert!(r.stored_nnz < 2 * m.h.nnz(), "{} vs {}", r.stored_nnz, m.h.nnz());
+    assert!(
+        r.stored_nnz < 2 * m.h.nnz(),
+        "{} vs {}",
+        r.stored_nnz,
+        m.h.nnz()
+    );
 }
 
 #[test]
@@ -208,7 +219,11 @@ fn rendered_frames_give_the_same_estimate_as_frames_from_h() {
     let frames: Vec<Vec<f32>> = (0..=n)
         .map(|i| {
             let mut s = sys.clone();
-            let u = if i < n { display_pattern(n, i) } else { vec![0.0; n] };
+            let u = if i < n {
+                display_pattern(n, i)
+            } else {
+                vec![0.0; n]
+            };
             s.display.set_intensity(&u);
             render(&s, &set).channels.concat()
         })
@@ -221,7 +236,11 @@ fn rendered_frames_give_the_same_estimate_as_frames_from_h() {
     };
     let from_render = calibrate(&m.h, &m.offset, FrameSource::Rendered(&frames), &ideal).unwrap();
     let from_h = calibrate(&m.h, &m.offset, FrameSource::Matrix, &ideal).unwrap();
-    assert!(from_render.report.with_dark_frame.overall < 1e-5, "{:?}", from_render.report);
+    assert!(
+        from_render.report.with_dark_frame.overall < 1e-5,
+        "{:?}",
+        from_render.report
+    );
     assert!(rel_frobenius(&from_render.h_est, &from_h.h_est) < 1e-5);
 }
 

@@ -52,7 +52,11 @@ fn object() -> Vec<f64> {
         .map(|p| {
             let (r, c) = (p / W, p % W);
             if (6..18).contains(&r) && (5..17).contains(&c) {
-                if (10..13).contains(&r) && (9..12).contains(&c) { 0.1 } else { 0.9 }
+                if (10..13).contains(&r) && (9..12).contains(&c) {
+                    0.1
+                } else {
+                    0.9
+                }
             } else if (22..27).contains(&r) && (4..28).contains(&c) {
                 0.5
             } else {
@@ -79,7 +83,14 @@ fn admm_tv_decreases_its_objective_and_beats_every_cgm_iterate_on_a_noisy_target
     // The best CGM over its iteration count (semi-convergence: the count is its regulariser).
     let best_cg = (1..=60)
         .map(|it| {
-            let r = cg_normal(&p, &htg, &CgSettings { iters: it, tol: 0.0 });
+            let r = cg_normal(
+                &p,
+                &htg,
+                &CgSettings {
+                    iters: it,
+                    tol: 0.0,
+                },
+            );
             psnr(&r.f, &f)
         })
         .fold(f64::NEG_INFINITY, f64::max);
@@ -91,7 +102,10 @@ fn admm_tv_decreases_its_objective_and_beats_every_cgm_iterate_on_a_noisy_target
     };
     let r = admm_tv(&p, &htg, &set);
     let q = psnr(&r.f, &f);
-    assert!(q > best_cg + 3.0, "ADMM-TV {q:.2} dB vs best CGM {best_cg:.2} dB");
+    assert!(
+        q > best_cg + 3.0,
+        "ADMM-TV {q:.2} dB vs best CGM {best_cg:.2} dB"
+    );
     // The objective falls: the last value is the lowest seen up to rounding, well below the
     // first, and every 10-iteration window ends lower than it started.
     let o = &r.objective;
@@ -100,10 +114,20 @@ fn admm_tv_decreases_its_objective_and_beats_every_cgm_iterate_on_a_noisy_target
     assert!(o[49] <= min + 1e-6 * min.abs(), "{o:?}");
     assert!(o[49] < o[0] - 0.01 * o[0].abs(), "{o:?}");
     for k in 10..50 {
-        assert!(o[k] <= o[k - 10] + 1e-9 * o[0].abs(), "iteration {k}: {o:?}");
+        assert!(
+            o[k] <= o[k - 10] + 1e-9 * o[0].abs(),
+            "iteration {k}: {o:?}"
+        );
     }
     // Anisotropic TV works as well on this axis-aligned target.
-    let ra = admm_tv(&p, &htg, &AdmmSettings { tv: TvKind::Aniso, ..set });
+    let ra = admm_tv(
+        &p,
+        &htg,
+        &AdmmSettings {
+            tv: TvKind::Aniso,
+            ..set
+        },
+    );
     assert!(psnr(&ra.f, &f) > best_cg + 3.0);
 }
 
@@ -146,14 +170,30 @@ fn reconstruct_rejects_bad_input_with_one_line() {
     };
     let cap = cdir.join("capture.exr");
     check(
-        &["reconstruct", "--matrix", h.to_str().unwrap(), "--capture", cap.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &[
+            "reconstruct",
+            "--matrix",
+            h.to_str().unwrap(),
+            "--capture",
+            cap.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
         "1600 values but",
     );
     // A corrupt npz.
     let bad = d.join("bad.npz");
     std::fs::write(&bad, b"PK\x03\x04 this is not a zip").unwrap();
     check(
-        &["reconstruct", "--matrix", bad.to_str().unwrap(), "--capture", cap.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &[
+            "reconstruct",
+            "--matrix",
+            bad.to_str().unwrap(),
+            "--capture",
+            cap.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
         "bad.npz",
     );
     // A truncated real npz.
@@ -161,17 +201,45 @@ fn reconstruct_rejects_bad_input_with_one_line() {
     let trunc = d.join("trunc.npz");
     std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
     check(
-        &["reconstruct", "--matrix", trunc.to_str().unwrap(), "--capture", cap.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &[
+            "reconstruct",
+            "--matrix",
+            trunc.to_str().unwrap(),
+            "--capture",
+            cap.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
         "trunc.npz",
     );
     // Object shape that does not fit H's columns.
     check(
-        &["reconstruct", "--matrix", h.to_str().unwrap(), "--capture", cap.to_str().unwrap(), "--object", "7x7", "--out", out.to_str().unwrap()],
+        &[
+            "reconstruct",
+            "--matrix",
+            h.to_str().unwrap(),
+            "--capture",
+            cap.to_str().unwrap(),
+            "--object",
+            "7x7",
+            "--out",
+            out.to_str().unwrap(),
+        ],
         "64 columns",
     );
     // Calibration of a non-power-of-two object.
     check(
-        &["calibrate", "--set", "display.image=white@12", "--set", "sensor.crop_px=[16,16]", "--spp", "1", "--out", out.to_str().unwrap()],
+        &[
+            "calibrate",
+            "--set",
+            "display.image=white@12",
+            "--set",
+            "sensor.crop_px=[16,16]",
+            "--spp",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ],
         "not a power of two",
     );
 }

@@ -142,7 +142,9 @@ pub fn admm_tv(p: &Problem, htg: &[f64], set: &AdmmSettings) -> AdmmResult {
     let inv_diag: Vec<f64> = (0..n)
         .map(|q| {
             let (r, c) = (q / w, q % w);
-            let deg = usize::from(c + 1 < w) + usize::from(c > 0) + usize::from(r + 1 < h)
+            let deg = usize::from(c + 1 < w)
+                + usize::from(c > 0)
+                + usize::from(r + 1 < h)
                 + usize::from(r > 0);
             let d = p.gram_diag[q] + rho * deg as f64;
             if d > 0.0 { 1.0 / d } else { 1.0 }
@@ -177,7 +179,14 @@ pub fn admm_tv(p: &Problem, htg: &[f64], set: &AdmmSettings) -> AdmmResult {
         for i in 0..n {
             rhs[i] = htg[i] + rho * dtz[i];
         }
-        pcg(&mut apply, Some(&inv_diag), &rhs, &mut f, set.inner_iters, 0.0);
+        pcg(
+            &mut apply,
+            Some(&inv_diag),
+            &rhs,
+            &mut f,
+            set.inner_iters,
+            0.0,
+        );
         // z-update.
         grad(&f, w, h, &mut df);
         z_prev.copy_from_slice(&z);
@@ -250,7 +259,9 @@ mod tests {
         }
         assert!((dot(&df, &zr) - dot(&f, &dtz)).abs() < 1e-9);
         // TV of a step: one edge of height 3 across 5 rows.
-        let step: Vec<f64> = (0..w * h).map(|i| if i % w < 3 { 0.0 } else { 3.0 }).collect();
+        let step: Vec<f64> = (0..w * h)
+            .map(|i| if i % w < 3 { 0.0 } else { 3.0 })
+            .collect();
         assert_eq!(total_variation(&step, w, h, TvKind::Aniso), 15.0);
         assert_eq!(total_variation(&step, w, h, TvKind::Iso), 15.0);
     }

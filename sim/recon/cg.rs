@@ -223,7 +223,11 @@ mod tests {
             .sum::<f64>()
             .sqrt()
             / exact.iter().map(|b| b * b).sum::<f64>().sqrt();
-        assert!(err < 1e-8, "relative error {err}, {} iterations", res.iterations);
+        assert!(
+            err < 1e-8,
+            "relative error {err}, {} iterations",
+            res.iterations
+        );
         assert!(res.iterations < 200);
     }
 }
