@@ -385,6 +385,18 @@ mod tests {
             }
         }
         assert!(display_pattern(n, 0).iter().all(|&u| u == 1.0));
+        // The paper's order N = 4096 (64×64 object): U Uᵀ = N I, row by row as H_N h_i = N e_i.
+        let n4 = 4096;
+        let mut h = vec![0.0; n4];
+        for i in 0..n4 {
+            for (k, v) in h.iter_mut().enumerate() {
+                *v = sylvester(i, k);
+            }
+            fwht(&mut h);
+            for (k, &v) in h.iter().enumerate() {
+                assert_eq!(v, if k == i { n4 as f64 } else { 0.0 }, "pattern {i}");
+            }
+        }
         // Pattern a·8 + b is the outer product of rows a and b of H_8.
         for a in 0..8 {
             for b in 0..8 {
