@@ -5,6 +5,7 @@
 #![warn(missing_docs)]
 
 pub mod analysis;
+pub mod bench;
 pub mod camera;
 pub mod demo;
 pub mod display;
@@ -13,6 +14,7 @@ pub mod io;
 pub mod matrix;
 pub mod noise;
 pub mod optics;
+pub mod plot;
 pub mod output;
 pub mod recon;
 pub mod render;

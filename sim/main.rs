@@ -236,6 +236,38 @@ enum TvArg {
 
 #[derive(Subcommand, Debug)]
 enum BenchCommand {
+    /// Run time against error for each estimator (and other renderers' curves given as JSON):
+    /// DIR/bench-render.{json,md,svg,png}.
+    Render {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output directory.
+        #[arg(long, default_value = "out/bench-render-error")]
+        out: PathBuf,
+        /// Crop size N (N×N); the pixel pitch is scaled so the field of view stays that of the
+        /// scene's crop.
+        #[arg(long, default_value_t = 128)]
+        crop: u32,
+        /// Samples per pixel of the reference (default estimator, independent seed).
+        #[arg(long, default_value_t = 4096)]
+        ref_spp: u32,
+        /// Time budget per estimator, s.
+        #[arg(long, default_value_t = 60.0)]
+        budget_s: f64,
+        /// Target relative RMSE for the time-to-error figures.
+        #[arg(long, default_value_t = 0.01)]
+        target: f64,
+        /// Extra curves (JSON: {"name": ..., "points": [{"spp", "seconds", "relative_rmse"}]}),
+        /// e.g. Mitsuba's from validation/mitsuba (repeatable).
+        #[arg(long)]
+        extra: Vec<PathBuf>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// H, calibration and reconstruction speed at the scene's size (medians).
     Recon {
         #[command(flatten)]
@@ -1080,6 +1112,149 @@ fn cmd_bench_recon(
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
+fn cmd_bench_render(
+    scene: &SceneArgs,
+    out: &std::path::Path,
+    crop: u32,
+    ref_spp: u32,
+    budget_s: f64,
+    target: f64,
+    extra: &[PathBuf],
+    json: bool,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
+    use stscam::bench::{Curve, curves_markdown, measure_curve, time_to_error};
+    use stscam::render::Estimator;
+    if crop == 0 || ref_spp == 0 || !(budget_s > 0.0) || !(target > 0.0 && target < 1.0) {
+        return Err(bad_input(
+            "--crop, --ref-spp and --budget-s must be positive and --target in (0, 1)",
+        ));
+    }
+    check_out_dir(out)?;
+    let mut extras: Vec<Curve> = Vec::new();
+    for p in extra {
+        let text = std::fs::read_to_string(p).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let name = v["name"].as_str().unwrap_or("extra").to_string();
+        let points: Vec<stscam::bench::Point> = v["points"]
+            .as_array()
+            .ok_or_else(|| bad_input(format!("{}: no \"points\" array", p.display())))?
+            .iter()
+            .map(|q| stscam::bench::Point {
+                spp: q["spp"].as_u64().unwrap_or(0) as u32,
+                seconds: q["seconds"].as_f64().unwrap_or(f64::NAN),
+                relative_rmse: q["relative_rmse"].as_f64().unwrap_or(f64::NAN),
+            })
+            .collect();
+        let t = time_to_error(&points, target);
+        extras.push(Curve {
+            name,
+            points,
+            seconds_to_target: t.map(|x| x.0),
+            extrapolated: t.is_some_and(|x| x.1),
+        });
+    }
+    let pool = thread_pool(threads)?;
+    // Same field of view on an N×N crop.
+    let base = load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
+    let (cw, ch) = base.scene.sensor.crop_px.size();
+    let pitch = base.scene.sensor.pitch_um * f64::from(cw.max(ch)) / f64::from(crop);
+    let mut set = scene.set.clone();
+    set.push(format!("sensor.crop_px=[{crop},{crop}]"));
+    set.push(format!("sensor.pitch_um={pitch}"));
+    let args = SceneArgs {
+        scene: scene.scene.clone(),
+        set,
+    };
+    let (ls, sys) = pool.install(|| load(&args))?;
+    let t0 = Instant::now();
+    let reference = pool.install(|| {
+        stscam::render::render(
+            &sys,
+            &RenderSettings {
+                spp: ref_spp,
+                seed: 1_000_003,
+                sampler: SamplerKind::Lattice,
+                spectral_bins: None,
+                progress: std::io::stderr().is_terminal(),
+            },
+        )
+    });
+    let ref_s = t0.elapsed().as_secs_f64();
+    let mut curves = Vec::new();
+    for (est, name) in [
+        (Estimator::Bragg, "stscam: Bragg sampling + replica splitting (default)"),
+        (Estimator::UniformAnalog, "stscam: uniform wavelengths + Russian roulette"),
+    ] {
+        let c = pool.install(|| measure_curve(&sys, est, name, &reference.channels, budget_s, 1 << 20, target));
+        eprintln!(
+            "{name}: {} renders, time to {:.0} %: {}",
+            c.points.len(),
+            100.0 * target,
+            c.seconds_to_target.map_or("-".into(), |t| format!("{t:.3} s{}", if c.extrapolated { " (extrapolated)" } else { "" }))
+        );
+        curves.push(c);
+    }
+    curves.extend(extras);
+    let md = format!(
+        "Scene: {} with a {crop}×{crop} crop (pitch {pitch:.3} µm, same field of view); reference: {ref_spp} spp ({ref_s:.1} s); {} threads; relative RMSE ‖a − b‖/‖b‖ against the reference of the same renderer.\n\n{}",
+        ls.source,
+        pool.current_num_threads(),
+        curves_markdown(&curves, target)
+    );
+    let plot = stscam::plot::LinePlot {
+        title: "Relative RMSE against render time".into(),
+        x_label: "wall time of the render (s)".into(),
+        y_label: "relative RMSE".into(),
+        log_x: true,
+        log_y: true,
+        series: curves
+            .iter()
+            .map(|c| stscam::plot::Series {
+                name: c.name.replace("stscam: ", "").chars().take(26).collect(),
+                points: c.points.iter().map(|p| (p.seconds, p.relative_rmse)).collect(),
+            })
+            .collect(),
+        h_line: Some((target, format!("{:.0} %", 100.0 * target))),
+    };
+    let report = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "scene_source": ls.source,
+        "overrides": args.set,
+        "crop_px": crop,
+        "pitch_um": pitch,
+        "reference_spp": ref_spp,
+        "reference_seconds": ref_s,
+        "threads": pool.current_num_threads(),
+        "target_relative_rmse": target,
+        "curves": curves,
+        "ratios_to_default": curves.iter().map(|c| {
+            let b = curves[0].seconds_to_target;
+            serde_json::json!({"name": c.name, "ratio": c.seconds_to_target.zip(b).map(|(t, b)| t / b)})
+        }).collect::<Vec<_>>(),
+    });
+    let jb = serde_json::to_vec_pretty(&report).map_err(write_failure)?;
+    let png = plot.to_png().map_err(write_failure)?;
+    stscam::io::write_all_atomic(
+        out,
+        &[
+            ("bench-render.json", &jb),
+            ("bench-render.md", md.as_bytes()),
+            ("bench-render.svg", plot.to_svg().as_bytes()),
+            ("bench-render.png", &png),
+        ],
+    )
+    .map_err(write_failure)?;
+    if json {
+        println!("{}", to_json(&report)?);
+    } else {
+        println!("{md}");
+    }
+    Ok(())
+}
+
 fn fmt_fov(name: &str, f: &analysis::Fov) -> String {
     format!(
         "{name}: {:.2}° (from {:.2}°, limited by {}, to {:.2}°, limited by {})",
@@ -1319,6 +1494,19 @@ fn main() -> ExitCode {
                 json,
                 threads,
             } => cmd_bench_recon(scene, *spp, *runs, *json, *threads),
+            BenchCommand::Render {
+                scene,
+                out,
+                crop,
+                ref_spp,
+                budget_s,
+                target,
+                extra,
+                json,
+                threads,
+            } => cmd_bench_render(
+                scene, out, *crop, *ref_spp, *budget_s, *target, extra, *json, *threads,
+            ),
         },
         Command::Info { scene, json } => cmd_info(scene, *json),
         Command::Compare { a, b, map, json } => cmd_compare(a, b, map.as_deref(), *json),

@@ -25,6 +25,20 @@ use crate::trace::{sees_through, trace_camera_path};
 /// two of the best either alone would give.
 pub const BROADBAND_UNIFORM_FRACTION: f64 = 0.5;
 
+/// How a render estimates each pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Estimator {
+    /// stscam's estimator: wavelengths importance-sampled around each path's Bragg wavelength,
+    /// every replica summed (deterministic splitting).
+    Bragg,
+    /// What a plain spectral path tracer does, for comparison: wavelengths uniform over the
+    /// band, and one analog outcome per path: the polarisation and the branch (or death) are
+    /// chosen with their probabilities (Russian roulette at every interaction), and the path
+    /// stops at the chosen branch.
+    UniformAnalog,
+}
+
 /// Render settings that are not part of the scene.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {
@@ -114,6 +128,18 @@ pub(crate) fn camera_sample(
     row: usize,
     i: u64,
 ) -> Option<CameraSample> {
+    camera_sample_with(sys, sampler, col, row, i, Estimator::Bragg)
+}
+
+#[inline]
+fn camera_sample_with(
+    sys: &System,
+    sampler: &PixelSampler,
+    col: usize,
+    row: usize,
+    i: u64,
+    estimator: Estimator,
+) -> Option<CameraSample> {
     let u = sampler.get(i);
     let ray = sys
         .camera
@@ -124,7 +150,9 @@ pub(crate) fn camera_sample(
         .grating
         .bragg_wavelength_nm(-ray.dir.truncate());
     // Paths that also see straight through the plate need a broadband wavelength density.
-    let fu = if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
+    let fu = if estimator == Estimator::UniformAnalog {
+        1.0
+    } else if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
         sys.wavelengths
             .uniform_fraction()
             .max(BROADBAND_UNIFORM_FRACTION)
@@ -178,6 +206,47 @@ pub(crate) fn trace_sample(
     stats.max_branch_weight = stats.max_branch_weight.max(max_w);
 }
 
+/// One analog outcome of a sample: the polarisation and the branch (or none: the path dies)
+/// drawn with their probabilities; returns the display radiance the path reaches (weight 1).
+fn trace_analog(
+    sys: &System,
+    s: &CameraSample,
+    seed: u64,
+    pixel: u64,
+    i: u64,
+    stats: &mut RenderStats,
+) -> f64 {
+    let h = crate::sampler::hash(&[seed, pixel, i, 0xA4A1_06]);
+    let (u_pol, u_branch) = (
+        crate::sampler::to_unit(h),
+        crate::sampler::to_unit(crate::sampler::mix64(h)),
+    );
+    let pol = usize::from(u_pol >= sys.display.polarization_weights[0]);
+    let mut cum = 0.0;
+    let mut out = 0.0;
+    stats.camera_paths += 1;
+    let summary = crate::trace::trace_camera_path_until(
+        &sys.waveguide,
+        sys.display.z_mm,
+        sys.limits,
+        s.ray.origin,
+        s.ray.dir,
+        s.lambda_nm,
+        |b| {
+            stats.branches += 1;
+            cum += b.weight[pol];
+            if u_branch < cum {
+                out = sys.display.radiance_at(b.object_point_mm);
+                std::ops::ControlFlow::Break(())
+            } else {
+                std::ops::ControlFlow::Continue(())
+            }
+        },
+    );
+    stats.contacts += u64::from(summary.contacts);
+    out
+}
+
 /// Per-channel spectral weights R_c(λ)/∫R_c of the sensor response.
 #[inline]
 pub(crate) fn channel_weights(sys: &System, lambda_nm: f64) -> [f64; 4] {
@@ -212,6 +281,7 @@ pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> indicatif::Pro
 fn render_row(
     sys: &System,
     set: &RenderSettings,
+    estimator: Estimator,
     rule: Option<LatticeRule>,
     row: usize,
 ) -> RowResult {
@@ -227,13 +297,18 @@ fn render_row(
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         let mut acc = [0.0f64; 4];
         for i in 0..u64::from(set.spp) {
-            let Some(s) = camera_sample(sys, &sampler, col, row, i) else {
+            let Some(s) = camera_sample_with(sys, &sampler, col, row, i, estimator) else {
                 continue;
             };
             let mut radiance = 0.0;
-            trace_sample(sys, &s, &mut stats, |wt, x| {
-                radiance += wt * disp.radiance_at(x);
-            });
+            match estimator {
+                Estimator::Bragg => trace_sample(sys, &s, &mut stats, |wt, x| {
+                    radiance += wt * disp.radiance_at(x);
+                }),
+                Estimator::UniformAnalog => {
+                    radiance = trace_analog(sys, &s, set.seed, pixel, i, &mut stats);
+                }
+            }
             let base = s.factor * radiance;
             if !base.is_finite() {
                 stats.nonfinite_samples += 1;
@@ -267,6 +342,11 @@ fn render_row(
 
 /// Renders the capture of `sys`. Deterministic for a given seed, whatever the thread count.
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
+    render_with(sys, set, Estimator::Bragg)
+}
+
+/// Renders with a chosen estimator (both are unbiased; they differ in variance and cost).
+pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> Capture {
     let cam = &sys.camera;
     let (w, h) = (cam.width_px, cam.height_px);
     let pb = row_progress(set.progress, h, "rendering rows");
@@ -274,7 +354,7 @@ pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
-            let r = render_row(sys, set, rule, row);
+            let r = render_row(sys, set, estimator, rule, row);
             pb.inc(1);
             r
         })

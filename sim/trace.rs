@@ -26,6 +26,8 @@
 //! interfaces, and the grating's η already includes the obliquity factors, so a branch's weight
 //! multiplies the object radiance directly.
 
+use std::ops::ControlFlow;
+
 use glam::{DVec2, DVec3};
 
 use crate::optics::interface::{lateral_shift, path_length, reflectance, transmittance};
@@ -129,6 +131,23 @@ pub fn trace_camera_path(
     lambda_nm: f64,
     mut visit: impl FnMut(&Branch),
 ) -> TraceSummary {
+    trace_camera_path_until(wg, display_z_mm, limits, origin, dir, lambda_nm, |b| {
+        visit(b);
+        ControlFlow::Continue(())
+    })
+}
+
+/// As [`trace_camera_path`], but `visit` may stop the path early (`ControlFlow::Break`), as an
+/// analog tracer that has chosen its branch does.
+pub fn trace_camera_path_until(
+    wg: &Waveguide,
+    display_z_mm: f64,
+    limits: TraceLimits,
+    origin: DVec3,
+    dir: DVec3,
+    lambda_nm: f64,
+    mut visit: impl FnMut(&Branch) -> ControlFlow<()>,
+) -> TraceSummary {
     let w = wg.thickness_mm;
     let n_g = wg.n_glass(lambda_nm);
     let alpha = wg.absorption_per_mm(lambda_nm);
@@ -162,12 +181,14 @@ pub fn trace_camera_path(
         contact: 0,
     };
     if !wg.top.contains(p_top) {
-        visit(&direct(p_top, mul(wt, t_face)));
+        let _ = visit(&direct(p_top, mul(wt, t_face)));
         return summary;
     }
     if !wg.covered {
         let straight = mul(grating.undiffracted(u, 1.0, lambda_nm), t_face);
-        visit(&direct(p_top, mul(wt, straight)));
+        if visit(&direct(p_top, mul(wt, straight))).is_break() {
+            return summary;
+        }
     }
     // Out-coupling at the top vHOE: guided u_g (travelling −z) → u (order −1).
     let u_g = u - grating.u_shift(lambda_nm);
@@ -237,7 +258,7 @@ pub fn trace_camera_path(
                         mul(wb, grating.undiffracted(u, 1.0, lambda_nm))
                     };
                 }
-                visit(&Branch {
+                let flow = visit(&Branch {
                     kind: BranchKind::Replica(replica),
                     bottom_contact_mm: Some(p),
                     exit_point_mm: entry,
@@ -245,6 +266,10 @@ pub fn trace_camera_path(
                     weight: wb,
                     contact,
                 });
+                if flow.is_break() {
+                    summary.contacts = contact;
+                    return summary;
+                }
                 replica += 1;
                 g = mul(g, cont_bottom);
             } else {

@@ -1,0 +1,165 @@
+//! Run time against error: renders at increasing sample counts for each estimator, each timed
+//! (wall clock, whole render) and compared with a high-spp reference by relative RMSE; the time
+//! to 1 % error is read off each curve.
+//!
+//! Time to a target error: log-log interpolation between the two measurements that bracket it;
+//! if a curve never reaches it within the budget, it is extrapolated from the last measurement
+//! with the Monte Carlo rate RMSE ∝ t^(−1/2) (and marked as extrapolated).
+
+use std::time::Instant;
+
+use crate::render::{Estimator, RenderSettings, relative_rmse, render_with};
+use crate::sampler::SamplerKind;
+use crate::system::System;
+
+/// One measured point.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Point {
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Wall time of the render, s.
+    pub seconds: f64,
+    /// Relative RMSE against the reference.
+    pub relative_rmse: f64,
+}
+
+/// A curve of one estimator (or renderer).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Curve {
+    /// Name.
+    pub name: String,
+    /// Points in increasing spp.
+    pub points: Vec<Point>,
+    /// Time to the target error, s.
+    pub seconds_to_target: Option<f64>,
+    /// Whether that time was extrapolated.
+    pub extrapolated: bool,
+}
+
+/// Time at which a curve reaches `target` (interpolated in log-log, or extrapolated with
+/// slope −1/2 from the last point).
+pub fn time_to_error(points: &[Point], target: f64) -> Option<(f64, bool)> {
+    let ok: Vec<&Point> = points
+        .iter()
+        .filter(|p| p.relative_rmse.is_finite() && p.relative_rmse > 0.0 && p.seconds > 0.0)
+        .collect();
+    for w in ok.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if a.relative_rmse > target && b.relative_rmse <= target {
+            let (la, lb) = (a.relative_rmse.ln(), b.relative_rmse.ln());
+            let t = (target.ln() - la) / (lb - la);
+            return Some(((a.seconds.ln() + t * (b.seconds.ln() - a.seconds.ln())).exp(), false));
+        }
+    }
+    if let Some(first) = ok.first() {
+        if first.relative_rmse <= target {
+            return Some((first.seconds, false));
+        }
+    }
+    let last = ok.last()?;
+    // RMSE ∝ t^(−1/2) ⇒ t = t_last · (e_last / target)².
+    Some((last.seconds * (last.relative_rmse / target).powi(2), true))
+}
+
+/// Renders `sys` at spp 1, 2, 4, … with `estimator` until `budget_s` seconds have been spent
+/// (or `max_spp`), comparing each with `reference` (one vector per channel).
+pub fn measure_curve(
+    sys: &System,
+    estimator: Estimator,
+    name: &str,
+    reference: &[Vec<f32>],
+    budget_s: f64,
+    max_spp: u32,
+    target: f64,
+) -> Curve {
+    let mut points = Vec::new();
+    let mut spent = 0.0;
+    let mut spp = 1u32;
+    while spp <= max_spp && spent < budget_s {
+        let set = RenderSettings {
+            spp,
+            seed: 7,
+            sampler: SamplerKind::Lattice,
+            spectral_bins: None,
+            progress: false,
+        };
+        let t0 = Instant::now();
+        let cap = render_with(sys, &set, estimator);
+        let seconds = t0.elapsed().as_secs_f64();
+        spent += seconds;
+        let pairs: Vec<(&[f32], &[f32])> = cap
+            .channels
+            .iter()
+            .zip(reference)
+            .map(|(a, b)| (a.as_slice(), b.as_slice()))
+            .collect();
+        points.push(Point {
+            spp,
+            seconds,
+            relative_rmse: relative_rmse(&pairs),
+        });
+        // Stop a curve once it is well below the target.
+        if points.last().is_some_and(|p| p.relative_rmse < 0.5 * target) {
+            break;
+        }
+        spp *= 2;
+    }
+    let t = time_to_error(&points, target);
+    Curve {
+        name: name.to_string(),
+        points,
+        seconds_to_target: t.map(|x| x.0),
+        extrapolated: t.is_some_and(|x| x.1),
+    }
+}
+
+/// The Markdown table of curves and their time-to-target ratios against the first curve.
+pub fn curves_markdown(curves: &[Curve], target: f64) -> String {
+    let mut s = format!(
+        "| renderer / estimator | time to {:.0} % RMSE | ratio to `{}` | points (spp: seconds, RMSE) |\n|---|---|---|---|\n",
+        100.0 * target,
+        curves.first().map_or("", |c| c.name.as_str())
+    );
+    let base = curves.first().and_then(|c| c.seconds_to_target);
+    for c in curves {
+        let t = c.seconds_to_target.map_or("–".to_string(), |t| {
+            format!("{t:.3} s{}", if c.extrapolated { " (extrapolated)" } else { "" })
+        });
+        let ratio = match (c.seconds_to_target, base) {
+            (Some(t), Some(b)) if b > 0.0 => format!("{:.1}×", t / b),
+            _ => "–".to_string(),
+        };
+        let pts: Vec<String> = c
+            .points
+            .iter()
+            .map(|p| format!("{}: {:.3} s, {:.2} %", p.spp, p.seconds, 100.0 * p.relative_rmse))
+            .collect();
+        s += &format!("| {} | {t} | {ratio} | {} |\n", c.name, pts.join("; "));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pt(seconds: f64, e: f64) -> Point {
+        Point {
+            spp: 1,
+            seconds,
+            relative_rmse: e,
+        }
+    }
+
+    #[test]
+    fn interpolation_and_extrapolation() {
+        // Exactly e = 0.1/√t: 1 % at t = 100.
+        let pts = vec![pt(1.0, 0.1), pt(4.0, 0.05), pt(400.0, 0.005)];
+        let (t, ex) = time_to_error(&pts, 0.01).unwrap();
+        assert!((t - 100.0).abs() < 1e-9 && !ex);
+        let (t, ex) = time_to_error(&pts[..2], 0.01).unwrap();
+        assert!((t - 100.0).abs() < 1e-9 && ex);
+        assert_eq!(time_to_error(&[pt(1.0, 0.001)], 0.01), Some((1.0, false)));
+        assert_eq!(time_to_error(&[], 0.01), None);
+    }
+}
