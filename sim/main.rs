@@ -404,6 +404,12 @@ fn cmd_render(
             cap.stats.nonfinite_samples
         );
     }
+    if cap.stats.max_truncated_weight > 1e-3 && cap.stats.max_contacts_hits == 0 {
+        eprintln!(
+            "warning: paths were stopped by sampling.min_guided_weight with up to {:.3e} of their guided weight left; lower it for this scene",
+            cap.stats.max_truncated_weight
+        );
+    }
     if cap.stats.max_contacts_hits > 0 {
         eprintln!(
             "warning: {} paths hit sampling.max_contacts; up to {:.3e} of a path's guided weight was dropped",
