@@ -48,7 +48,10 @@ pub fn time_to_error(points: &[Point], target: f64) -> Option<(f64, bool)> {
         if a.relative_rmse > target && b.relative_rmse <= target {
             let (la, lb) = (a.relative_rmse.ln(), b.relative_rmse.ln());
             let t = (target.ln() - la) / (lb - la);
-            return Some(((a.seconds.ln() + t * (b.seconds.ln() - a.seconds.ln())).exp(), false));
+            return Some((
+                (a.seconds.ln() + t * (b.seconds.ln() - a.seconds.ln())).exp(),
+                false,
+            ));
         }
     }
     if let Some(first) = ok.first() {
@@ -99,7 +102,10 @@ pub fn measure_curve(
             relative_rmse: relative_rmse(&pairs),
         });
         // Stop a curve once it is well below the target.
-        if points.last().is_some_and(|p| p.relative_rmse < 0.5 * target) {
+        if points
+            .last()
+            .is_some_and(|p| p.relative_rmse < 0.5 * target)
+        {
             break;
         }
         spp *= 2;
@@ -123,7 +129,14 @@ pub fn curves_markdown(curves: &[Curve], target: f64) -> String {
     let base = curves.first().and_then(|c| c.seconds_to_target);
     for c in curves {
         let t = c.seconds_to_target.map_or("–".to_string(), |t| {
-            format!("{t:.3} s{}", if c.extrapolated { " (extrapolated)" } else { "" })
+            format!(
+                "{t:.3} s{}",
+                if c.extrapolated {
+                    " (extrapolated)"
+                } else {
+                    ""
+                }
+            )
         });
         let ratio = match (c.seconds_to_target, base) {
             (Some(t), Some(b)) if b > 0.0 => format!("{:.1}×", t / b),
@@ -132,7 +145,14 @@ pub fn curves_markdown(curves: &[Curve], target: f64) -> String {
         let pts: Vec<String> = c
             .points
             .iter()
-            .map(|p| format!("{}: {:.3} s, {:.2} %", p.spp, p.seconds, 100.0 * p.relative_rmse))
+            .map(|p| {
+                format!(
+                    "{}: {:.3} s, {:.2} %",
+                    p.spp,
+                    p.seconds,
+                    100.0 * p.relative_rmse
+                )
+            })
             .collect();
         s += &format!("| {} | {t} | {ratio} | {} |\n", c.name, pts.join("; "));
     }

@@ -5,6 +5,7 @@
 #![warn(missing_docs)]
 
 pub mod analysis;
+pub mod analytic;
 pub mod bench;
 pub mod camera;
 pub mod demo;
@@ -14,8 +15,8 @@ pub mod io;
 pub mod matrix;
 pub mod noise;
 pub mod optics;
-pub mod plot;
 pub mod output;
+pub mod plot;
 pub mod recon;
 pub mod render;
 pub mod sampler;

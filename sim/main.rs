@@ -176,6 +176,11 @@ enum Command {
         #[command(subcommand)]
         which: BenchCommand,
     },
+    /// Cross-checks against independent references.
+    Validate {
+        #[command(subcommand)]
+        which: ValidateCommand,
+    },
     /// Design summary: angles, replica pitch and count, Bragg wavelengths, field of view.
     Info {
         #[command(flatten)]
@@ -232,6 +237,23 @@ enum TvArg {
     Iso,
     /// Anisotropic TV.
     Aniso,
+}
+
+#[derive(Subcommand, Debug)]
+enum ValidateCommand {
+    /// The tracer against closed forms across the whole field (Bragg wavelength, guided angle,
+    /// replica pitch and count, FOV limits, replica count against bottom-vHOE height):
+    /// DIR/analytic.{md,csv,json} and plots; exit code 1 if a comparison fails.
+    Analytic {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Field angles to compare (at least 50).
+        #[arg(long, default_value_t = 60)]
+        fields: usize,
+        /// Output directory.
+        #[arg(long, default_value = "out/validate-analytic")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -1140,7 +1162,8 @@ fn cmd_bench_render(
     check_out_dir(out)?;
     let mut extras: Vec<Curve> = Vec::new();
     for p in extra {
-        let text = std::fs::read_to_string(p).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let text =
+            std::fs::read_to_string(p).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
         let name = v["name"].as_str().unwrap_or("extra").to_string();
@@ -1164,7 +1187,8 @@ fn cmd_bench_render(
     }
     let pool = thread_pool(threads)?;
     // Same field of view on an N×N crop.
-    let base = load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
+    let base =
+        load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
     let (cw, ch) = base.scene.sensor.crop_px.size();
     let pitch = base.scene.sensor.pitch_um * f64::from(cw.max(ch)) / f64::from(crop);
     let mut set = scene.set.clone();
@@ -1191,15 +1215,38 @@ fn cmd_bench_render(
     let ref_s = t0.elapsed().as_secs_f64();
     let mut curves = Vec::new();
     for (est, name) in [
-        (Estimator::Bragg, "stscam: Bragg sampling + replica splitting (default)"),
-        (Estimator::UniformAnalog, "stscam: uniform wavelengths + Russian roulette"),
+        (
+            Estimator::Bragg,
+            "stscam: Bragg sampling + replica splitting (default)",
+        ),
+        (
+            Estimator::UniformAnalog,
+            "stscam: uniform wavelengths + Russian roulette",
+        ),
     ] {
-        let c = pool.install(|| measure_curve(&sys, est, name, &reference.channels, budget_s, 1 << 20, target));
+        let c = pool.install(|| {
+            measure_curve(
+                &sys,
+                est,
+                name,
+                &reference.channels,
+                budget_s,
+                1 << 20,
+                target,
+            )
+        });
         eprintln!(
             "{name}: {} renders, time to {:.0} %: {}",
             c.points.len(),
             100.0 * target,
-            c.seconds_to_target.map_or("-".into(), |t| format!("{t:.3} s{}", if c.extrapolated { " (extrapolated)" } else { "" }))
+            c.seconds_to_target.map_or("-".into(), |t| format!(
+                "{t:.3} s{}",
+                if c.extrapolated {
+                    " (extrapolated)"
+                } else {
+                    ""
+                }
+            ))
         );
         curves.push(c);
     }
@@ -1220,7 +1267,11 @@ fn cmd_bench_render(
             .iter()
             .map(|c| stscam::plot::Series {
                 name: c.name.replace("stscam: ", "").chars().take(26).collect(),
-                points: c.points.iter().map(|p| (p.seconds, p.relative_rmse)).collect(),
+                points: c
+                    .points
+                    .iter()
+                    .map(|p| (p.seconds, p.relative_rmse))
+                    .collect(),
             })
             .collect(),
         h_line: Some((target, format!("{:.0} %", 100.0 * target))),
@@ -1257,6 +1308,68 @@ fn cmd_bench_render(
         println!("{}", to_json(&report)?);
     } else {
         println!("{md}");
+    }
+    Ok(())
+}
+
+fn cmd_validate_analytic(scene: &SceneArgs, fields: usize, out: &std::path::Path) -> Result<(), Failure> {
+    use stscam::analytic::{compare, quantity};
+    use stscam::plot::{LinePlot, Series};
+    if fields < 50 {
+        return Err(bad_input("--fields: at least 50"));
+    }
+    check_out_dir(out)?;
+    let (_, sys) = load(scene)?;
+    let report = compare(&sys, fields);
+    let series = |q: &str, vertical_only: bool, by_param: bool| -> Vec<Series> {
+        let rows: Vec<_> = report
+            .rows
+            .iter()
+            .filter(|r| r.quantity == q && (!vertical_only || r.field_h_deg == 0.0))
+            .collect();
+        let x = |r: &stscam::analytic::Row| if by_param { r.param } else { r.field_v_deg };
+        vec![
+            Series {
+                name: "closed form".into(),
+                points: rows.iter().map(|r| (x(r), r.closed_form)).collect(),
+            },
+            Series {
+                name: "stscam tracer".into(),
+                points: rows.iter().map(|r| (x(r), r.stscam)).collect(),
+            },
+        ]
+    };
+    let plot = |title: &str, xl: &str, yl: &str, s: Vec<Series>| LinePlot {
+        title: title.into(),
+        x_label: xl.into(),
+        y_label: yl.into(),
+        log_x: false,
+        log_y: false,
+        series: s,
+        h_line: None,
+    };
+    let plots = [
+        ("bragg", plot("Bragg wavelength across the field", "vertical field angle (deg)", "lambda_B (nm)", series(quantity::LAMBDA_B, true, false))),
+        ("pitch", plot("Replica pitch across the field", "vertical field angle (deg)", "pitch 2w tan(theta') (mm)", series(quantity::PITCH, true, false))),
+        ("count", plot("Replica count against bottom vHOE height", "bottom vHOE height (mm)", "replicas at the field centre", series(quantity::COUNT_H, false, true))),
+    ];
+    let mut files: Vec<(String, Vec<u8>)> = vec![
+        ("analytic.md".into(), report.to_markdown().into_bytes()),
+        ("analytic.csv".into(), report.to_csv().into_bytes()),
+        ("analytic.json".into(), serde_json::to_vec_pretty(&report).map_err(write_failure)?),
+    ];
+    for (name, p) in &plots {
+        files.push((format!("{name}.svg"), p.to_svg().into_bytes()));
+        files.push((format!("{name}.png"), p.to_png().map_err(write_failure)?));
+    }
+    let refs: Vec<(&str, &[u8])> = files.iter().map(|(n, b)| (n.as_str(), b.as_slice())).collect();
+    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    println!("{}", report.to_markdown());
+    if !report.pass {
+        return Err(Failure {
+            code: 1,
+            message: "analytic comparison failed (see analytic.md)".into(),
+        });
     }
     Ok(())
 }
@@ -1514,6 +1627,9 @@ fn main() -> ExitCode {
                 scene, out, *crop, *ref_spp, *budget_s, *target, extra, *json, *threads,
             ),
         },
+        Command::Validate {
+            which: ValidateCommand::Analytic { scene, fields, out },
+        } => cmd_validate_analytic(scene, *fields, out),
         Command::Info { scene, json } => cmd_info(scene, *json),
         Command::Compare { a, b, map, json } => cmd_compare(a, b, map.as_deref(), *json),
         Command::Probe { scene, pixel, json } => cmd_probe(scene, pixel, *json),

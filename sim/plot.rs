@@ -123,9 +123,7 @@ fn fmt_tick(v: f64) -> String {
     } else if a >= 1.0 {
         format!("{v:.1}")
     } else {
-        format!("{v:.3}")
-            .trim_end_matches('0')
-            .to_string()
+        format!("{v:.3}").trim_end_matches('0').to_string()
     }
 }
 
@@ -137,7 +135,10 @@ fn esc(s: &str) -> String {
 
 impl LinePlot {
     fn axes(&self) -> (Axis, Axis) {
-        let xs = self.series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
+        let xs = self
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.0));
         let mut ys: Vec<f64> = self
             .series
             .iter()
@@ -146,7 +147,10 @@ impl LinePlot {
         if let Some((v, _)) = &self.h_line {
             ys.push(*v);
         }
-        (Axis::new(xs, self.log_x), Axis::new(ys.into_iter(), self.log_y))
+        (
+            Axis::new(xs, self.log_x),
+            Axis::new(ys.into_iter(), self.log_y),
+        )
     }
 
     fn to_px(ax: &Axis, ay: &Axis, p: (f64, f64)) -> Option<(f64, f64)> {
@@ -173,19 +177,55 @@ impl LinePlot {
             esc(&self.title)
         );
         for v in ax.ticks() {
-            if let Some((px, _)) = Self::to_px(&ax, &ay, (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo })) {
-                let _ = write!(s, r##"<line x1="{px:.1}" y1="{y0}" x2="{px:.1}" y2="{y1}" stroke="#ddd"/>"##);
-                let _ = write!(s, r#"<text x="{px:.1}" y="{}" text-anchor="middle">{}</text>"#, y1 + 18.0, fmt_tick(v));
+            if let Some((px, _)) = Self::to_px(
+                &ax,
+                &ay,
+                (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo }),
+            ) {
+                let _ = write!(
+                    s,
+                    r##"<line x1="{px:.1}" y1="{y0}" x2="{px:.1}" y2="{y1}" stroke="#ddd"/>"##
+                );
+                let _ = write!(
+                    s,
+                    r#"<text x="{px:.1}" y="{}" text-anchor="middle">{}</text>"#,
+                    y1 + 18.0,
+                    fmt_tick(v)
+                );
             }
         }
         for v in ay.ticks() {
-            if let Some((_, py)) = Self::to_px(&ax, &ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v)) {
-                let _ = write!(s, r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#ddd"/>"##);
-                let _ = write!(s, r#"<text x="{}" y="{:.1}" text-anchor="end">{}</text>"#, x0 - 6.0, py + 4.0, fmt_tick(v));
+            if let Some((_, py)) = Self::to_px(
+                &ax,
+                &ay,
+                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v),
+            ) {
+                let _ = write!(
+                    s,
+                    r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#ddd"/>"##
+                );
+                let _ = write!(
+                    s,
+                    r#"<text x="{}" y="{:.1}" text-anchor="end">{}</text>"#,
+                    x0 - 6.0,
+                    py + 4.0,
+                    fmt_tick(v)
+                );
             }
         }
-        let _ = write!(s, r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/>"#, x1 - x0, y1 - y0);
-        let _ = write!(s, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, (x0 + x1) / 2.0, H as f64 - 18.0, esc(&self.x_label));
+        let _ = write!(
+            s,
+            r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/>"#,
+            x1 - x0,
+            y1 - y0
+        );
+        let _ = write!(
+            s,
+            r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+            (x0 + x1) / 2.0,
+            H as f64 - 18.0,
+            esc(&self.x_label)
+        );
         let _ = write!(
             s,
             r#"<text x="20" y="{}" text-anchor="middle" transform="rotate(-90 20 {})">{}</text>"#,
@@ -194,9 +234,22 @@ impl LinePlot {
             esc(&self.y_label)
         );
         if let Some((v, label)) = &self.h_line {
-            if let Some((_, py)) = Self::to_px(&ax, &ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v)) {
-                let _ = write!(s, r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#888" stroke-dasharray="6 4"/>"##);
-                let _ = write!(s, r##"<text x="{}" y="{:.1}" fill="#555">{}</text>"##, x1 + 6.0, py + 4.0, esc(label));
+            if let Some((_, py)) = Self::to_px(
+                &ax,
+                &ay,
+                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v),
+            ) {
+                let _ = write!(
+                    s,
+                    r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#888" stroke-dasharray="6 4"/>"##
+                );
+                let _ = write!(
+                    s,
+                    r##"<text x="{}" y="{:.1}" fill="#555">{}</text>"##,
+                    x1 + 6.0,
+                    py + 4.0,
+                    esc(label)
+                );
             }
         }
         for (i, ser) in self.series.iter().enumerate() {
@@ -208,15 +261,33 @@ impl LinePlot {
                     Some((px, py)) => {
                         let _ = write!(d, "{}{px:.1},{py:.1} ", if pen_up { "M" } else { "L" });
                         pen_up = false;
-                        let _ = write!(s, r#"<circle cx="{px:.1}" cy="{py:.1}" r="3" fill="rgb({r},{g},{b})"/>"#);
+                        let _ = write!(
+                            s,
+                            r#"<circle cx="{px:.1}" cy="{py:.1}" r="3" fill="rgb({r},{g},{b})"/>"#
+                        );
                     }
                     None => pen_up = true,
                 }
             }
-            let _ = write!(s, r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="2"/>"#, d.trim_end());
+            let _ = write!(
+                s,
+                r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="2"/>"#,
+                d.trim_end()
+            );
             let ly = y0 + 10.0 + 20.0 * i as f64;
-            let _ = write!(s, r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"/>"#, x1 + 10.0, x1 + 30.0);
-            let _ = write!(s, r#"<text x="{}" y="{}">{}</text>"#, x1 + 36.0, ly + 4.0, esc(&ser.name));
+            let _ = write!(
+                s,
+                r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"/>"#,
+                x1 + 10.0,
+                x1 + 30.0
+            );
+            let _ = write!(
+                s,
+                r#"<text x="{}" y="{}">{}</text>"#,
+                x1 + 36.0,
+                ly + 4.0,
+                esc(&ser.name)
+            );
         }
         s.push_str("</svg>\n");
         s
@@ -229,25 +300,56 @@ impl LinePlot {
         let (x0, x1, y0, y1) = (LEFT, W as f64 - RIGHT, TOP, H as f64 - BOTTOM);
         let grey = (221, 221, 221);
         for v in ax.ticks() {
-            if let Some((px, _)) = Self::to_px(&ax, &ay, (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo })) {
+            if let Some((px, _)) = Self::to_px(
+                &ax,
+                &ay,
+                (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo }),
+            ) {
                 c.line((px, y0), (px, y1), grey, 1.0);
                 c.text(&fmt_tick(v), px, y1 + 10.0, 1, Align::Centre, (0, 0, 0));
             }
         }
         for v in ay.ticks() {
-            if let Some((_, py)) = Self::to_px(&ax, &ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v)) {
+            if let Some((_, py)) = Self::to_px(
+                &ax,
+                &ay,
+                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v),
+            ) {
                 c.line((x0, py), (x1, py), grey, 1.0);
                 c.text(&fmt_tick(v), x0 - 6.0, py - 4.0, 1, Align::Right, (0, 0, 0));
             }
         }
-        for ((a, b), (cc, d)) in [((x0, y0), (x1, y0)), ((x1, y0), (x1, y1)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0))] {
+        for ((a, b), (cc, d)) in [
+            ((x0, y0), (x1, y0)),
+            ((x1, y0), (x1, y1)),
+            ((x1, y1), (x0, y1)),
+            ((x0, y1), (x0, y0)),
+        ] {
             c.line((a, b), (cc, d), (0, 0, 0), 1.0);
         }
-        c.text(&self.title, (x0 + x1) / 2.0, 12.0, 2, Align::Centre, (0, 0, 0));
-        c.text(&self.x_label, (x0 + x1) / 2.0, H as f64 - 28.0, 1, Align::Centre, (0, 0, 0));
+        c.text(
+            &self.title,
+            (x0 + x1) / 2.0,
+            12.0,
+            2,
+            Align::Centre,
+            (0, 0, 0),
+        );
+        c.text(
+            &self.x_label,
+            (x0 + x1) / 2.0,
+            H as f64 - 28.0,
+            1,
+            Align::Centre,
+            (0, 0, 0),
+        );
         c.text(&self.y_label, 6.0, 22.0, 1, Align::Left, (0, 0, 0));
         if let Some((v, label)) = &self.h_line {
-            if let Some((_, py)) = Self::to_px(&ax, &ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v)) {
+            if let Some((_, py)) = Self::to_px(
+                &ax,
+                &ay,
+                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v),
+            ) {
                 c.line((x0, py), (x1, py), (136, 136, 136), 1.0);
                 c.text(label, x1 + 6.0, py - 4.0, 1, Align::Left, (85, 85, 85));
             }
@@ -395,7 +497,9 @@ mod tests {
         assert_eq!((ay.lo, ay.hi), (-2.0, 0.0));
         assert_eq!(ax.ticks(), vec![0.1, 1.0, 10.0]);
         let svg = p.to_svg();
-        assert!(svg.starts_with("<svg") && svg.contains("RMSE against time") && svg.contains("1 %"));
+        assert!(
+            svg.starts_with("<svg") && svg.contains("RMSE against time") && svg.contains("1 %")
+        );
         // One path with three points (the NaN point is skipped).
         assert_eq!(svg.matches("<circle").count(), 3);
         let png = p.to_png().unwrap();

@@ -22,7 +22,10 @@ fn render(dir: &std::path::Path, sets: &[&str]) -> (serde_json::Value, String) {
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("capture.json")).unwrap()).unwrap();
     let (_, _, ch) = stscam::io::read_exr(&dir.join("capture.exr")).unwrap();
-    assert!(ch.iter().all(|c| c.data.iter().all(|v| v.is_finite() && *v >= 0.0)));
+    assert!(
+        ch.iter()
+            .all(|c| c.data.iter().all(|v| v.is_finite() && *v >= 0.0))
+    );
     (json, stderr)
 }
 
@@ -41,8 +44,14 @@ fn thin_plate_with_thousands_of_bounces_is_bounded_and_warned() {
         &["plate.thickness_mm=0.05", "sampling.max_contacts=200"],
     );
     assert!(j["stats"]["max_contacts_hits"].as_u64().unwrap() > 0);
-    assert!(j["stats"]["contacts"].as_f64().unwrap() / j["stats"]["camera_paths"].as_f64().unwrap() <= 200.0);
-    assert!(err.contains("warning") && err.contains("max_contacts"), "{err}");
+    assert!(
+        j["stats"]["contacts"].as_f64().unwrap() / j["stats"]["camera_paths"].as_f64().unwrap()
+            <= 200.0
+    );
+    assert!(
+        err.contains("warning") && err.contains("max_contacts"),
+        "{err}"
+    );
     // A coarse truncation tolerance is warned too.
     let (_, err) = render(&d.path().join("c"), &["sampling.min_guided_weight=0.5"]);
     assert!(err.contains("min_guided_weight"), "{err}");
@@ -52,13 +61,20 @@ fn thin_plate_with_thousands_of_bounces_is_bounded_and_warned() {
 fn grazing_incidence_and_saturated_gratings_stay_physical() {
     let d = tempfile::tempdir().unwrap();
     // A ±80° field of view: rays reach the plate at grazing incidence.
-    let (j, _) = render(&d.path().join("a"), &["sensor.pitch_um=3000", "camera.f_number=1.0"]);
+    let (j, _) = render(
+        &d.path().join("a"),
+        &["sensor.pitch_um=3000", "camera.f_number=1.0"],
+    );
     assert_eq!(j["stats"]["nonfinite_samples"], 0);
     assert!(j["stats"]["max_branch_weight"].as_f64().unwrap() <= 1.0);
     // An index modulation so large that η saturates (ν ≫ 1), and a lossy film.
     let (j, _) = render(
         &d.path().join("b"),
-        &["hoe.index_modulation=0.1", "hoe.film_thickness_um=200", "hoe.amplitude_absorption_per_mm=5"],
+        &[
+            "hoe.index_modulation=0.1",
+            "hoe.film_thickness_um=200",
+            "hoe.amplitude_absorption_per_mm=5",
+        ],
     );
     assert_eq!(j["stats"]["nonfinite_samples"], 0);
     assert!(j["stats"]["max_branch_weight"].as_f64().unwrap() <= 1.0);

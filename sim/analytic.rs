@@ -1,0 +1,1382 @@
+//! Closed-form geometry of the holographic waveguide across the whole field, and its
+//! comparison with what stscam's tracer computes (`validation/analytic`).
+//!
+//! # Closed forms (all written here without calling the tracer or the grating code)
+//!
+//! Frame and units as in `DESIGN.md`: millimetres, plate 0 ≤ z ≤ w, y up, camera at z > w
+//! looking along −z. A field direction is the camera chief ray from the lens centre,
+//! d = normalise(tan h, tan v, −1), with h and v the horizontal and vertical field angles in
+//! air (the convention of `analysis::probe`). The physical light travels along −d; its
+//! tangential optical direction cosines u = −(d_x, d_y) are conserved by every planar
+//! interface (Snell).
+//!
+//! 1. **Bragg wavelength** (physics.md §3.2): on-shell closure |ρ − K| = |ρ| with
+//!    K = k0(ŝ_O − ŝ_R) gives λ_B = λ0 (s_z − s_y tan(θ_R/2)), where ŝ is the direction inside
+//!    the film: s_y = u_y/n_f, s_z = √(1 − |u|²/n_f²). Independent of n_f for in-plane
+//!    incidence when measured inside the medium; exactly λ0 cos(Θ + θ_R/2)/cos(θ_R/2) in-plane
+//!    (§3.3).
+//! 2. **Guided direction** (§2, §0.3): tangential k is conserved up to K_t, so the guided wave
+//!    has u_g = u − (λ/2π)K_t = (u_x, u_y + n_f sin θ_R · λ/λ0); its normal component follows
+//!    from |k| = 2πn_g/λ in the glass, so the guided angle is Θ' = asin(|u_g|/n_g(λ_B)).
+//! 3. **Replica pitch** (§0.3 b, §5): one round trip (two plate crossings) shifts the guided
+//!    ray by the vector p = 2w·u_g/√(n_g² − |u_g|²), of length 2w·tanΘ'. By the periscope
+//!    property every replica leaves parallel to the entry ray, so consecutive replicas of one
+//!    chief ray hit the display p apart.
+//! 4. **Replica count** (§5): the chief ray meets the back face at P_b = L + d1·t
+//!    (t = d_t/(−d_z)), crosses the plate to the front face at P_f = P_b + w·d_t/√(n_g² − |u|²),
+//!    where the top vHOE diffracts it into the guided wave; traced backward, plate contact j
+//!    lies at P_f − j·w·u_g/√(n_g² − |u_g|²), odd j on the back face. The number of replicas is
+//!    the number of odd j ≥ 1 whose contact lies inside the bottom vHOE rectangle (closed on
+//!    the minimum edges, open on the maximum ones): the intersection of one interval of j per
+//!    axis, counted with floors. The j-th contact's replica leaves the front face at
+//!    P_f − j·g + (P_f − P_b) and meets the display at that point + D·t.
+//! 5. **Vertical FOV limits** (§3.4, §5): TIR needs |u_g| > 1 (the same condition at the
+//!    glass→air and the film→air face, since u is conserved: Θ' > asin(1/n_g) and the film
+//!    angle > asin(1/n_f)); in-plane this is Θ_f > asin(1/n_f) − θ_R, i.e. the camera angle
+//!    v < asin(n_f sin(θ_R − asin(1/n_f))). The Bragg band ends where λ_B leaves the sampled
+//!    band [λ_min, λ_max): in-plane Θ_f = ±acos(λ_edge cos(θ_R/2)/λ0) − θ_R/2. The top-vHOE
+//!    aperture ends where P_f leaves the top rectangle; the bottom vHOE ends where no back-face
+//!    contact is left; the sensor crop ends at |d0·t − offset| = half the crop. Aperture,
+//!    contact and crop edges are found by bisection of these closed-form predicates.
+//! 6. **Sensor rows of a point object**: for the chief ray through image height v of the crop's
+//!    midline, the display point of contact j is the expression of item 4; the row at which
+//!    a point at y_obj appears through contact j solves it for v (bisection).
+//!
+//! Assumptions: the scene's plain values (λ0, θ_R, n_f, w, vHOE rectangles, gap, camera
+//! distance, focal length, focus, pixel pitch, crop, display distance, sampling band) and the
+//! glass dispersion formula (`optics::glass::Glass::index`, a material table) are shared with
+//! the simulator; everything else is computed here. The guided ray is an ideal chief ray (no
+//! aperture), lossless TIR geometry, no fringe shrinkage.
+//!
+//! # Comparison
+//!
+//! [`compare`] puts these side by side with the tracer over ≥ 50 field angles spanning the
+//! waveguide's field (vertical, horizontal and conical): Bragg wavelength, guided angle,
+//! replica pitch (spacing of traced object points), the object point of the first replica,
+//! replica count (traced without the weight cut-off), the sensor rows of a point at the display
+//! centre (`analysis::point_replicas`), replica count against bottom-vHOE height, FOV edges
+//! against `analysis::info` (its 0.05° scan) and against a bisection of the traced chief ray,
+//! and the wavelength that maximises the traced chief-ray throughput (golden section) against
+//! λ_B.
+
+use glam::{DVec2, DVec3};
+use serde::Serialize;
+
+use crate::analysis::{info, point_replicas, probe_direction};
+use crate::optics::glass::Glass;
+use crate::scene::{AutoOr, Scene};
+use crate::system::{System, build_camera, build_waveguide, glass_of};
+use crate::trace::{BranchKind, trace_camera_path};
+
+/// Relative tolerance for the deterministic quantities.
+pub const DETERMINISTIC_REL_TOL: f64 = 1e-6;
+
+/// The plain design values the closed forms need (read from a scene description, never from
+/// the runtime objects built from it). Fields may be changed to test the comparison.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClosedForm {
+    /// Recording wavelength λ0, nm.
+    pub lambda0_nm: f64,
+    /// Reference angle θ_R inside the film, degrees.
+    pub reference_angle_deg: f64,
+    /// Film index n_f.
+    pub n_film: f64,
+    /// Plate thickness w, mm.
+    pub thickness_mm: f64,
+    /// Glass dispersion model.
+    #[serde(skip)]
+    pub glass: Glass,
+    /// Bottom vHOE width and height, mm (centred at the origin of the back face).
+    pub bottom_size_mm: [f64; 2],
+    /// Top vHOE width and height, mm.
+    pub top_size_mm: [f64; 2],
+    /// Gap between the bottom vHOE's top edge and the top vHOE's bottom edge, mm.
+    pub gap_mm: f64,
+    /// Whether the top vHOE is covered (replicas entering under it are absorbed).
+    pub covered: bool,
+    /// Lens to back face d1, mm.
+    pub camera_distance_mm: f64,
+    /// Lens-to-sensor distance d0, mm (thin lens focused at the scene's focus distance).
+    pub sensor_distance_mm: f64,
+    /// Pixel pitch, mm.
+    pub pixel_mm: f64,
+    /// Crop size (width, height), pixels.
+    pub crop_px: [usize; 2],
+    /// Crop centre offset from the optical axis, pixels (+x right, +y up).
+    pub crop_offset_px: [f64; 2],
+    /// Display distance D from the front face, mm.
+    pub display_distance_mm: f64,
+    /// Sampled spectral band [λ_min, λ_max), nm.
+    pub band_nm: [f64; 2],
+}
+
+/// What ends the field of view at an edge (labels as in `analysis::info`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Limit {
+    /// The sensor crop.
+    SensorCrop,
+    /// The chief ray misses the top vHOE.
+    TopAperture,
+    /// λ_B is outside the sampled band.
+    BraggBand,
+    /// The guided wave is not trapped by TIR.
+    Tir,
+    /// No back-face contact inside the bottom vHOE.
+    NoContact,
+}
+
+impl Limit {
+    /// The label `analysis::info` uses for the same limit.
+    pub fn label(self) -> &'static str {
+        match self {
+            Limit::SensorCrop => "sensor crop",
+            Limit::TopAperture => "top vHOE aperture",
+            Limit::BraggBand => "Bragg band outside the simulated spectrum",
+            Limit::Tir => "TIR (guided angle below critical)",
+            Limit::NoContact => "bottom vHOE (no contact)",
+        }
+    }
+}
+
+/// The closed-form geometry of one field direction.
+#[derive(Clone, Debug, Serialize)]
+pub struct FieldGeometry {
+    /// Field angles in air [horizontal, vertical], degrees.
+    pub field_deg: [f64; 2],
+    /// Camera chief-ray direction (toward the screen).
+    pub camera_dir: [f64; 3],
+    /// Tangential direction cosines of the physical light in air.
+    pub u_air: [f64; 2],
+    /// Bragg wavelength λ_B, nm (NaN if none).
+    pub lambda_bragg_nm: f64,
+    /// Glass index at λ_B.
+    pub n_glass: f64,
+    /// Tangential direction cosines of the guided wave (physical direction, travelling up).
+    pub u_guided: [f64; 2],
+    /// Guided angle Θ' in the glass, degrees.
+    pub guided_angle_deg: f64,
+    /// Replica pitch 2w·tanΘ', mm.
+    pub replica_pitch_mm: f64,
+    /// Object-space shift from replica k to replica k + 1 (−p), mm.
+    pub replica_step_mm: [f64; 2],
+    /// Back-face crossing of the chief ray, mm.
+    pub back_point_mm: [f64; 2],
+    /// Front-face (top vHOE) point of the chief ray, mm.
+    pub front_point_mm: [f64; 2],
+    /// Plate-contact numbers (odd, back face) inside the bottom vHOE, in order.
+    pub contacts: Vec<u32>,
+    /// Display points of those replicas, mm.
+    pub object_points_mm: Vec<[f64; 2]>,
+}
+
+fn rect_contains(min: DVec2, max: DVec2, p: DVec2) -> bool {
+    p.x >= min.x && p.y >= min.y && p.x < max.x && p.y < max.y
+}
+
+/// Odd integers j = 2m + 1 ≥ 1 with a < j ≤ b, as the inclusive range of m (empty: `None`).
+fn odd_in(a: f64, b: f64) -> Option<(u32, u32)> {
+    let m_lo = (((a - 1.0) / 2.0).floor() + 1.0).max(0.0);
+    let m_hi = ((b - 1.0) / 2.0).floor();
+    (m_hi >= m_lo).then(|| (m_lo as u32, m_hi.min(1e6) as u32))
+}
+
+impl ClosedForm {
+    /// Reads the plain design values of a scene description.
+    pub fn from_scene(s: &Scene) -> ClosedForm {
+        let glass = glass_of(&s.plate.glass);
+        let w = s.plate.thickness_mm;
+        let f = s.camera.focal_length_mm;
+        let focus = match s.camera.focus_distance_mm {
+            AutoOr::Value(v) => v,
+            AutoOr::Word(_) => {
+                s.camera.distance_mm
+                    + 2.0 * w / glass.index(s.hoe.recording_wavelength_nm)
+                    + s.display.distance_mm
+            }
+        };
+        let (cw, ch) = s.sensor.crop_px.size();
+        ClosedForm {
+            lambda0_nm: s.hoe.recording_wavelength_nm,
+            reference_angle_deg: s.hoe.reference_angle_deg,
+            n_film: s.hoe.mean_index,
+            thickness_mm: w,
+            glass,
+            bottom_size_mm: [s.bottom_hoe.width_mm, s.bottom_hoe.height_mm],
+            top_size_mm: [s.top_hoe.width_mm, s.top_hoe.height_mm],
+            gap_mm: s.top_hoe.gap_mm,
+            covered: s.top_hoe.covered,
+            camera_distance_mm: s.camera.distance_mm,
+            sensor_distance_mm: f * focus / (focus - f),
+            pixel_mm: s.sensor.pitch_um * 1e-3,
+            crop_px: [cw as usize, ch as usize],
+            crop_offset_px: [
+                f64::from(s.sensor.crop_offset_px[0]),
+                f64::from(s.sensor.crop_offset_px[1]),
+            ],
+            display_distance_mm: s.display.distance_mm,
+            band_nm: [s.sampling.lambda_min_nm, s.sampling.lambda_max_nm],
+        }
+    }
+
+    /// Glass index at a wavelength.
+    pub fn n_glass(&self, lambda_nm: f64) -> f64 {
+        self.glass.index(lambda_nm)
+    }
+
+    fn theta_r(&self) -> f64 {
+        self.reference_angle_deg.to_radians()
+    }
+
+    /// Bottom vHOE rectangle (min, max) on the back face.
+    pub fn bottom_rect_mm(&self) -> ([f64; 2], [f64; 2]) {
+        let [bw, bh] = self.bottom_size_mm;
+        ([-0.5 * bw, -0.5 * bh], [0.5 * bw, 0.5 * bh])
+    }
+
+    /// Top vHOE rectangle (min, max) on the front face.
+    pub fn top_rect_mm(&self) -> ([f64; 2], [f64; 2]) {
+        let y0 = 0.5 * self.bottom_size_mm[1] + self.gap_mm;
+        let tw = self.top_size_mm[0];
+        ([-0.5 * tw, y0], [0.5 * tw, y0 + self.top_size_mm[1]])
+    }
+
+    /// Lens centre (on the axis through the top vHOE centre, d1 behind the back face), mm.
+    pub fn lens_mm(&self) -> [f64; 3] {
+        let (lo, hi) = self.top_rect_mm();
+        [
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            self.thickness_mm + self.camera_distance_mm,
+        ]
+    }
+
+    /// Closed-form Bragg wavelength (physics.md §3.2) for light with air direction cosines
+    /// `u`: λ0 (s_z − s_y tan(θ_R/2)) with ŝ inside the film; `None` if not positive.
+    pub fn bragg_wavelength_nm(&self, u: [f64; 2]) -> Option<f64> {
+        let nf = self.n_film;
+        let cz2 = 1.0 - (u[0] * u[0] + u[1] * u[1]) / (nf * nf);
+        if cz2 <= 0.0 {
+            return None;
+        }
+        let lam = self.lambda0_nm * (cz2.sqrt() - (u[1] / nf) * (0.5 * self.theta_r()).tan());
+        (lam > 0.0).then_some(lam)
+    }
+
+    /// Guided-wave direction cosines u_g = (u_x, u_y + n_f sin θ_R λ/λ0) (k_t − K_t).
+    pub fn guided_u(&self, u: [f64; 2], lambda_nm: f64) -> [f64; 2] {
+        [
+            u[0],
+            u[1] + self.n_film * self.theta_r().sin() * lambda_nm / self.lambda0_nm,
+        ]
+    }
+
+    /// Camera chief-ray direction for field angles (h, v) in degrees.
+    pub fn camera_dir(h_deg: f64, v_deg: f64) -> [f64; 3] {
+        DVec3::new(h_deg.to_radians().tan(), v_deg.to_radians().tan(), -1.0)
+            .normalize()
+            .to_array()
+    }
+
+    /// Closed-form geometry of the field (h, v) in degrees.
+    pub fn field(&self, h_deg: f64, v_deg: f64) -> FieldGeometry {
+        self.field_dir(Self::camera_dir(h_deg, v_deg))
+    }
+
+    /// Closed-form geometry of the camera chief ray with direction `dir` (from the lens centre).
+    pub fn field_dir(&self, dir: [f64; 3]) -> FieldGeometry {
+        let d = DVec3::from_array(dir);
+        let dt = d.truncate();
+        let t = dt / -d.z;
+        let u = -dt;
+        let lam_opt = self.bragg_wavelength_nm(u.to_array());
+        let lam = lam_opt.unwrap_or(f64::NAN);
+        let n = self.n_glass(lam_opt.unwrap_or(self.lambda0_nm));
+        let w = self.thickness_mm;
+        let lens = DVec3::from_array(self.lens_mm());
+        let p_b = lens.truncate() + self.camera_distance_mm * t;
+        let cross = dt * (w / (n * n - u.length_squared()).sqrt());
+        let p_f = p_b + cross;
+        let ug = DVec2::from_array(self.guided_u(u.to_array(), lam));
+        let ug2 = ug.length_squared();
+        let (guided_deg, g) = if ug2 < n * n {
+            (
+                (ug.length() / n).asin().to_degrees(),
+                ug * (w / (n * n - ug2).sqrt()),
+            )
+        } else {
+            (f64::NAN, DVec2::splat(f64::NAN))
+        };
+        let mut contacts = Vec::new();
+        let mut objects = Vec::new();
+        if lam_opt.is_some() && g.is_finite() {
+            let (bmin, bmax) = self.bottom_rect_mm();
+            let (bmin, bmax) = (DVec2::from_array(bmin), DVec2::from_array(bmax));
+            // Interval of j per axis with min ≤ P_f − j g < max.
+            let mut a = f64::NEG_INFINITY;
+            let mut b = f64::INFINITY;
+            for k in 0..2 {
+                let (pf, gk, lo, hi) = (p_f[k], g[k], bmin[k], bmax[k]);
+                if gk > 0.0 {
+                    a = a.max((pf - hi) / gk);
+                    b = b.min((pf - lo) / gk);
+                } else if gk < 0.0 {
+                    a = a.max((pf - lo) / gk);
+                    b = b.min((pf - hi) / gk);
+                } else if !(pf >= lo && pf < hi) {
+                    b = f64::NEG_INFINITY;
+                }
+            }
+            let (m_lo, m_end) = odd_in(a, b).map_or((0, 0), |(lo, hi)| (lo, hi + 1));
+            for m in m_lo..m_end {
+                let j = 2 * m + 1;
+                let contact = p_f - f64::from(j) * g;
+                // Guard the half-open edges exactly as the rectangle defines them.
+                if !rect_contains(bmin, bmax, contact) {
+                    continue;
+                }
+                let exit = contact + cross;
+                contacts.push(j);
+                objects.push((exit + self.display_distance_mm * t).to_array());
+            }
+        }
+        FieldGeometry {
+            field_deg: [d.x.atan2(-d.z).to_degrees(), d.y.atan2(-d.z).to_degrees()],
+            camera_dir: dir,
+            u_air: u.to_array(),
+            lambda_bragg_nm: lam,
+            n_glass: n,
+            u_guided: ug.to_array(),
+            guided_angle_deg: guided_deg,
+            replica_pitch_mm: 2.0 * g.length(),
+            replica_step_mm: (-2.0 * g).to_array(),
+            back_point_mm: p_b.to_array(),
+            front_point_mm: p_f.to_array(),
+            contacts,
+            object_points_mm: objects,
+        }
+    }
+
+    /// Replicas available to the field (h, v): back-face contacts inside the bottom vHOE.
+    pub fn replica_count(&self, h_deg: f64, v_deg: f64) -> usize {
+        self.field(h_deg, v_deg).contacts.len()
+    }
+
+    /// The same design with another bottom-vHOE height (the top vHOE and camera move with it).
+    pub fn with_bottom_height(&self, height_mm: f64) -> ClosedForm {
+        let mut c = self.clone();
+        c.bottom_size_mm[1] = height_mm;
+        c
+    }
+
+    /// The first element that stops the chief ray `dir` (closed form), or `None`; checked in
+    /// the order crop, top aperture, Bragg band, TIR, bottom-vHOE contact.
+    pub fn blocker(&self, dir: [f64; 3], with_crop: bool) -> Option<Limit> {
+        let d = DVec3::from_array(dir);
+        if with_crop {
+            let img = d.truncate() * (self.sensor_distance_mm / -d.z);
+            let off = DVec2::from_array(self.crop_offset_px) * self.pixel_mm;
+            let half =
+                DVec2::new(self.crop_px[0] as f64, self.crop_px[1] as f64) * (0.5 * self.pixel_mm);
+            if (img.x - off.x).abs() > half.x || (img.y - off.y).abs() > half.y {
+                return Some(Limit::SensorCrop);
+            }
+        }
+        let f = self.field_dir(dir);
+        let (tmin, tmax) = self.top_rect_mm();
+        if !rect_contains(
+            DVec2::from_array(tmin),
+            DVec2::from_array(tmax),
+            DVec2::from_array(f.front_point_mm),
+        ) {
+            return Some(Limit::TopAperture);
+        }
+        let lam = f.lambda_bragg_nm;
+        if !(lam >= self.band_nm[0] && lam < self.band_nm[1]) {
+            return Some(Limit::BraggBand);
+        }
+        if DVec2::from_array(f.u_guided).length_squared() <= 1.0 {
+            return Some(Limit::Tir);
+        }
+        let usable = if self.covered {
+            let (tmin, tmax) = (DVec2::from_array(tmin), DVec2::from_array(tmax));
+            let cross = DVec2::from_array(f.front_point_mm) - DVec2::from_array(f.back_point_mm);
+            let g = DVec2::from_array(f.replica_step_mm) * -0.5;
+            let pf = DVec2::from_array(f.front_point_mm);
+            f.contacts
+                .iter()
+                .any(|&j| !rect_contains(tmin, tmax, pf - f64::from(j) * g + cross))
+        } else {
+            !f.contacts.is_empty()
+        };
+        if !usable {
+            return Some(Limit::NoContact);
+        }
+        None
+    }
+
+    /// In-plane (h = 0) vertical camera angle, degrees, at which the guided wave reaches the
+    /// critical angle: v = asin(n_f sin(θ_R − asin(1/n_f))) (physics.md §3.4). Above it TIR
+    /// fails.
+    pub fn tir_edge_vertical_deg(&self) -> f64 {
+        let nf = self.n_film;
+        (nf * (self.theta_r() - (1.0 / nf).asin()).sin())
+            .asin()
+            .to_degrees()
+    }
+
+    /// In-plane vertical camera angles, degrees, at which λ_B equals `lambda_nm` (two
+    /// branches: the blue edge at negative v first); NaN where no real solution exists.
+    pub fn bragg_edge_vertical_deg(&self, lambda_nm: f64) -> [f64; 2] {
+        let half = 0.5 * self.theta_r();
+        let c = lambda_nm * half.cos() / self.lambda0_nm;
+        let nf = self.n_film;
+        let angle = |theta_f: f64| (-nf * theta_f.sin()).asin().to_degrees();
+        if c.abs() > 1.0 {
+            return [f64::NAN, f64::NAN];
+        }
+        [angle(c.acos() - half), angle(-c.acos() - half)]
+    }
+
+    /// Field-of-view edge along one axis (closed form): the outermost field angle (degrees,
+    /// sign of `sign`) reached from 0 before a limit stops the chief ray, found by a 0.01°
+    /// scan and bisection to 1e-13°, with the limit that stops it.
+    pub fn fov_edge_deg(&self, vertical: bool, sign: f64, with_crop: bool) -> (f64, Option<Limit>) {
+        let dir = |a: f64| {
+            if vertical {
+                Self::camera_dir(0.0, a)
+            } else {
+                Self::camera_dir(a, 0.0)
+            }
+        };
+        let ok = |a: f64| self.blocker(dir(a), with_crop).is_none();
+        match bisect_edge(sign, ok) {
+            Some((edge, bad)) => (edge, self.blocker(dir(bad), with_crop)),
+            None => (f64::NAN, None),
+        }
+    }
+
+    /// Continuous sensor rows (row 0 = top of the crop, pixel centres at integers) at which a
+    /// point on the display at height `y_obj_mm` (on the crop's vertical midline) appears,
+    /// one per plate contact, found by solving the closed-form object point for the image
+    /// height: (contact, row), sorted by row.
+    pub fn point_rows(&self, y_obj_mm: f64) -> Vec<(u32, f64)> {
+        let p = self.pixel_mm;
+        let h = self.crop_px[1] as f64;
+        let x_img = self.crop_offset_px[0] * p;
+        let d0 = self.sensor_distance_mm;
+        let v_of_row = |row: f64| (0.5 * h - (row + 0.5) + self.crop_offset_px[1]) * p;
+        let obj = |v: f64, j: u32| -> Option<f64> {
+            let f = self.field_dir(DVec3::new(x_img / d0, v / d0, -1.0).normalize().to_array());
+            f.contacts
+                .iter()
+                .position(|&c| c == j)
+                .map(|k| f.object_points_mm[k][1])
+        };
+        let steps = 4 * self.crop_px[1].max(50);
+        let (v0, v1) = (v_of_row(-0.5), v_of_row(h - 0.5));
+        let mut out = Vec::new();
+        let mut prev: Option<FieldGeometry> = None;
+        let mut v_prev = v0;
+        for i in 0..=steps {
+            let v = v0 + (v1 - v0) * i as f64 / steps as f64;
+            let cur = self.field_dir(DVec3::new(x_img / d0, v / d0, -1.0).normalize().to_array());
+            if let Some(pf) = &prev {
+                for (k, &j) in cur.contacts.iter().enumerate() {
+                    let Some(kp) = pf.contacts.iter().position(|&c| c == j) else {
+                        continue;
+                    };
+                    let y0 = pf.object_points_mm[kp][1];
+                    let y1 = cur.object_points_mm[k][1];
+                    if (y0 > y_obj_mm) == (y1 > y_obj_mm) {
+                        continue;
+                    }
+                    let above0 = y0 > y_obj_mm;
+                    let (mut a, mut b) = (v_prev, v);
+                    for _ in 0..200 {
+                        let m = 0.5 * (a + b);
+                        if m == a || m == b {
+                            break;
+                        }
+                        match obj(m, j) {
+                            Some(ym) if (ym > y_obj_mm) == above0 => a = m,
+                            Some(_) => b = m,
+                            None => break,
+                        }
+                    }
+                    let vh = 0.5 * (a + b);
+                    out.push((j, 0.5 * h + self.crop_offset_px[1] - vh / p - 0.5));
+                }
+            }
+            prev = Some(cur);
+            v_prev = v;
+        }
+        out.sort_by(|a, b| a.1.total_cmp(&b.1));
+        out
+    }
+}
+
+/// Outermost angle (sign `sign`) with `ok` true, scanning from 0 in 0.01° steps then
+/// bisecting: (last ok, first bad). `None` if 0 itself fails or nothing fails up to 89°.
+fn bisect_edge(sign: f64, ok: impl Fn(f64) -> bool) -> Option<(f64, f64)> {
+    if !ok(0.0) {
+        return None;
+    }
+    let step = 0.01;
+    let mut k = 1;
+    let (mut a, mut b);
+    loop {
+        let x = sign * step * f64::from(k);
+        if x.abs() > 89.0 {
+            return None;
+        }
+        if !ok(x) {
+            a = x - sign * step;
+            b = x;
+            break;
+        }
+        k += 1;
+    }
+    for _ in 0..200 {
+        let m = 0.5 * (a + b);
+        if m == a || m == b {
+            break;
+        }
+        if ok(m) {
+            a = m;
+        } else {
+            b = m;
+        }
+    }
+    Some((a, b))
+}
+
+/// One compared value.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// Section ("field", "point", "height", "fov").
+    pub section: String,
+    /// What is compared (with its unit).
+    pub quantity: String,
+    /// Field index in the field list (field section), if any.
+    pub field: Option<usize>,
+    /// Horizontal field angle in air, degrees (NaN if not applicable).
+    pub field_h_deg: f64,
+    /// Vertical field angle in air, degrees (NaN if not applicable).
+    pub field_v_deg: f64,
+    /// Extra parameter (bottom-vHOE height in mm, contact number, ...), NaN if none.
+    pub param: f64,
+    /// Closed-form value.
+    pub closed_form: f64,
+    /// stscam's value.
+    pub stscam: f64,
+    /// |closed form − stscam|.
+    pub abs_diff: f64,
+    /// abs_diff / |stscam| (or / the stated scale).
+    pub rel_diff: f64,
+    /// Tolerance the row is checked against (on rel_diff, or abs_diff for counts and the
+    /// info scan).
+    pub tolerance: f64,
+    /// Whether the row passes.
+    pub pass: bool,
+    /// Remark (limiting element names, ...).
+    pub note: String,
+}
+
+/// Maxima over the rows of one quantity.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    /// Quantity.
+    pub quantity: String,
+    /// Rows compared.
+    pub rows: usize,
+    /// Largest absolute difference.
+    pub max_abs_diff: f64,
+    /// Largest relative difference.
+    pub max_rel_diff: f64,
+    /// Tolerance and what it applies to.
+    pub tolerance: String,
+    /// All rows pass.
+    pub pass: bool,
+}
+
+/// The comparison of closed forms with the tracer.
+#[derive(Clone, Debug, Serialize)]
+pub struct AnalyticReport {
+    /// Field angles compared [h, v], degrees.
+    pub fields_deg: Vec<[f64; 2]>,
+    /// Closed-form inputs used.
+    pub closed_form: ClosedForm,
+    /// Every compared value.
+    pub rows: Vec<Row>,
+    /// Maxima per quantity.
+    pub summary: Vec<Summary>,
+    /// Every row passes.
+    pub pass: bool,
+}
+
+/// Quantity names (also the keys of the summary).
+pub mod quantity {
+    /// Bragg wavelength.
+    pub const LAMBDA_B: &str = "Bragg wavelength λ_B (nm)";
+    /// Throughput peak.
+    pub const LAMBDA_PEAK: &str = "λ of max traced throughput (n1 = 1e-4) − λ_B (nm)";
+    /// Guided angle.
+    pub const GUIDED: &str = "guided angle Θ' (deg)";
+    /// Pitch.
+    pub const PITCH: &str = "replica pitch 2w·tanΘ' (mm)";
+    /// First replica's display point.
+    pub const OBJECT0: &str = "replica-0 display point (mm, rel. to pitch)";
+    /// Count.
+    pub const COUNT: &str = "replica count";
+    /// Point rows.
+    pub const ROWS: &str = "sensor row of a display-centre point (px)";
+    /// Count vs height.
+    pub const COUNT_H: &str = "replica count vs bottom-vHOE height";
+    /// FOV edge, bisection.
+    pub const FOV_TRACED: &str = "FOV edge, traced chief ray bisected (deg)";
+    /// FOV edge vs info.
+    pub const FOV_INFO: &str = "FOV edge vs `info` 0.05° scan (deg)";
+    /// Critical angles.
+    pub const CRITICAL: &str = "critical angle (deg)";
+}
+
+/// Index modulation of the weak-grating copy used for the throughput-peak search.
+pub const WEAK_INDEX_MODULATION: f64 = 1e-4;
+
+/// Tolerance of the throughput-peak row, nm.
+///
+/// The traced throughput is not maximal exactly at λ_B: the Kogelnik coupling
+/// ν = π n1 d/(λ√(c_R c_S)) itself depends on λ, so in the weak-grating limit the throughput
+/// η_top·η_in ∝ ν⁴ sinc⁴ξ peaks where 4 d ln ν/dλ = −4 d ln sinc ξ/dλ, i.e. about
+/// −3/(λ (∂ξ/∂λ)²) ≈ −0.01 nm from λ_B (∂ξ/∂λ ≈ 0.8 nm⁻¹, physics.md §3.5). That is a physical
+/// pull, not a disagreement; the row checks |peak − λ_B| ≤ 0.05 nm, 1 % of the ≈ 5 nm band.
+pub fn peak_tolerance_nm(_lambda_nm: f64) -> f64 {
+    0.05
+}
+
+#[allow(clippy::too_many_arguments)]
+fn row(
+    section: &str,
+    q: &str,
+    field: Option<usize>,
+    hv: [f64; 2],
+    param: f64,
+    cf: f64,
+    st: f64,
+    scale: f64,
+    tol: f64,
+    on_abs: bool,
+) -> Row {
+    let abs = (cf - st).abs();
+    let rel = abs / scale.abs();
+    let pass = if on_abs { abs <= tol } else { rel <= tol } && abs.is_finite();
+    Row {
+        section: section.into(),
+        quantity: q.into(),
+        field,
+        field_h_deg: hv[0],
+        field_v_deg: hv[1],
+        param,
+        closed_form: cf,
+        stscam: st,
+        abs_diff: abs,
+        rel_diff: rel,
+        tolerance: tol,
+        pass,
+        note: String::new(),
+    }
+}
+
+/// A copy of `sys` with a changed scene, its waveguide and camera rebuilt.
+fn rebuilt(sys: &System, edit: impl FnOnce(&mut Scene)) -> System {
+    let mut s = sys.clone();
+    edit(&mut s.scene);
+    s.waveguide = build_waveguide(&s.scene);
+    s.camera = build_camera(&s.scene, &s.waveguide);
+    s
+}
+
+/// Traced chief-ray throughput of the first replica (display polarisation) at `lambda_nm`.
+/// (One replica: the sum over replicas jumps where a contact crosses a vHOE edge as the glass
+/// index changes with λ.)
+fn throughput(sys: &System, dir: DVec3, lambda_nm: f64) -> f64 {
+    let pol = sys.display.polarization_weights;
+    let mut t = 0.0;
+    trace_camera_path(
+        &sys.waveguide,
+        sys.display.z_mm,
+        sys.limits,
+        sys.camera.lens_center_mm,
+        dir,
+        lambda_nm,
+        |b| {
+            if b.kind == BranchKind::Replica(0) {
+                t += pol[0] * b.weight[0] + pol[1] * b.weight[1];
+            }
+        },
+    );
+    t
+}
+
+/// Golden-section search for the maximum of `f` on [a, b] to `tol`.
+pub fn golden_max(f: impl Fn(f64) -> f64, mut a: f64, mut b: f64, tol: f64) -> f64 {
+    let r = 0.5 * (5f64.sqrt() - 1.0);
+    let mut c = b - r * (b - a);
+    let mut d = a + r * (b - a);
+    let (mut fc, mut fd) = (f(c), f(d));
+    while (b - a).abs() > tol {
+        if fc >= fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - r * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + r * (b - a);
+            fd = f(d);
+        }
+        if c >= d {
+            break;
+        }
+    }
+    0.5 * (a + b)
+}
+
+/// Traced FOV edge: bisection of "the chief ray reaches the display through the waveguide,
+/// in band, under TIR" evaluated with `analysis::probe_direction`.
+fn traced_edge(sys: &System, vertical: bool, sign: f64) -> Option<f64> {
+    let lens = sys.camera.lens_center_mm;
+    let ok = |a: f64| {
+        let dir = if vertical {
+            ClosedForm::camera_dir(0.0, a)
+        } else {
+            ClosedForm::camera_dir(a, 0.0)
+        };
+        let Some(p) = probe_direction(sys, lens, DVec3::from_array(dir), [0, 0]) else {
+            return false;
+        };
+        let ug = p.n_glass * p.guided_angle_deg.to_radians().sin();
+        sys.wavelengths.in_band(p.lambda_nm)
+            && ug > 1.0
+            && p.replicas.iter().any(|r| r.weight > 0.0)
+    };
+    bisect_edge(sign, ok).map(|e| e.0)
+}
+
+/// Compares the closed forms of `ClosedForm::from_scene(&sys.scene)` with the tracer over
+/// `n_fields` (at least 50) field angles; see the module documentation.
+pub fn compare(sys: &System, n_fields: usize) -> AnalyticReport {
+    compare_with(sys, &ClosedForm::from_scene(&sys.scene), n_fields)
+}
+
+/// [`compare`] with given closed-form inputs (e.g. perturbed, to check the comparison fails).
+pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticReport {
+    let n_fields = n_fields.max(50);
+    let tol = DETERMINISTIC_REL_TOL;
+    // The tracer without its weight cut-off: every contact inside the bottom vHOE is a replica.
+    let mut free = sys.clone();
+    free.limits.min_weight = 0.0;
+    let lens = sys.camera.lens_center_mm;
+    // A weak-grating copy for the throughput-peak search: with n1 → 0 the losses (1 − η) at
+    // the contacts before the first replica are ≈ 1, so its throughput is one Bragg lobe
+    // η_top·η_in ∝ ν⁴ sinc⁴ξ.
+    let weak = rebuilt(sys, |s| s.hoe.index_modulation = WEAK_INDEX_MODULATION);
+    let mut rows = Vec::new();
+
+    // Field list spanning the waveguide's field (97 % of the closed-form edges).
+    let (v_lo, _) = cf.fov_edge_deg(true, -1.0, false);
+    let (v_hi, _) = cf.fov_edge_deg(true, 1.0, false);
+    let (h_lo, _) = cf.fov_edge_deg(false, -1.0, false);
+    let (h_hi, _) = cf.fov_edge_deg(false, 1.0, false);
+    let span = |lo: f64, hi: f64, k: usize, n: usize| {
+        0.97 * (lo + (hi - lo) * k as f64 / (n - 1).max(1) as f64)
+    };
+    let n_v = n_fields * 3 / 5;
+    let n_h = n_fields / 5;
+    let n_c = n_fields - n_v - n_h;
+    let mut fields = Vec::new();
+    for k in 0..n_v {
+        fields.push([0.0, span(v_lo, v_hi, k, n_v)]);
+    }
+    for k in 0..n_h {
+        fields.push([span(h_lo, h_hi, k, n_h), 0.0]);
+    }
+    for k in 0..n_c {
+        // Conical: both angles at once, along the two diagonals of the field.
+        let v = span(v_lo, v_hi, k, n_c);
+        let h = span(h_lo, h_hi, k, n_c) * if k % 2 == 0 { 0.5 } else { -0.5 };
+        fields.push([h, v]);
+    }
+
+    for (i, &[h, v]) in fields.iter().enumerate() {
+        let f = cf.field(h, v);
+        let dir = DVec3::from_array(f.camera_dir);
+        let hv = [h, v];
+        let Some(p) = probe_direction(&free, lens, dir, [0, 0]) else {
+            let mut r = row(
+                "field",
+                quantity::LAMBDA_B,
+                Some(i),
+                hv,
+                f64::NAN,
+                f.lambda_bragg_nm,
+                f64::NAN,
+                1.0,
+                tol,
+                false,
+            );
+            r.note = "tracer: no Bragg wavelength".into();
+            rows.push(r);
+            continue;
+        };
+        let lb = p.lambda_nm;
+        rows.push(row(
+            "field",
+            quantity::LAMBDA_B,
+            Some(i),
+            hv,
+            f64::NAN,
+            f.lambda_bragg_nm,
+            lb,
+            lb,
+            tol,
+            false,
+        ));
+        let peak = golden_max(|l| throughput(&weak, dir, l), lb - 2.0, lb + 2.0, 1e-9);
+        let mut r = row(
+            "field",
+            quantity::LAMBDA_PEAK,
+            Some(i),
+            hv,
+            f64::NAN,
+            0.0,
+            peak - f.lambda_bragg_nm,
+            f.lambda_bragg_nm,
+            peak_tolerance_nm(lb),
+            true,
+        );
+        r.note = format!("peak at {peak:.9} nm");
+        rows.push(r);
+        rows.push(row(
+            "field",
+            quantity::GUIDED,
+            Some(i),
+            hv,
+            f64::NAN,
+            f.guided_angle_deg,
+            p.guided_angle_deg,
+            p.guided_angle_deg,
+            tol,
+            false,
+        ));
+        // Pitch: the worst spacing of consecutive traced display points.
+        let obj: Vec<DVec2> = p
+            .replicas
+            .iter()
+            .map(|r| DVec3::from_array(r.object_point_mm).truncate())
+            .collect();
+        let traced_pitch = obj
+            .windows(2)
+            .map(|w| (w[1] - w[0]).length())
+            .max_by(|a, b| {
+                (a - f.replica_pitch_mm)
+                    .abs()
+                    .total_cmp(&(b - f.replica_pitch_mm).abs())
+            })
+            // One replica only (edge of the field): the tracer's own 2w·tanΘ'.
+            .unwrap_or(p.replica_pitch_mm);
+        rows.push(row(
+            "field",
+            quantity::PITCH,
+            Some(i),
+            hv,
+            f64::NAN,
+            f.replica_pitch_mm,
+            traced_pitch,
+            traced_pitch,
+            tol,
+            false,
+        ));
+        if let (Some(o), Some(c)) = (obj.first(), f.object_points_mm.first()) {
+            let d = (*o - DVec2::from_array(*c)).length();
+            let mut r = row(
+                "field",
+                quantity::OBJECT0,
+                Some(i),
+                hv,
+                f64::NAN,
+                0.0,
+                d,
+                f.replica_pitch_mm,
+                tol,
+                false,
+            );
+            r.note = format!("y = {:.6} mm", o.y);
+            rows.push(r);
+        }
+        rows.push(row(
+            "field",
+            quantity::COUNT,
+            Some(i),
+            hv,
+            f64::NAN,
+            f.contacts.len() as f64,
+            p.replicas.len() as f64,
+            1.0,
+            0.0,
+            true,
+        ));
+    }
+
+    // Sensor rows of a point at the display centre (deterministic, `analysis::point_replicas`).
+    let centre = sys.display.center_mm;
+    let traced_rows = point_replicas(sys, centre);
+    let cf_rows = cf.point_rows(centre.y);
+    for (j, r_cf) in &cf_rows {
+        let st = traced_rows
+            .iter()
+            .find(|r| r.contact == *j)
+            .map_or(f64::NAN, |r| r.row);
+        rows.push(row(
+            "point",
+            quantity::ROWS,
+            None,
+            [f64::NAN; 2],
+            f64::from(*j),
+            *r_cf,
+            st,
+            st,
+            tol,
+            false,
+        ));
+    }
+    if traced_rows.len() != cf_rows.len() {
+        let mut r = row(
+            "point",
+            quantity::COUNT,
+            None,
+            [f64::NAN; 2],
+            f64::NAN,
+            cf_rows.len() as f64,
+            traced_rows.len() as f64,
+            1.0,
+            0.0,
+            true,
+        );
+        r.note = "number of replica rows".into();
+        rows.push(r);
+    }
+
+    // Replica count against bottom-vHOE height.
+    let (_, half_v) = {
+        let d0 = cf.sensor_distance_mm;
+        (
+            0.0,
+            (0.5 * cf.crop_px[1] as f64 * cf.pixel_mm / d0)
+                .atan()
+                .to_degrees(),
+        )
+    };
+    let hv_list = [
+        [0.0, -0.99 * half_v],
+        [0.0, -0.5 * half_v],
+        [0.0, 0.0],
+        [0.0, 0.5 * half_v],
+        [0.0, 0.99 * half_v],
+        [0.5 * half_v, 0.5 * half_v],
+        [-0.9 * half_v, -0.7 * half_v],
+    ];
+    for height in [10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0] {
+        let mut s = rebuilt(sys, |s| s.bottom_hoe.height_mm = height);
+        s.limits.min_weight = 0.0;
+        let c = cf.with_bottom_height(height);
+        for hv in hv_list {
+            let f = c.field(hv[0], hv[1]);
+            let n = probe_direction(
+                &s,
+                s.camera.lens_center_mm,
+                DVec3::from_array(f.camera_dir),
+                [0, 0],
+            )
+            .map_or(f64::NAN, |p| p.replicas.len() as f64);
+            rows.push(row(
+                "height",
+                quantity::COUNT_H,
+                None,
+                hv,
+                height,
+                f.contacts.len() as f64,
+                n,
+                1.0,
+                0.0,
+                true,
+            ));
+        }
+    }
+
+    // Field of view: the paper scene and a variant with a tall top vHOE whose vertical field
+    // ends at TIR and at the Bragg band instead of the aperture.
+    let crit = info(sys);
+    let n0 = cf.n_glass(cf.lambda0_nm);
+    rows.push(row(
+        "fov",
+        quantity::CRITICAL,
+        None,
+        [f64::NAN; 2],
+        f64::NAN,
+        (1.0 / n0).asin().to_degrees(),
+        crit.critical_angle_deg,
+        crit.critical_angle_deg,
+        tol,
+        false,
+    ));
+    rows.push(row(
+        "fov",
+        quantity::CRITICAL,
+        None,
+        [f64::NAN; 2],
+        f64::NAN,
+        (1.0 / cf.n_film).asin().to_degrees(),
+        crit.film_critical_angle_deg,
+        crit.film_critical_angle_deg,
+        tol,
+        false,
+    ));
+    fov_rows(&mut rows, "paper scene", sys, cf, &crit);
+    // Without the weight cut-off: under an 80 mm top vHOE the guided wave loses the
+    // out-coupled part at every front contact and would otherwise be truncated (below
+    // `min_guided_weight`) before it reaches the bottom vHOE.
+    let mut tall = rebuilt(sys, |s| s.top_hoe.height_mm = 80.0);
+    tall.limits.min_weight = 0.0;
+    let mut cf_tall = cf.clone();
+    cf_tall.top_size_mm[1] = 80.0;
+    let tall_info = info(&tall);
+    fov_rows(
+        &mut rows,
+        "top vHOE 80 mm tall",
+        &tall,
+        &cf_tall,
+        &tall_info,
+    );
+    // The pure formulas of physics.md §3.4 for the two in-plane edges of the tall variant.
+    let tir = cf_tall.tir_edge_vertical_deg();
+    let blue = cf_tall.bragg_edge_vertical_deg(cf_tall.band_nm[0])[0];
+    for (name, formula, st) in [
+        ("TIR formula, top edge", tir, traced_edge(&tall, true, 1.0)),
+        (
+            "Bragg-band formula, bottom edge",
+            blue,
+            traced_edge(&tall, true, -1.0),
+        ),
+    ] {
+        let st = st.unwrap_or(f64::NAN);
+        let mut r = row(
+            "fov",
+            quantity::FOV_TRACED,
+            None,
+            [f64::NAN; 2],
+            f64::NAN,
+            formula,
+            st,
+            st,
+            tol,
+            false,
+        );
+        r.note = format!("top vHOE 80 mm tall: {name}");
+        rows.push(r);
+    }
+
+    let summary = summarise(&rows);
+    let pass = rows.iter().all(|r| r.pass);
+    AnalyticReport {
+        fields_deg: fields,
+        closed_form: cf.clone(),
+        rows,
+        summary,
+        pass,
+    }
+}
+
+fn fov_rows(
+    rows: &mut Vec<Row>,
+    case: &str,
+    sys: &System,
+    cf: &ClosedForm,
+    inf: &crate::analysis::DesignInfo,
+) {
+    let step = 0.05;
+    let cases = [
+        (
+            "vertical, waveguide",
+            true,
+            false,
+            &inf.fov_vertical_waveguide,
+        ),
+        ("vertical, capture", true, true, &inf.fov_vertical_capture),
+        (
+            "horizontal, waveguide",
+            false,
+            false,
+            &inf.fov_horizontal_waveguide,
+        ),
+        (
+            "horizontal, capture",
+            false,
+            true,
+            &inf.fov_horizontal_capture,
+        ),
+    ];
+    for (axis, vertical, crop, fov) in cases {
+        for (sign, edge) in [(-1.0, &fov.min), (1.0, &fov.max)] {
+            let (e, lim) = cf.fov_edge_deg(vertical, sign, crop);
+            let label = lim.map_or("none", Limit::label);
+            // The scan reports the last passing multiple of 0.05°: the closed-form edge lies
+            // within one step outward of it.
+            let outward = (e - edge.angle_deg) * sign;
+            let mut r = row(
+                "fov",
+                quantity::FOV_INFO,
+                None,
+                [f64::NAN; 2],
+                sign,
+                e,
+                edge.angle_deg,
+                1.0,
+                step,
+                true,
+            );
+            r.pass = (-1e-9..step + 1e-9).contains(&outward) && label == edge.limited_by;
+            r.note = format!(
+                "{case}, {axis}, {} edge: closed form limited by {label}; info: {}",
+                if sign < 0.0 { "lower" } else { "upper" },
+                edge.limited_by
+            );
+            rows.push(r);
+            if !crop {
+                let st = traced_edge(sys, vertical, sign).unwrap_or(f64::NAN);
+                let mut r = row(
+                    "fov",
+                    quantity::FOV_TRACED,
+                    None,
+                    [f64::NAN; 2],
+                    sign,
+                    e,
+                    st,
+                    st,
+                    DETERMINISTIC_REL_TOL,
+                    false,
+                );
+                r.note = format!(
+                    "{case}, {axis}, {} edge ({label})",
+                    if sign < 0.0 { "lower" } else { "upper" }
+                );
+                rows.push(r);
+            }
+        }
+    }
+}
+
+fn summarise(rows: &[Row]) -> Vec<Summary> {
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.quantity.as_str()) {
+            names.push(&r.quantity);
+        }
+    }
+    names
+        .into_iter()
+        .map(|q| {
+            let rs: Vec<&Row> = rows.iter().filter(|r| r.quantity == q).collect();
+            let max_abs = rs.iter().map(|r| r.abs_diff).fold(0.0, f64::max);
+            let max_rel = rs.iter().map(|r| r.rel_diff).fold(0.0, f64::max);
+            let tolerance = match q {
+                quantity::COUNT | quantity::COUNT_H => "exact".to_string(),
+                quantity::FOV_INFO => "within one 0.05° scan step outward, same limit".into(),
+                quantity::LAMBDA_PEAK => "abs diff ≤ 0.05 nm (physical pull of ν(λ))".into(),
+                _ => format!("rel ≤ {DETERMINISTIC_REL_TOL:e}"),
+            };
+            Summary {
+                quantity: q.to_string(),
+                rows: rs.len(),
+                max_abs_diff: max_abs,
+                max_rel_diff: max_rel,
+                tolerance,
+                pass: rs.iter().all(|r| r.pass),
+            }
+        })
+        .collect()
+}
+
+fn fmt(x: f64) -> String {
+    if x.is_nan() {
+        "–".into()
+    } else if x == 0.0 {
+        "0".into()
+    } else if x.abs() < 1e-3 || x.abs() >= 1e5 {
+        format!("{x:.2e}")
+    } else {
+        format!("{x:.6}")
+    }
+}
+
+impl AnalyticReport {
+    /// Maxima per quantity, then one line per field, the point rows, the heights and the FOV
+    /// edges, as Markdown tables.
+    pub fn to_markdown(&self) -> String {
+        let mut s = String::new();
+        s.push_str(&format!(
+            "Analytic comparison over {} field angles: {}\n\n",
+            self.fields_deg.len(),
+            if self.pass { "PASS" } else { "FAIL" }
+        ));
+        s.push_str("| quantity | rows | max abs diff | max rel diff | tolerance | pass |\n");
+        s.push_str("|---|---:|---:|---:|---|---|\n");
+        for q in &self.summary {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} |\n",
+                q.quantity,
+                q.rows,
+                fmt(q.max_abs_diff),
+                fmt(q.max_rel_diff),
+                q.tolerance,
+                if q.pass { "yes" } else { "NO" }
+            ));
+        }
+        s.push_str(
+            "\n### Per field (closed form; max rel diff of λ_B, Θ', pitch against the tracer)\n\n",
+        );
+        s.push_str("| # | h (°) | v (°) | λ_B (nm) | peak − λ_B (nm) | Θ' (°) | pitch (mm) | replicas cf/traced | max rel diff |\n");
+        s.push_str("|---:|---:|---:|---:|---:|---:|---:|---|---:|\n");
+        for (i, hv) in self.fields_deg.iter().enumerate() {
+            let rs: Vec<&Row> = self.rows.iter().filter(|r| r.field == Some(i)).collect();
+            let get = |q: &str| rs.iter().find(|r| r.quantity == q);
+            let cfv = |q: &str| get(q).map_or(f64::NAN, |r| r.closed_form);
+            let stv = |q: &str| get(q).map_or(f64::NAN, |r| r.stscam);
+            let maxrel = rs
+                .iter()
+                .filter(|r| {
+                    [
+                        quantity::LAMBDA_B,
+                        quantity::GUIDED,
+                        quantity::PITCH,
+                        quantity::OBJECT0,
+                    ]
+                    .contains(&r.quantity.as_str())
+                })
+                .map(|r| r.rel_diff)
+                .fold(0.0, f64::max);
+            s.push_str(&format!(
+                "| {i} | {:.3} | {:.3} | {:.6} | {} | {:.6} | {:.6} | {}/{} | {} |\n",
+                hv[0],
+                hv[1],
+                cfv(quantity::LAMBDA_B),
+                fmt(stv(quantity::LAMBDA_PEAK)),
+                cfv(quantity::GUIDED),
+                cfv(quantity::PITCH),
+                cfv(quantity::COUNT),
+                stv(quantity::COUNT),
+                fmt(maxrel)
+            ));
+        }
+        s.push_str("\n### Sensor rows of a point at the display centre\n\n");
+        s.push_str(
+            "| contact | row closed form | row traced | abs diff (px) |\n|---:|---:|---:|---:|\n",
+        );
+        for r in self.rows.iter().filter(|r| r.section == "point") {
+            s.push_str(&format!(
+                "| {} | {:.6} | {:.6} | {} |\n",
+                r.param,
+                r.closed_form,
+                r.stscam,
+                fmt(r.abs_diff)
+            ));
+        }
+        s.push_str("\n### Replica count against bottom-vHOE height (closed form / traced)\n\n");
+        let hv: Vec<[f64; 2]> = {
+            let mut v: Vec<[f64; 2]> = Vec::new();
+            for r in self.rows.iter().filter(|r| r.section == "height") {
+                let k = [r.field_h_deg, r.field_v_deg];
+                if !v.contains(&k) {
+                    v.push(k);
+                }
+            }
+            v
+        };
+        s.push_str("| height (mm) |");
+        for k in &hv {
+            s.push_str(&format!(" h {:.2}°, v {:.2}° |", k[0], k[1]));
+        }
+        s.push_str("\n|---:|");
+        for _ in &hv {
+            s.push_str("---|");
+        }
+        s.push('\n');
+        let mut heights: Vec<f64> = Vec::new();
+        for r in self.rows.iter().filter(|r| r.section == "height") {
+            if !heights.contains(&r.param) {
+                heights.push(r.param);
+            }
+        }
+        for h in heights {
+            s.push_str(&format!("| {h} |"));
+            for k in &hv {
+                if let Some(r) = self.rows.iter().find(|r| {
+                    r.section == "height"
+                        && r.param == h
+                        && r.field_h_deg == k[0]
+                        && r.field_v_deg == k[1]
+                }) {
+                    s.push_str(&format!(" {}/{} |", r.closed_form, r.stscam));
+                }
+            }
+            s.push('\n');
+        }
+        s.push_str("\n### Field of view\n\n| what | closed form (°) | stscam (°) | abs diff (°) | pass |\n|---|---:|---:|---:|---|\n");
+        for r in self.rows.iter().filter(|r| r.section == "fov") {
+            let what = if r.note.is_empty() {
+                r.quantity.clone()
+            } else {
+                format!("{}: {}", r.quantity, r.note)
+            };
+            s.push_str(&format!(
+                "| {} | {:.9} | {:.9} | {} | {} |\n",
+                what,
+                r.closed_form,
+                r.stscam,
+                fmt(r.abs_diff),
+                if r.pass { "yes" } else { "NO" }
+            ));
+        }
+        s
+    }
+
+    /// Every row as CSV (header line first).
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from(
+            "section,quantity,field,field_h_deg,field_v_deg,param,closed_form,stscam,abs_diff,rel_diff,tolerance,pass,note\n",
+        );
+        let q = |t: &str| format!("\"{}\"", t.replace('"', "\"\""));
+        for r in &self.rows {
+            s.push_str(&format!(
+                "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                r.section,
+                q(&r.quantity),
+                r.field.map_or(String::new(), |f| f.to_string()),
+                r.field_h_deg,
+                r.field_v_deg,
+                r.param,
+                r.closed_form,
+                r.stscam,
+                r.abs_diff,
+                r.rel_diff,
+                r.tolerance,
+                r.pass,
+                q(&r.note)
+            ));
+        }
+        s
+    }
+}
