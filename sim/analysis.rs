@@ -77,10 +77,17 @@ pub fn probe_direction(
     let mut replicas = Vec::new();
     let mut direct_weight = 0.0;
     let w = wg.thickness_mm;
+    // Geometry decides which contacts exist: no truncation by weight (the contact limit still
+    // bounds the path), so a long, lossy path under a tall top vHOE is not mistaken for one
+    // that never reaches the bottom vHOE.
+    let limits = crate::trace::TraceLimits {
+        min_weight: 0.0,
+        max_contacts: sys.limits.max_contacts,
+    };
     let summary = trace_camera_path(
         wg,
         sys.display.z_mm,
-        sys.limits,
+        limits,
         origin,
         dir,
         lambda,

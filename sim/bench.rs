@@ -64,42 +64,88 @@ pub fn time_to_error(points: &[Point], target: f64) -> Option<(f64, bool)> {
     Some((last.seconds * (last.relative_rmse / target).powi(2), true))
 }
 
-/// Renders `sys` at spp 1, 2, 4, … with `estimator` until `budget_s` seconds have been spent
-/// (or `max_spp`), comparing each with `reference` (one vector per channel).
+/// How the error of a render is measured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ErrorMeasure {
+    /// Relative RMSE against a high-spp reference of the same estimator family.
+    Reference,
+    /// From two independent renders A, B of spp/2 each: ‖A − B‖/‖A + B‖ estimates the relative
+    /// RMS Monte Carlo error of their mean (unbiased estimators; needs no reference, and is the
+    /// same measure the Mitsuba script uses).
+    Halves,
+}
+
+fn timed_render(sys: &System, spp: u32, seed: u64, estimator: Estimator) -> (Vec<Vec<f32>>, f64) {
+    let set = RenderSettings {
+        spp,
+        seed,
+        sampler: SamplerKind::Lattice,
+        spectral_bins: None,
+        progress: false,
+    };
+    let t0 = Instant::now();
+    let cap = render_with(sys, &set, estimator);
+    (cap.channels, t0.elapsed().as_secs_f64())
+}
+
+/// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` until `budget_s`
+/// seconds have been spent (or `max_spp`), measuring each render's error.
+#[allow(clippy::too_many_arguments)]
 pub fn measure_curve(
     sys: &System,
     estimator: Estimator,
     name: &str,
     reference: &[Vec<f32>],
+    measure: ErrorMeasure,
     budget_s: f64,
     max_spp: u32,
     target: f64,
 ) -> Curve {
     let mut points = Vec::new();
     let mut spent = 0.0;
-    let mut spp = 1u32;
+    let mut spp = if measure == ErrorMeasure::Halves {
+        2u32
+    } else {
+        1
+    };
     while spp <= max_spp && spent < budget_s {
-        let set = RenderSettings {
-            spp,
-            seed: 7,
-            sampler: SamplerKind::Lattice,
-            spectral_bins: None,
-            progress: false,
+        let (seconds, err) = match measure {
+            ErrorMeasure::Reference => {
+                let (img, t) = timed_render(sys, spp, 7, estimator);
+                let pairs: Vec<(&[f32], &[f32])> = img
+                    .iter()
+                    .zip(reference)
+                    .map(|(a, b)| (a.as_slice(), b.as_slice()))
+                    .collect();
+                (t, relative_rmse(&pairs))
+            }
+            ErrorMeasure::Halves => {
+                let (a, ta) = timed_render(sys, spp / 2, 7, estimator);
+                let (b, tb) = timed_render(sys, spp / 2, 8, estimator);
+                let (mut num, mut den) = (0.0f64, 0.0f64);
+                for (ca, cb) in a.iter().zip(&b) {
+                    for (x, y) in ca.iter().zip(cb) {
+                        let (x, y) = (f64::from(*x), f64::from(*y));
+                        num += (x - y) * (x - y);
+                        den += (x + y) * (x + y);
+                    }
+                }
+                (
+                    ta + tb,
+                    if den > 0.0 {
+                        (num / den).sqrt()
+                    } else {
+                        f64::NAN
+                    },
+                )
+            }
         };
-        let t0 = Instant::now();
-        let cap = render_with(sys, &set, estimator);
-        let seconds = t0.elapsed().as_secs_f64();
         spent += seconds;
-        let pairs: Vec<(&[f32], &[f32])> = cap
-            .channels
-            .iter()
-            .zip(reference)
-            .map(|(a, b)| (a.as_slice(), b.as_slice()))
-            .collect();
         points.push(Point {
             spp,
             seconds,
-            relative_rmse: relative_rmse(&pairs),
+            relative_rmse: err,
         });
         // Stop a curve once it is well below the target.
         if points

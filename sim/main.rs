@@ -216,6 +216,14 @@ enum Command {
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+enum ErrorArg {
+    /// Relative RMSE against a high-spp reference.
+    Reference,
+    /// ‖A − B‖/‖A + B‖ of two independent half renders.
+    Halves,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
 enum NoiseArg {
     /// The scene's [noise] section.
     Sensor,
@@ -279,6 +287,10 @@ enum BenchCommand {
         /// Target relative RMSE for the time-to-error figures.
         #[arg(long, default_value_t = 0.01)]
         target: f64,
+        /// Error measure: against a high-spp reference, or from two independent half renders
+        /// (no reference; what validation/mitsuba/bench.py measures for Mitsuba).
+        #[arg(long, value_enum, default_value = "reference")]
+        error: ErrorArg,
         /// Extra curves (JSON: {"name": ..., "points": [{"spp", "seconds", "relative_rmse"}]}),
         /// e.g. Mitsuba's from validation/mitsuba (repeatable).
         #[arg(long)]
@@ -286,6 +298,9 @@ enum BenchCommand {
         /// Print JSON.
         #[arg(long)]
         json: bool,
+        /// Only redraw the plots of DIR/bench-render.json (no rendering).
+        #[arg(long)]
+        replot: bool,
         /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
@@ -1140,6 +1155,77 @@ fn cmd_bench_recon(
     Ok(())
 }
 
+/// The time-against-error plot of `bench render`.
+fn bench_plot(curves: &[stscam::bench::Curve], target: f64) -> stscam::plot::LinePlot {
+    stscam::plot::LinePlot {
+        title: "Relative RMSE against render time".into(),
+        x_label: "wall time of the render (s)".into(),
+        y_label: "relative RMSE".into(),
+        log_x: true,
+        log_y: true,
+        series: curves
+            .iter()
+            .map(|c| stscam::plot::Series {
+                name: if c.name.contains("(default)") {
+                    "stscam (default)".to_string()
+                } else if c.name.contains("Russian roulette") {
+                    "uniform + roulette".to_string()
+                } else {
+                    c.name.chars().take(26).collect()
+                },
+                points: c
+                    .points
+                    .iter()
+                    .map(|p| (p.seconds, p.relative_rmse))
+                    .collect(),
+            })
+            .collect(),
+        h_line: Some((target, format!("{:.0} %", 100.0 * target))),
+    }
+}
+
+/// Redraws the plots of a finished `bench render` from its JSON (no rendering).
+fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
+    let path = dir.join("bench-render.json");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    let target = v["target_relative_rmse"].as_f64().unwrap_or(0.01);
+    let curves: Vec<stscam::bench::Curve> = v["curves"]
+        .as_array()
+        .ok_or_else(|| bad_input(format!("{}: no curves", path.display())))?
+        .iter()
+        .map(|c| stscam::bench::Curve {
+            name: c["name"].as_str().unwrap_or("").to_string(),
+            points: c["points"]
+                .as_array()
+                .map(|ps| {
+                    ps.iter()
+                        .map(|p| stscam::bench::Point {
+                            spp: p["spp"].as_u64().unwrap_or(0) as u32,
+                            seconds: p["seconds"].as_f64().unwrap_or(f64::NAN),
+                            relative_rmse: p["relative_rmse"].as_f64().unwrap_or(f64::NAN),
+                        })
+                        .collect()
+                })
+                .unwrap_or_default(),
+            seconds_to_target: c["seconds_to_target"].as_f64(),
+            extrapolated: c["extrapolated"].as_bool().unwrap_or(false),
+        })
+        .collect();
+    let plot = bench_plot(&curves, target);
+    let png = plot.to_png().map_err(write_failure)?;
+    stscam::io::write_all_atomic(
+        dir,
+        &[
+            ("bench-render.svg", plot.to_svg().as_bytes()),
+            ("bench-render.png", &png),
+        ],
+    )
+    .map_err(write_failure)
+}
+
 #[allow(clippy::too_many_arguments)]
 fn cmd_bench_render(
     scene: &SceneArgs,
@@ -1148,11 +1234,20 @@ fn cmd_bench_render(
     ref_spp: u32,
     budget_s: f64,
     target: f64,
+    error: ErrorArg,
     extra: &[PathBuf],
     json: bool,
+    replot: bool,
     threads: Option<usize>,
 ) -> Result<(), Failure> {
-    use stscam::bench::{Curve, curves_markdown, measure_curve, time_to_error};
+    use stscam::bench::{Curve, ErrorMeasure, curves_markdown, measure_curve, time_to_error};
+    if replot {
+        return replot_bench(out);
+    }
+    let measure = match error {
+        ErrorArg::Reference => ErrorMeasure::Reference,
+        ErrorArg::Halves => ErrorMeasure::Halves,
+    };
     use stscam::render::Estimator;
     if crop == 0 || ref_spp == 0 || !(budget_s > 0.0) || !(target > 0.0 && target < 1.0) {
         return Err(bad_input(
@@ -1200,6 +1295,11 @@ fn cmd_bench_render(
     };
     let (ls, sys) = pool.install(|| load(&args))?;
     let t0 = Instant::now();
+    let ref_spp = if measure == ErrorMeasure::Halves {
+        1
+    } else {
+        ref_spp
+    };
     let reference = pool.install(|| {
         stscam::render::render(
             &sys,
@@ -1230,6 +1330,7 @@ fn cmd_bench_render(
                 est,
                 name,
                 &reference.channels,
+                measure,
                 budget_s,
                 1 << 20,
                 target,
@@ -1252,36 +1353,23 @@ fn cmd_bench_render(
     }
     curves.extend(extras);
     let md = format!(
-        "Scene: {} with a {crop}×{crop} crop (pitch {pitch:.3} µm, same field of view); reference: {ref_spp} spp ({ref_s:.1} s); {} threads; relative RMSE ‖a − b‖/‖b‖ against the reference of the same renderer.\n\n{}",
+        "Scene: {} with a {crop}×{crop} crop (pitch {pitch:.3} µm, same field of view); {} threads; error: {}.\n\n{}",
         ls.source,
         pool.current_num_threads(),
+        match measure {
+            ErrorMeasure::Reference => format!("relative RMSE ‖a − b‖/‖b‖ against a {ref_spp}-spp reference of the default estimator ({ref_s:.1} s; other renderers against their own reference)"),
+            ErrorMeasure::Halves => "‖A − B‖/‖A + B‖ of two independent renders of half the samples each (the relative RMS Monte Carlo error of their mean; time = both renders)".to_string(),
+        },
         curves_markdown(&curves, target)
     );
-    let plot = stscam::plot::LinePlot {
-        title: "Relative RMSE against render time".into(),
-        x_label: "wall time of the render (s)".into(),
-        y_label: "relative RMSE".into(),
-        log_x: true,
-        log_y: true,
-        series: curves
-            .iter()
-            .map(|c| stscam::plot::Series {
-                name: c.name.replace("stscam: ", "").chars().take(26).collect(),
-                points: c
-                    .points
-                    .iter()
-                    .map(|p| (p.seconds, p.relative_rmse))
-                    .collect(),
-            })
-            .collect(),
-        h_line: Some((target, format!("{:.0} %", 100.0 * target))),
-    };
+    let plot = bench_plot(&curves, target);
     let report = serde_json::json!({
         "stscam_version": stscam::VERSION,
         "scene_source": ls.source,
         "overrides": args.set,
         "crop_px": crop,
         "pitch_um": pitch,
+        "error_measure": measure,
         "reference_spp": ref_spp,
         "reference_seconds": ref_s,
         "threads": pool.current_num_threads(),
@@ -1312,7 +1400,11 @@ fn cmd_bench_render(
     Ok(())
 }
 
-fn cmd_validate_analytic(scene: &SceneArgs, fields: usize, out: &std::path::Path) -> Result<(), Failure> {
+fn cmd_validate_analytic(
+    scene: &SceneArgs,
+    fields: usize,
+    out: &std::path::Path,
+) -> Result<(), Failure> {
     use stscam::analytic::{compare, quantity};
     use stscam::plot::{LinePlot, Series};
     if fields < 50 {
@@ -1349,20 +1441,50 @@ fn cmd_validate_analytic(scene: &SceneArgs, fields: usize, out: &std::path::Path
         h_line: None,
     };
     let plots = [
-        ("bragg", plot("Bragg wavelength across the field", "vertical field angle (deg)", "lambda_B (nm)", series(quantity::LAMBDA_B, true, false))),
-        ("pitch", plot("Replica pitch across the field", "vertical field angle (deg)", "pitch 2w tan(theta') (mm)", series(quantity::PITCH, true, false))),
-        ("count", plot("Replica count against bottom vHOE height", "bottom vHOE height (mm)", "replicas at the field centre", series(quantity::COUNT_H, false, true))),
+        (
+            "bragg",
+            plot(
+                "Bragg wavelength across the field",
+                "vertical field angle (deg)",
+                "lambda_B (nm)",
+                series(quantity::LAMBDA_B, true, false),
+            ),
+        ),
+        (
+            "pitch",
+            plot(
+                "Replica pitch across the field",
+                "vertical field angle (deg)",
+                "pitch 2w tan(theta') (mm)",
+                series(quantity::PITCH, true, false),
+            ),
+        ),
+        (
+            "count",
+            plot(
+                "Replica count against bottom vHOE height",
+                "bottom vHOE height (mm)",
+                "replicas at the field centre",
+                series(quantity::COUNT_H, false, true),
+            ),
+        ),
     ];
     let mut files: Vec<(String, Vec<u8>)> = vec![
         ("analytic.md".into(), report.to_markdown().into_bytes()),
         ("analytic.csv".into(), report.to_csv().into_bytes()),
-        ("analytic.json".into(), serde_json::to_vec_pretty(&report).map_err(write_failure)?),
+        (
+            "analytic.json".into(),
+            serde_json::to_vec_pretty(&report).map_err(write_failure)?,
+        ),
     ];
     for (name, p) in &plots {
         files.push((format!("{name}.svg"), p.to_svg().into_bytes()));
         files.push((format!("{name}.png"), p.to_png().map_err(write_failure)?));
     }
-    let refs: Vec<(&str, &[u8])> = files.iter().map(|(n, b)| (n.as_str(), b.as_slice())).collect();
+    let refs: Vec<(&str, &[u8])> = files
+        .iter()
+        .map(|(n, b)| (n.as_str(), b.as_slice()))
+        .collect();
     stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
     println!("{}", report.to_markdown());
     if !report.pass {
@@ -1620,11 +1742,14 @@ fn main() -> ExitCode {
                 ref_spp,
                 budget_s,
                 target,
+                error,
                 extra,
                 json,
+                replot,
                 threads,
             } => cmd_bench_render(
-                scene, out, *crop, *ref_spp, *budget_s, *target, extra, *json, *threads,
+                scene, out, *crop, *ref_spp, *budget_s, *target, *error, extra, *json, *replot,
+                *threads,
             ),
         },
         Command::Validate {

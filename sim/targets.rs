@@ -245,7 +245,12 @@ fn shape(size: usize, name: &str) -> Result<Target, String> {
 pub fn label(text: &str, scale: usize) -> (usize, usize, Vec<f32>) {
     let glyphs: Vec<[u8; GLYPH_H]> = text
         .chars()
-        .map(|c| glyph(c).unwrap_or([0; GLYPH_H]))
+        .map(|c| {
+            glyph(c)
+                .ok()
+                .or_else(|| punctuation(c))
+                .unwrap_or([0; GLYPH_H])
+        })
         .collect();
     let scale = scale.max(1);
     let cols = (glyphs.len() * (GLYPH_W + 1)).max(1) + 1;
@@ -399,6 +404,27 @@ fn glyph(c: char) -> Result<[u8; GLYPH_H], String> {
         .map(|(_, g)| *g)
         .ok_or_else(|| format!("character {c:?} is not in the built-in font (A-Z, 0-9)"))
 }
+
+/// Punctuation for figure labels only (targets keep to A–Z, 0–9 and space).
+fn punctuation(c: char) -> Option<[u8; GLYPH_H]> {
+    PUNCT.iter().find(|(k, _)| *k == c).map(|(_, g)| *g)
+}
+
+#[rustfmt::skip]
+const PUNCT: [(char, [u8; GLYPH_H]); 12] = [
+    ('.', [0b00000, 0b00000, 0b00000, 0b00000, 0b00000, 0b01100, 0b01100]),
+    (',', [0b00000, 0b00000, 0b00000, 0b00000, 0b01100, 0b00100, 0b01000]),
+    ('-', [0b00000, 0b00000, 0b00000, 0b11111, 0b00000, 0b00000, 0b00000]),
+    ('+', [0b00000, 0b00100, 0b00100, 0b11111, 0b00100, 0b00100, 0b00000]),
+    ('%', [0b11000, 0b11001, 0b00010, 0b00100, 0b01000, 0b10011, 0b00011]),
+    ('(', [0b00010, 0b00100, 0b01000, 0b01000, 0b01000, 0b00100, 0b00010]),
+    (')', [0b01000, 0b00100, 0b00010, 0b00010, 0b00010, 0b00100, 0b01000]),
+    (':', [0b00000, 0b01100, 0b01100, 0b00000, 0b01100, 0b01100, 0b00000]),
+    ('/', [0b00000, 0b00001, 0b00010, 0b00100, 0b01000, 0b10000, 0b00000]),
+    ('=', [0b00000, 0b00000, 0b11111, 0b00000, 0b11111, 0b00000, 0b00000]),
+    ('\'', [0b00100, 0b00100, 0b01000, 0b00000, 0b00000, 0b00000, 0b00000]),
+    ('_', [0b00000, 0b00000, 0b00000, 0b00000, 0b00000, 0b00000, 0b11111]),
+];
 
 #[rustfmt::skip]
 const FONT: [(char, [u8; GLYPH_H]); 36] = [
