@@ -10,7 +10,7 @@ cd "$(dirname "$0")/../.."
 mode=check
 if [[ "${1:-}" == "--update-references" ]]; then mode=update; fi
 here=validation/mitsuba
-venv=out/mitsuba-venv
+venv="$PWD/out/mitsuba-venv"
 work=out/mitsuba-check
 mkdir -p "$work" out/mitsuba-home
 cargo build --release --quiet     # before HOME changes (rustup reads $HOME)
