@@ -49,6 +49,16 @@ struct RunArgs {
     threads: Option<usize>,
 }
 
+impl RunArgs {
+    /// (spp, seed, threads) after checking that spp is at least 1.
+    fn checked(&self) -> Result<(u32, u64, Option<usize>), Failure> {
+        if self.spp == 0 {
+            return Err(bad_input("--spp: must be at least 1"));
+        }
+        Ok((self.spp, self.seed, self.threads))
+    }
+}
+
 #[derive(ValueEnum, Clone, Copy, Debug)]
 enum SamplerArg {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
@@ -372,11 +382,8 @@ fn cmd_render(
     spectral: bool,
     sampler: SamplerArg,
 ) -> Result<(), Failure> {
-    let RunArgs { spp, seed, threads } = run.clone();
+    let (spp, seed, threads) = run.checked()?;
     let start = Instant::now();
-    if spp == 0 {
-        return Err(bad_input("--spp: must be at least 1"));
-    }
     if out.exists() && !out.is_dir() {
         return Err(bad_input(format!(
             "{}: --out exists and is not a directory",
@@ -491,11 +498,8 @@ fn cmd_matrix(
     depth_mm: Option<f64>,
     check: bool,
 ) -> Result<(), Failure> {
-    let RunArgs { spp, seed, threads } = run.clone();
+    let (spp, seed, threads) = run.checked()?;
     let start = Instant::now();
-    if spp == 0 {
-        return Err(bad_input("--spp: must be at least 1"));
-    }
     if let Some(d) = depth_mm
         && !(d.is_finite() && d > 0.0)
     {
@@ -668,12 +672,9 @@ fn cmd_calibrate(
     render_frames: bool,
     threshold_sigma: f64,
 ) -> Result<(), Failure> {
-    let RunArgs { spp, seed, threads } = run.clone();
+    let (spp, seed, threads) = run.checked()?;
     use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, display_pattern};
     let start = Instant::now();
-    if spp == 0 {
-        return Err(bad_input("--spp: must be at least 1"));
-    }
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(bad_input(
             "--threshold-sigma: must be a non-negative number",
@@ -972,10 +973,7 @@ fn cmd_reconstruct(
 }
 
 fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(), Failure> {
-    let RunArgs { spp, seed, threads } = run.clone();
-    if spp == 0 {
-        return Err(bad_input("--spp: must be at least 1"));
-    }
+    let (spp, seed, threads) = run.checked()?;
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (_, sys) = pool.install(|| load(scene))?;
