@@ -144,7 +144,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         let (_, _, truth) = intensity_of_spec(&spec, gamma)?;
         let mut s = sys.clone();
         s.display.set_intensity(&truth);
-        let cap = render(&s, &rs(set.seed + 1));
+        let cap = render(&s, &rs(set.seed.wrapping_add(1)));
         let clean: Vec<f64> = cap
             .channels
             .iter()
@@ -272,7 +272,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         "command": "demo",
         "spp": set.spp,
         "seed": set.seed,
-        "capture_seed": set.seed + 1,
+        "capture_seed": set.seed.wrapping_add(1),
         "object_px": [ow, oh],
         "crop_px": [m.crop.0, m.crop.1],
         "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),

@@ -22,7 +22,8 @@
 //! against H_true are accumulated row by row on the full estimate, and the written H_est keeps
 //! the entries above `threshold_sigma` times the noise standard deviation predicted by the noise
 //! model for that row, σ_m² = (4/N²)·Σ_i Var(v_i[m]) (§7.3), and above 10⁻⁹ of the row's largest
-//! entry (transform rounding).
+//! entry (transform rounding). Column 0 is not multiplexed (H_est[m,0] = (2/N)Σ_{i≥1}v_i −
+//! ((N − 2)/N)v_0, minus the dark frame if subtracted) and gets its own σ from that formula.
 
 use rayon::prelude::*;
 
@@ -229,6 +230,8 @@ pub fn calibrate(
                 }
                 // Camera.
                 let mut var_sum = 0.0;
+                let mut var0 = 0.0;
+                let mut var_dark = 0.0;
                 let mut saturated = false;
                 if let Some(nz) = &set.noise {
                     // One random stream per row, frames in order (dark frame last).
@@ -237,7 +240,11 @@ pub fn calibrate(
                     let read2 = nz.read_noise_e * nz.read_noise_e;
                     let q = 1.0 / (12.0 * nz.dn_per_unit().powi(2));
                     let sat = (nz.full_scale_dn - nz.dark_offset_dn) / nz.dn_per_unit();
+                    let var_of =
+                        |x: f64| (x.max(0.0) * nz.electrons_per_unit + read2) * inv_g * inv_g + q;
                     let mut e_sum = 0.0;
+                    var0 = var_of(v[0]);
+                    var_dark = var_of(d);
                     for x in v.iter_mut() {
                         saturated |= *x > sat;
                         e_sum += x.max(0.0);
@@ -247,7 +254,16 @@ pub fn calibrate(
                         + n as f64 * q;
                     d = nz.measure(d, &mut rng);
                 }
+                // Element k ≠ 0: v_0 enters with coefficient 2/N like every other frame, so
+                // Var = (4/N²)ΣVar(v_i). Column 0 is not multiplexed: H_est[m,0] =
+                // (2/N)Σ_{i≥1}v_i − ((N − 2)/N)v_0 (− d with the dark frame).
                 let sigma = (4.0 * var_sum).sqrt() * inv_n;
+                let nn = n as f64;
+                let sigma0 = (((nn - 2.0) * inv_n).powi(2) * var0
+                    + 4.0 * inv_n * inv_n * (var_sum - var0)
+                    + if set.dark_frame { var_dark } else { 0.0 })
+                .max(0.0)
+                .sqrt();
                 // v' and the inverse transform.
                 let v0 = v[0];
                 for x in v.iter_mut().skip(1) {
@@ -270,11 +286,12 @@ pub fn calibrate(
                 }
                 let peak = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
                 let thr = (set.threshold_sigma * sigma).max(1e-9 * peak);
+                let thr0 = (set.threshold_sigma * sigma0).max(1e-9 * peak);
                 let mut cols = Vec::new();
                 let mut vals = Vec::new();
                 let mut e_stored = 0.0;
                 for k in 0..n {
-                    let kept = v[k].abs() > thr;
+                    let kept = v[k].abs() > if k == 0 { thr0 } else { thr };
                     let est = if kept { v[k] as f32 } else { 0.0 };
                     if kept && est != 0.0 {
                         cols.push(k as u32);

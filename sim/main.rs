@@ -1,6 +1,7 @@
 //! `stscam` command line: a thin layer that parses arguments, calls the library and reports.
 //! Bad input (scene, overrides, images, arguments) prints one line and exits with code 2;
-//! nothing is written to `--out` unless the whole job succeeded.
+//! nothing is written to `--out` unless the whole job succeeded (the one exception:
+//! `matrix --check` writes H and then exits 1 if the check fails, so the files can be inspected).
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -114,6 +115,9 @@ enum Command {
         /// H_true to calibrate (scipy CSR .npz with its offset.npy); default: computed here.
         #[arg(long)]
         matrix: Option<PathBuf>,
+        /// Object shape WxH of `--matrix` (default: from its H.json, else square).
+        #[arg(long, value_name = "WxH")]
+        object: Option<String>,
         #[command(flatten)]
         run: RunArgs,
         /// Sensor noise: `sensor` (the scene's [noise] section) or `none` (ideal camera).
@@ -600,7 +604,7 @@ fn parse_object(spec: &str) -> Result<(usize, usize), Failure> {
     let parsed = spec
         .split_once(['x', 'X'])
         .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
-        .filter(|&(a, b): &(usize, usize)| a > 0 && b > 0);
+        .filter(|&(a, b): &(usize, usize)| a > 0 && b > 0 && a.checked_mul(b).is_some());
     parsed.ok_or_else(|| bad_input(format!("--object {spec}: expected WxH, e.g. 64x64")))
 }
 
@@ -666,6 +670,7 @@ fn cmd_calibrate(
     scene: &SceneArgs,
     out: &std::path::Path,
     matrix: Option<&std::path::Path>,
+    object: Option<&str>,
     run: &RunArgs,
     noise: NoiseArg,
     dark_frame: bool,
@@ -695,8 +700,16 @@ fn cmd_calibrate(
     let t0 = Instant::now();
     let (h_true, offset, object, source_desc) = match matrix {
         Some(p) => {
-            let lm =
-                stscam::matrix::load_matrix(p, None, None).map_err(|e| bad_input(e.to_string()))?;
+            let shape = object.map(parse_object).transpose()?;
+            let lm = stscam::matrix::load_matrix(p, shape, None)
+                .map_err(|e| bad_input(e.to_string()))?;
+            if lm.offset.is_none() {
+                eprintln!(
+                    "warning: no {} beside {}: the offset (all-black capture) is taken as 0",
+                    stscam::matrix::default_offset_path(p).display(),
+                    p.display()
+                );
+            }
             let off = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
             (lm.h, off, lm.object, p.display().to_string())
         }
@@ -718,14 +731,21 @@ fn cmd_calibrate(
             "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
         )));
     }
-    let sensor_noise = (noise == NoiseArg::Sensor).then(|| {
+    let sensor_noise = if noise == NoiseArg::Sensor {
         let white = pool.install(|| h_true.mul_vec(&vec![1.0; n]));
         let peak = white
             .iter()
             .zip(&offset)
             .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
-        stscam::noise::SensorNoise::new(&sys.scene.noise, peak)
-    });
+        if !(peak > 0.0 && peak.is_finite()) {
+            return Err(bad_input(format!(
+                "{source_desc}: an all-white object gives no light on the sensor, so the exposure cannot be set (use --noise none)"
+            )));
+        }
+        Some(stscam::noise::SensorNoise::new(&sys.scene.noise, peak))
+    } else {
+        None
+    };
     let t0 = Instant::now();
     let frames: Option<Vec<Vec<f32>>> = if render_frames {
         if object != (sys.display.width_px, sys.display.height_px) {
@@ -1294,22 +1314,27 @@ fn cmd_bench_render(
     let (ls, sys) = pool.install(|| load(&args))?;
     let t0 = Instant::now();
     let ref_spp = if measure == ErrorMeasure::Halves {
-        1
+        0
     } else {
         ref_spp
     };
-    let reference = pool.install(|| {
-        stscam::render::render(
-            &sys,
-            &RenderSettings {
-                spp: ref_spp,
-                seed: 1_000_003,
-                sampler: SamplerKind::Lattice,
-                spectral_bins: None,
-                progress: std::io::stderr().is_terminal(),
-            },
-        )
-    });
+    let reference: Vec<Vec<f32>> = if ref_spp == 0 {
+        Vec::new()
+    } else {
+        pool.install(|| {
+            stscam::render::render(
+                &sys,
+                &RenderSettings {
+                    spp: ref_spp,
+                    seed: 1_000_003,
+                    sampler: SamplerKind::Lattice,
+                    spectral_bins: None,
+                    progress: std::io::stderr().is_terminal(),
+                },
+            )
+            .channels
+        })
+    };
     let ref_s = t0.elapsed().as_secs_f64();
     let mut curves = Vec::new();
     for (est, name) in [
@@ -1327,7 +1352,7 @@ fn cmd_bench_render(
                 &sys,
                 est,
                 name,
-                &reference.channels,
+                &reference,
                 measure,
                 budget_s,
                 1 << 20,
@@ -1682,6 +1707,7 @@ fn main() -> ExitCode {
             scene,
             out,
             matrix,
+            object,
             run,
             noise,
             dark_frame,
@@ -1691,6 +1717,7 @@ fn main() -> ExitCode {
             scene,
             out,
             matrix.as_deref(),
+            object.as_deref(),
             run,
             *noise,
             *dark_frame,

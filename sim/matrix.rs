@@ -352,14 +352,14 @@ pub fn load_matrix(
             (s, s)
         }
     };
-    if object.0 * object.1 != h.cols {
+    if object.0.checked_mul(object.1) != Some(h.cols) {
         return Err(IoError::format(
             path,
             format!(
                 "the object {}x{} has {} pixels but H has {} columns",
                 object.0,
                 object.1,
-                object.0 * object.1,
+                object.0.saturating_mul(object.1),
                 h.cols
             ),
         ));

@@ -12,9 +12,10 @@
 //! Assumptions: no dark current, no fixed-pattern noise, no pixel cross-talk, linear response
 //! up to full scale (gamma, LUT, auto-exposure and auto-gain disabled, as physics.md §7.3 asks).
 //!
-//! Random numbers are a pure function of (seed, stream, frame, pixel): counter-based hashing
-//! feeds a small generator per value, Gaussians come from the Marsaglia–Tsang ziggurat
-//! (J. Stat. Softw. 5(8), 2000), so noisy outputs are identical for any thread count.
+//! Random numbers come from small generators keyed by hashing (seed, stream, …): one per value,
+//! or one per sensor pixel drawn through its frames in order (calibration); Gaussians come from
+//! the Marsaglia–Tsang ziggurat (J. Stat. Softw. 5(8), 2000). No generator is shared between
+//! threads, so noisy outputs are identical for any thread count.
 
 use crate::sampler::{hash, mix64, to_unit};
 use crate::scene::NoiseDesc;
@@ -89,7 +90,7 @@ impl NoiseRng {
     }
 
     /// Standard normal deviate (ziggurat).
-    #[inline]
+    #[inline(always)]
     pub fn normal(&mut self) -> f64 {
         let z = ziggurat();
         loop {
@@ -182,7 +183,7 @@ impl SensorNoise {
 
     /// A noisy measurement of the noiseless value `v` (capture units), in capture units with
     /// the dark offset included; `rng` supplies the randomness.
-    #[inline]
+    #[inline(always)]
     pub fn measure(&self, v: f64, rng: &mut NoiseRng) -> f64 {
         let e = v.max(0.0) * self.electrons_per_unit;
         let electrons = if e < POISSON_EXACT_BELOW_E {
@@ -195,7 +196,7 @@ impl SensorNoise {
         // libm call).
         let dn = (electrons * (1.0 / self.electrons_per_dn) + self.dark_offset_dn)
             .clamp(0.0, self.full_scale_dn);
-        let dn = (dn + 0.5) as u64 as f64;
+        let dn = (dn + 0.5) as i64 as f64;
         let dn = dn.min(self.full_scale_dn);
         dn * (self.electrons_per_dn / self.electrons_per_unit)
     }

@@ -105,7 +105,7 @@ impl Axis {
                 .unwrap_or(10.0 * mag);
             let mut v = (self.lo / step).ceil() * step;
             let mut out = Vec::new();
-            while v <= self.hi + 1e-9 * step {
+            while v <= self.hi + 1e-9 * step && out.len() < 100 {
                 out.push(if v.abs() < 1e-12 * step { 0.0 } else { v });
                 v += step;
             }

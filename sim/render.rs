@@ -235,6 +235,8 @@ fn trace_analog(
         |b| {
             stats.branches += 1;
             cum += b.weight[pol];
+            // The branch weights of a path are its outcome probabilities: they sum to ≤ 1.
+            debug_assert!(cum <= 1.0 + 1e-9, "branch weights sum to {cum}");
             if u_branch < cum {
                 out = sys.display.radiance_at(b.object_point_mm);
                 std::ops::ControlFlow::Break(())

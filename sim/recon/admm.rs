@@ -9,8 +9,9 @@
 //!       Eckstein & Bertsekas 1992, and warm starts make a few iterations enough);
 //!   z ← soft(Df + u, τ/ρ) (anisotropic) or the 2-vector shrinkage per pixel (isotropic);
 //!   u ← u + Df − z.
-//! Scale-free parameters: τ = τ_rel·‖Hᵀg‖_∞ (the data gradient at f = 0; τ_rel ≥ ~1 gives
-//! f = 0) and ρ = ρ_rel·mean(diag HᵀH), so neither depends on the units of H or g.
+//! Scale-free parameters: τ = τ_rel·‖Hᵀg‖_∞ (the data gradient at f = 0; a large τ_rel drives f
+//! toward the best constant image, which TV does not penalise) and ρ = ρ_rel·mean(diag HᵀH), so
+//! neither depends on the units of H or g.
 
 use super::{Problem, cg::pcg, dot};
 
