@@ -54,10 +54,10 @@ pub fn time_to_error(points: &[Point], target: f64) -> Option<(f64, bool)> {
             ));
         }
     }
-    if let Some(first) = ok.first() {
-        if first.relative_rmse <= target {
-            return Some((first.seconds, false));
-        }
+    if let Some(first) = ok.first()
+        && first.relative_rmse <= target
+    {
+        return Some((first.seconds, false));
     }
     let last = ok.last()?;
     // RMSE ∝ t^(−1/2) ⇒ t = t_last · (e_last / target)².

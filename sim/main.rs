@@ -1267,7 +1267,12 @@ fn cmd_bench_render(
         ErrorArg::Halves => ErrorMeasure::Halves,
     };
     use stscam::render::Estimator;
-    if crop == 0 || ref_spp == 0 || !(budget_s > 0.0) || !(target > 0.0 && target < 1.0) {
+    if crop == 0
+        || ref_spp == 0
+        || budget_s.is_nan()
+        || budget_s <= 0.0
+        || !(target > 0.0 && target < 1.0)
+    {
         return Err(bad_input(
             "--crop, --ref-spp and --budget-s must be positive and --target in (0, 1)",
         ));

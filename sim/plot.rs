@@ -233,24 +233,24 @@ impl LinePlot {
             (y0 + y1) / 2.0,
             esc(&self.y_label)
         );
-        if let Some((v, label)) = &self.h_line {
-            if let Some((_, py)) = Self::to_px(
+        if let Some((v, label)) = &self.h_line
+            && let Some((_, py)) = Self::to_px(
                 &ax,
                 &ay,
                 (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v),
-            ) {
-                let _ = write!(
-                    s,
-                    r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#888" stroke-dasharray="6 4"/>"##
-                );
-                let _ = write!(
-                    s,
-                    r##"<text x="{}" y="{:.1}" fill="#555">{}</text>"##,
-                    x1 + 6.0,
-                    py + 4.0,
-                    esc(label)
-                );
-            }
+            )
+        {
+            let _ = write!(
+                s,
+                r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#888" stroke-dasharray="6 4"/>"##
+            );
+            let _ = write!(
+                s,
+                r##"<text x="{}" y="{:.1}" fill="#555">{}</text>"##,
+                x1 + 6.0,
+                py + 4.0,
+                esc(label)
+            );
         }
         for (i, ser) in self.series.iter().enumerate() {
             let (r, g, b) = COLOURS[i % COLOURS.len()];
@@ -344,15 +344,15 @@ impl LinePlot {
             (0, 0, 0),
         );
         c.text(&self.y_label, 6.0, 22.0, 1, Align::Left, (0, 0, 0));
-        if let Some((v, label)) = &self.h_line {
-            if let Some((_, py)) = Self::to_px(
+        if let Some((v, label)) = &self.h_line
+            && let Some((_, py)) = Self::to_px(
                 &ax,
                 &ay,
                 (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v),
-            ) {
-                c.line((x0, py), (x1, py), (136, 136, 136), 1.0);
-                c.text(label, x1 + 6.0, py - 4.0, 1, Align::Left, (85, 85, 85));
-            }
+            )
+        {
+            c.line((x0, py), (x1, py), (136, 136, 136), 1.0);
+            c.text(label, x1 + 6.0, py - 4.0, 1, Align::Left, (85, 85, 85));
         }
         for (i, ser) in self.series.iter().enumerate() {
             let col = COLOURS[i % COLOURS.len()];

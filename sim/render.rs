@@ -216,7 +216,7 @@ fn trace_analog(
     i: u64,
     stats: &mut RenderStats,
 ) -> f64 {
-    let h = crate::sampler::hash(&[seed, pixel, i, 0xA4A1_06]);
+    let h = crate::sampler::hash(&[seed, pixel, i, 0x00A4_A106]);
     let (u_pol, u_branch) = (
         crate::sampler::to_unit(h),
         crate::sampler::to_unit(crate::sampler::mix64(h)),

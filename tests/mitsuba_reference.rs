@@ -8,7 +8,8 @@
 //! rules of `validation/mitsuba/compare.py`:
 //!  1. relative RMSE ‖s − m‖/‖m‖ ≤ 2·√(ε_s² + ε_m²) + δ at full resolution,
 //!  2. the same on 4×4-binned images,
-//!  3. waveguide: the row-profile peaks (replica positions) agree one to one within 1 px,
+//!  3. waveguide: the row-profile peaks (replica positions) agree one to one within 1 px;
+//!
 //! with ε the relative RMS noise of each mean image (from two independent halves) and δ the
 //! allowance for known model differences (0.01 plain glass, 0.03 waveguide).
 //! A deliberately wrong physics (grating vector with the wrong sign) must fail by a wide margin.
