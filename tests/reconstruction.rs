@@ -160,8 +160,9 @@ fn reconstruct_rejects_bad_input_with_one_line() {
         "sensor.crop_px=[40,40]",
     ]);
     let out = d.join("r");
-    let check = |args: &[&str], needle: &str| {
-        let o = common::stscam(args);
+    let check = |args: &[String], needle: &str| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = common::stscam(&args);
         let err = String::from_utf8_lossy(&o.stderr).to_string();
         assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{err}");
@@ -169,63 +170,38 @@ fn reconstruct_rejects_bad_input_with_one_line() {
         assert!(!out.exists(), "nothing may be written");
     };
     let cap = cdir.join("capture.exr");
-    check(
-        &[
+    let recon = |matrix: &std::path::Path, extra: &[&str]| -> Vec<String> {
+        let mut a: Vec<String> = [
             "reconstruct",
             "--matrix",
-            h.to_str().unwrap(),
+            matrix.to_str().unwrap(),
             "--capture",
             cap.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
-        ],
-        "1600 values but",
-    );
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        a.extend(extra.iter().map(|s| s.to_string()));
+        a
+    };
+    check(&recon(&h, &[]), "1600 values but");
     // A corrupt npz.
     let bad = d.join("bad.npz");
     std::fs::write(&bad, b"PK\x03\x04 this is not a zip").unwrap();
-    check(
-        &[
-            "reconstruct",
-            "--matrix",
-            bad.to_str().unwrap(),
-            "--capture",
-            cap.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        "bad.npz",
-    );
+    check(&recon(&bad, &[]), "bad.npz");
     // A truncated real npz.
     let bytes = std::fs::read(&h).unwrap();
     let trunc = d.join("trunc.npz");
     std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
-    check(
-        &[
-            "reconstruct",
-            "--matrix",
-            trunc.to_str().unwrap(),
-            "--capture",
-            cap.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        "trunc.npz",
-    );
+    check(&recon(&trunc, &[]), "trunc.npz");
     // Object shape that does not fit H's columns.
+    check(&recon(&h, &["--object", "7x7"]), "64 columns");
+    // An object shape whose pixel count overflows.
     check(
-        &[
-            "reconstruct",
-            "--matrix",
-            h.to_str().unwrap(),
-            "--capture",
-            cap.to_str().unwrap(),
-            "--object",
-            "7x7",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        "64 columns",
+        &recon(&h, &["--object", "9223372036854775809x4096"]),
+        "--object",
     );
     // Calibration of a non-power-of-two object.
     check(
@@ -239,7 +215,8 @@ fn reconstruct_rejects_bad_input_with_one_line() {
             "1",
             "--out",
             out.to_str().unwrap(),
-        ],
+        ]
+        .map(String::from),
         "not a power of two",
     );
 }
