@@ -71,6 +71,31 @@ pub fn display_pattern(n: usize, i: usize) -> Vec<f64> {
 /// 7.9·10⁸), so H_est stays as sparse as H.
 pub const DEFAULT_THRESHOLD_SIGMA: f64 = 5.0;
 
+/// Renders the N Sylvester patterns of `sys`'s object (the display shows u_i = (h_i + 1)/2)
+/// and then a dark frame (all black), each with the full Monte Carlo tracer; every frame is
+/// one vector over the rows of H (channels concatenated). `on_frame` is called after each.
+pub fn render_frames(
+    sys: &crate::system::System,
+    set: &crate::render::RenderSettings,
+    mut on_frame: impl FnMut(),
+) -> Vec<Vec<f32>> {
+    let n = sys.display.width_px * sys.display.height_px;
+    (0..=n)
+        .map(|i| {
+            let mut s = sys.clone();
+            let u = if i < n {
+                display_pattern(n, i)
+            } else {
+                vec![0.0; n]
+            };
+            s.display.set_intensity(&u);
+            let frame = crate::render::render(&s, set).channels.concat();
+            on_frame();
+            frame
+        })
+        .collect()
+}
+
 /// Where the noiseless frames come from.
 pub enum FrameSource<'a> {
     /// From H_true and the offset (capture of an all-black display), one FWHT per row.

@@ -678,7 +678,7 @@ fn cmd_calibrate(
     threshold_sigma: f64,
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
-    use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, display_pattern};
+    use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate};
     let start = Instant::now();
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(bad_input(
@@ -768,23 +768,11 @@ fn cmd_calibrate(
         } else {
             indicatif::ProgressBar::hidden()
         };
-        let mut fr = Vec::with_capacity(n + 1);
         let quiet = RenderSettings {
             progress: false,
             ..rs.clone()
         };
-        for i in 0..=n {
-            let mut s = sys.clone();
-            let u = if i < n {
-                display_pattern(n, i)
-            } else {
-                vec![0.0; n]
-            };
-            s.display.set_intensity(&u);
-            let cap = pool.install(|| stscam::render::render(&s, &quiet));
-            fr.push(cap.channels.concat());
-            pb.inc(1);
-        }
+        let fr = pool.install(|| stscam::hadamard::render_frames(&sys, &quiet, || pb.inc(1)));
         pb.finish_and_clear();
         Some(fr)
     } else {

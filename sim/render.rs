@@ -14,11 +14,13 @@
 //! its samples in f64 in sample order; the sampler is addressable. The output is therefore
 //! bit-identical for any thread count.
 
+use std::ops::ControlFlow;
+
 use rayon::prelude::*;
 
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
-use crate::trace::{sees_through, trace_camera_path};
+use crate::trace::sees_through;
 
 /// Uniform fraction of the wavelength density for paths with a straight-through (broadband)
 /// view: the Bragg table and the uniform part get equal shares, so f/p stays within a factor of
@@ -170,6 +172,38 @@ fn camera_sample_with(
     })
 }
 
+/// Traces one sample, calling `visit` for every branch that reaches the display plane (it may
+/// stop the path early), and adds the path's counters to `stats`.
+#[inline]
+fn trace_counted(
+    sys: &System,
+    s: &CameraSample,
+    stats: &mut RenderStats,
+    mut visit: impl FnMut(&crate::trace::Branch) -> ControlFlow<()>,
+) {
+    let mut max_w: f64 = 0.0;
+    let mut branches = 0u64;
+    stats.camera_paths += 1;
+    let summary = crate::trace::trace_camera_path_until(
+        &sys.waveguide,
+        sys.display.z_mm,
+        sys.limits,
+        s.ray.origin,
+        s.ray.dir,
+        s.lambda_nm,
+        |b| {
+            branches += 1;
+            max_w = max_w.max(b.weight[0]).max(b.weight[1]);
+            visit(b)
+        },
+    );
+    stats.branches += branches;
+    stats.contacts += u64::from(summary.contacts);
+    stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
+    stats.max_truncated_weight = stats.max_truncated_weight.max(summary.truncated_weight);
+    stats.max_branch_weight = stats.max_branch_weight.max(max_w);
+}
+
 /// Traces one sample and calls `visit(weight, object_point)` for every branch that reaches the
 /// display plane, with the weight already averaged over the display's polarisation.
 #[inline]
@@ -180,30 +214,13 @@ pub(crate) fn trace_sample(
     mut visit: impl FnMut(f64, glam::DVec2),
 ) {
     let pol = sys.display.polarization_weights;
-    let mut max_w: f64 = 0.0;
-    let mut branches = 0u64;
-    stats.camera_paths += 1;
-    let summary = trace_camera_path(
-        &sys.waveguide,
-        sys.display.z_mm,
-        sys.limits,
-        s.ray.origin,
-        s.ray.dir,
-        s.lambda_nm,
-        |b| {
-            branches += 1;
-            max_w = max_w.max(b.weight[0]).max(b.weight[1]);
-            let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
-            if wt > 0.0 {
-                visit(wt, b.object_point_mm);
-            }
-        },
-    );
-    stats.branches += branches;
-    stats.contacts += u64::from(summary.contacts);
-    stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
-    stats.max_truncated_weight = stats.max_truncated_weight.max(summary.truncated_weight);
-    stats.max_branch_weight = stats.max_branch_weight.max(max_w);
+    trace_counted(sys, s, stats, |b| {
+        let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
+        if wt > 0.0 {
+            visit(wt, b.object_point_mm);
+        }
+        ControlFlow::Continue(())
+    });
 }
 
 /// One analog outcome of a sample: the polarisation and the branch (or none: the path dies)
@@ -224,28 +241,17 @@ fn trace_analog(
     let pol = usize::from(u_pol >= sys.display.polarization_weights[0]);
     let mut cum = 0.0;
     let mut out = 0.0;
-    stats.camera_paths += 1;
-    let summary = crate::trace::trace_camera_path_until(
-        &sys.waveguide,
-        sys.display.z_mm,
-        sys.limits,
-        s.ray.origin,
-        s.ray.dir,
-        s.lambda_nm,
-        |b| {
-            stats.branches += 1;
-            cum += b.weight[pol];
-            // The branch weights of a path are its outcome probabilities: they sum to ≤ 1.
-            debug_assert!(cum <= 1.0 + 1e-9, "branch weights sum to {cum}");
-            if u_branch < cum {
-                out = sys.display.radiance_at(b.object_point_mm);
-                std::ops::ControlFlow::Break(())
-            } else {
-                std::ops::ControlFlow::Continue(())
-            }
-        },
-    );
-    stats.contacts += u64::from(summary.contacts);
+    trace_counted(sys, s, stats, |b| {
+        cum += b.weight[pol];
+        // The branch weights of a path are its outcome probabilities: they sum to ≤ 1.
+        debug_assert!(cum <= 1.0 + 1e-9, "branch weights sum to {cum}");
+        if u_branch < cum {
+            out = sys.display.radiance_at(b.object_point_mm);
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
     out
 }
 

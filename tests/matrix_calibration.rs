@@ -1,6 +1,6 @@
 //! The matrix–render contract (render(f) = H·f + offset) and the simulated Hadamard calibration.
 
-use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, display_pattern};
+use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate, render_frames};
 use stscam::matrix::compute_matrix;
 use stscam::noise::SensorNoise;
 use stscam::render::{RenderSettings, render};
@@ -229,19 +229,8 @@ fn rendered_frames_give_the_same_estimate_as_frames_from_h() {
     let sys = system(&["display.image=white@8", "sensor.crop_px=[24,24]"]);
     let set = settings(2, 2);
     let m = compute_matrix(&sys, &set);
-    let n = 64;
-    let frames: Vec<Vec<f32>> = (0..=n)
-        .map(|i| {
-            let mut s = sys.clone();
-            let u = if i < n {
-                display_pattern(n, i)
-            } else {
-                vec![0.0; n]
-            };
-            s.display.set_intensity(&u);
-            render(&s, &set).channels.concat()
-        })
-        .collect();
+    let frames = render_frames(&sys, &set, || {});
+    assert_eq!(frames.len(), 65);
     let ideal = CalibrationSettings {
         noise: None,
         seed: 1,
