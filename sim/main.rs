@@ -185,6 +185,9 @@ enum Command {
         #[command(flatten)]
         run: RunArgs,
     },
+    /// Generate a dataset from a recipe (datasets/*.toml), or merge shards
+    /// (`stscam dataset merge SHARD_DIR... --out DIR`).
+    Dataset(DatasetArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -226,6 +229,46 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+    },
+}
+
+/// `stscam dataset`.
+#[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct DatasetArgs {
+    #[command(subcommand)]
+    merge: Option<DatasetCommand>,
+    /// Recipe (TOML).
+    #[arg(required = true)]
+    recipe: Option<PathBuf>,
+    /// Output directory (default: out/datasets/NAME, or out/datasets/NAME-shard-I-of-N).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Make only shard I of N (0-based). Default: from SLURM_ARRAY_TASK_ID/_COUNT/_MIN, or
+    /// from JOB_COMPLETION_INDEX and STSCAM_SHARD_COUNT (Kubernetes Indexed Job), else all.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+    /// Continue a killed or finished run in --out: keep finished samples, redo the rest.
+    #[arg(long)]
+    resume: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[derive(Subcommand, Debug)]
+enum DatasetCommand {
+    /// Join finished shards into one dataset, checking them (byte-identical to an unsharded run).
+    Merge {
+        /// Shard folders.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        /// Output directory (must not exist or be empty).
+        #[arg(long)]
+        out: PathBuf,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
 
@@ -1016,6 +1059,68 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
     Ok(())
 }
 
+fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
+    use stscam::dataset::{RunOptions, Shard, generate, merge, plan};
+    let fail = |e: stscam::dataset::DatasetError| bad_input(e.to_string());
+    if let Some(DatasetCommand::Merge {
+        shards,
+        out,
+        threads,
+    }) = &args.merge
+    {
+        let pool = thread_pool(*threads)?;
+        let s = pool.install(|| merge(shards, out)).map_err(fail)?;
+        eprintln!(
+            "merged {} shards into {} ({} samples, checksums verified) in {:.1} s",
+            shards.len(),
+            out.display(),
+            s.samples,
+            s.finish_s
+        );
+        return Ok(());
+    }
+    let recipe = args
+        .recipe
+        .as_deref()
+        .ok_or_else(|| bad_input("dataset: give a RECIPE (or `merge`)"))?;
+    let pool = thread_pool(args.threads)?;
+    let shard = match &args.shard {
+        Some(s) => Some(Shard::parse(s).map_err(|m| bad_input(format!("--shard: {m}")))?),
+        None => Shard::from_env(|k| std::env::var(k).ok()).map_err(bad_input)?,
+    };
+    let p = pool.install(|| plan(recipe)).map_err(fail)?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        let name = match shard {
+            Some(s) => format!("{}-shard-{:03}-of-{:03}", p.recipe.name, s.index, s.count),
+            None => p.recipe.name.clone(),
+        };
+        PathBuf::from("out/datasets").join(name)
+    });
+    let opts = RunOptions {
+        out: out.clone(),
+        shard,
+        resume: args.resume,
+        progress: std::io::stderr().is_terminal(),
+    };
+    let s = pool.install(|| generate(&p, &opts)).map_err(fail)?;
+    eprintln!(
+        "wrote {} ({} samples{}, {} generated now; H and exposure {:.1} s, samples {:.1} s = {:.1} samples/s, checksums and card {:.1} s; {} threads)",
+        out.display(),
+        s.samples,
+        shard.map_or(String::new(), |s| format!(
+            ", shard {}/{}",
+            s.index, s.count
+        )),
+        s.generated,
+        s.scenes_s,
+        s.samples_s,
+        s.samples_per_s,
+        s.finish_s,
+        pool.current_num_threads()
+    );
+    Ok(())
+}
+
 /// Peak resident memory of this process so far (VmHWM), MiB, where the OS reports it.
 fn peak_rss_mib() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -1745,6 +1850,7 @@ fn main() -> ExitCode {
             *threads,
         ),
         Command::Demo { scene, out, run } => cmd_demo(scene, out, run),
+        Command::Dataset(args) => cmd_dataset(args),
         Command::Bench { which } => match which {
             BenchCommand::Recon {
                 scene,

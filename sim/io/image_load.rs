@@ -1,5 +1,5 @@
-//! Loading of single-channel display images from PNG (display code values) or
-//! OpenEXR (linear values) files.
+//! Loading of display images from PNG or JPEG (display code values) or OpenEXR (linear
+//! values) files.
 
 use std::io::Cursor;
 use std::path::Path;
@@ -28,35 +28,33 @@ pub struct LoadedImage {
     pub linear: bool,
 }
 
-/// Loads a `.png` or `.exr` file (extension matched case-insensitively).
+/// Loads a `.png`, `.jpg`/`.jpeg` or `.exr` file (extension matched case-insensitively).
 ///
 /// PNG (any bit depth, gray/gray+alpha/RGB/RGBA/palette; alpha is ignored):
 /// values are code value / maximum code, one channel for grey and three for
 /// colour (the caller linearises each with its display gamma before forming
 /// luminance), and `linear` is `false`. EXR: channel `Y` if present, else the
 /// Rec. 709 luminance of the linear `R`, `G`, `B`, else the only channel, as
-/// one channel; `linear` is `true`.
+/// one channel; `linear` is `true`. JPEG (baseline or progressive, any colour space the
+/// decoder converts to RGB): three channels of code value / 255, `linear` is `false`.
 pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    let is_png = match ext.as_deref() {
-        Some("png") => true,
-        Some("exr") => false,
+    let decode = match ext.as_deref() {
+        Some("png") => decode_png,
+        Some("jpg" | "jpeg") => decode_jpeg,
+        Some("exr") => exr_to_gray,
         _ => {
             return Err(IoError::format(
                 path,
-                "unsupported image type (supported extensions: .png, .exr)",
+                "unsupported image type (supported extensions: .png, .jpg, .jpeg, .exr)",
             ));
         }
     };
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
-    let image = if is_png {
-        decode_png(path, bytes)?
-    } else {
-        exr_to_gray(path, bytes)?
-    };
+    let image = decode(path, bytes)?;
     if image.width == 0 || image.height == 0 {
         return Err(IoError::format(path, "image is empty"));
     }
@@ -125,6 +123,64 @@ fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
         height,
         channels: out_channels,
         values,
+        linear: false,
+    })
+}
+
+/// True if `path` has an extension [`load_image`] reads as display code values (PNG, JPEG).
+pub fn is_code_value_image(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .is_some_and(|e| matches!(e.as_str(), "png" | "jpg" | "jpeg"))
+}
+
+fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+    use zune_core::bytestream::ZCursor;
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+    let side = (MAX_PIXELS as f64).sqrt() as usize;
+    let options = DecoderOptions::default()
+        .jpeg_set_out_colorspace(ColorSpace::RGB)
+        .set_max_width(side)
+        .set_max_height(side);
+    // The decoder reports malformed streams as errors; a panic on a hostile file is caught and
+    // reported the same way rather than aborting the whole run.
+    let decoded = std::panic::catch_unwind(move || {
+        let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+        let pixels = decoder.decode().map_err(|e| format!("{e:?}"))?;
+        let info = decoder.info().ok_or("no image header")?;
+        Ok::<_, String>((usize::from(info.width), usize::from(info.height), pixels))
+    });
+    let (width, height, pixels) = match decoded {
+        Ok(Ok(v)) => v,
+        Ok(Err(e)) => {
+            return Err(IoError::format(
+                path,
+                format!("not a readable JPEG file ({e})"),
+            ));
+        }
+        Err(_) => {
+            return Err(IoError::format(
+                path,
+                "not a readable JPEG file (decoder failure)",
+            ));
+        }
+    };
+    if pixels.len() != width * height * 3 {
+        return Err(IoError::format(
+            path,
+            "JPEG decoder returned a buffer of the wrong size",
+        ));
+    }
+    Ok(LoadedImage {
+        width,
+        height,
+        channels: 3,
+        values: pixels
+            .iter()
+            .map(|&v| (f64::from(v) / 255.0) as f32)
+            .collect(),
         linear: false,
     })
 }

@@ -1,0 +1,1386 @@
+//! Datasets for learned reconstruction: (object, capture) pairs with H, from a recipe.
+//!
+//! A recipe (`recipe.rs`) fixes everything: scene and overrides, object sources
+//! (`objects.rs`), sample count and split, sensor noise, capture mode and per-sample scene
+//! variation. Sample `i` has the seed `S_i = hash(recipe seed, i)` (53 bits); its object draw,
+//! its scene choice, its Monte Carlo render (render mode) and its sensor noise all derive from
+//! `S_i` alone, so any sample can be regenerated on its own and any shard split gives the same
+//! bytes. H of each distinct scene uses its own seed `hash(recipe seed, scene index)`.
+//!
+//! Captures: `matrix` mode g = H f + offset (H and the offset of the sample's scene, exact for
+//! the flat-display model), `render` mode an independent render of f at the recipe's spp. With
+//! sensor noise the value is measured by `noise.rs` (exposure fixed once for the whole
+//! dataset from the reference scene's all-white capture, like a camera with fixed exposure),
+//! converted back to capture units with the mean dark offset removed. The reference scene is
+//! the first distinct scene (every varied key at its first value; ranged keys as in the scene).
+//!
+//! Layout (Hugging Face imagefolder): `train/`, `val/`, `test/` with, per sample,
+//! `ID_object.npy` (float32 [h, w], linear intensity f), `ID_object.png` (16-bit display code
+//! values f^(1/γ): the image that shown on the display gives f), `ID_capture.npy` (float32
+//! [h, w], or [c, h, w] for colour sensors; capture units), `ID_capture.png` (16-bit,
+//! round(65535·clamp(g / full scale))) and a `metadata.jsonl`; `scene_NNN/` with `H.npz`,
+//! `offset.npy`, `H.json` and `scene.json` per distinct scene; `dataset.json` (the card:
+//! recipe, version, counts, seeds, units, sha256 and size of every file).
+//!
+//! Robustness: every file is written to a temporary name and renamed into place; a run keeps
+//! `.stscam-run.json` until it finishes; `--resume` removes temporary files of a killed run,
+//! keeps finished samples (all four files present) and regenerates the rest, which gives the
+//! same bytes as an uninterrupted run. A shard (`I/N`: samples `[I·S/N, (I+1)·S/N)`) writes
+//! `shard.json` instead of `dataset.json`; [`merge`] joins shards, checking recipe, coverage and
+//! every checksum, and writes exactly what one unsharded run writes.
+
+pub mod objects;
+pub mod recipe;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::io::IoError;
+use crate::matrix::{SystemMatrix, compute_matrix};
+use crate::noise::{NoiseRng, SensorNoise};
+use crate::render::{RenderSettings, render};
+use crate::scene::{LoadedScene, load_scene};
+use crate::sparse::CsrMatrix;
+use crate::system::System;
+
+use objects::{ObjectDraw, draw, list_images};
+use recipe::{CaptureMode, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe};
+
+/// Format tag of the dataset card.
+pub const FORMAT: &str = "stscam-dataset/1";
+/// Name of the in-progress marker.
+pub const RUN_MARKER: &str = ".stscam-run.json";
+
+const SAMPLE_TAG: u64 = 0x5341_4D50;
+const SCENE_TAG: u64 = 0x5343_454E;
+const VARY_TAG: u64 = 0x5641_5259;
+const NOISE_TAG: u64 = 0x4E4F_4953;
+const WHITE_TAG: u64 = 0x5748_4954;
+
+/// A dataset error. Every variant is the user's to fix (recipe, images, output folder,
+/// shards), so the CLI reports it on one line with exit code 2.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// A recipe key (or the recipe file) is wrong.
+    #[error("{file}: {key}: {message}")]
+    Recipe {
+        /// Recipe file.
+        file: String,
+        /// Key path (empty for syntax errors).
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// The output folder or the shards are not usable as asked.
+    #[error("{path}: {message}")]
+    Output {
+        /// The folder or file.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+fn out_err(path: &Path, message: impl Into<String>) -> DatasetError {
+    DatasetError::Output {
+        path: path.display().to_string(),
+        message: message.into(),
+    }
+}
+
+/// One distinct scene of the recipe (a combination of the `values` lists).
+#[derive(Clone, Debug)]
+pub struct PlannedScene {
+    /// Folder name, `scene_NNN`.
+    pub id: String,
+    /// Overrides after the recipe's own.
+    pub overrides: Vec<String>,
+    /// Varied keys and their values.
+    pub params: BTreeMap<String, f64>,
+    /// The loaded, validated scene.
+    pub loaded: LoadedScene,
+}
+
+/// A recipe checked against everything it refers to, ready to generate.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// The recipe.
+    pub recipe: Recipe,
+    /// Recipe file.
+    pub recipe_path: PathBuf,
+    /// SHA-256 of the canonical JSON form of the recipe.
+    pub recipe_sha256: String,
+    /// Scene file, resolved.
+    scene_file: Option<PathBuf>,
+    /// Distinct discrete scenes (index 0 is the reference scene).
+    pub scenes: Vec<PlannedScene>,
+    /// Image files per source.
+    images: Vec<Vec<(PathBuf, String)>>,
+    /// True if every sample's scene is one of `scenes` (no ranged keys): H is written.
+    pub has_matrix: bool,
+    /// Samples per split.
+    pub counts: [usize; 3],
+    /// Digits in sample ids.
+    pub id_width: usize,
+}
+
+/// Everything about one sample that follows from the recipe and its id, without pixels.
+#[derive(Clone, Debug)]
+pub struct SampleSpec {
+    /// Global id.
+    pub id: usize,
+    /// Split index (0 train, 1 val, 2 test).
+    pub split: usize,
+    /// Sample seed.
+    pub seed: u64,
+    /// Object draw.
+    pub object: ObjectDraw,
+    /// Index of its discrete scene.
+    pub scene: usize,
+    /// Values of every varied key.
+    pub params: BTreeMap<String, f64>,
+}
+
+fn recipe_err(file: &Path, key: impl Into<String>, message: impl Into<String>) -> DatasetError {
+    DatasetError::Recipe {
+        file: file.display().to_string(),
+        key: key.into(),
+        message: message.into(),
+    }
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
+/// scene, image folders), without writing anything.
+pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
+    let text = std::fs::read_to_string(recipe_path).map_err(|e| IoError::Io {
+        path: recipe_path.to_path_buf(),
+        source: e,
+    })?;
+    let recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
+    let base = recipe_path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+    let canonical =
+        serde_json::to_vec(&recipe).map_err(|e| recipe_err(recipe_path, "", e.to_string()))?;
+    let recipe_sha256 = sha256_hex(&canonical);
+    let scene_file = recipe.scene.file.as_ref().map(|f| base.join(f));
+    let mut base_overrides = recipe.scene.set.clone();
+    base_overrides.push(format!("display.image=black@{}", recipe.objects.size_px));
+    let load = |extra: &[String], key: &str| -> Result<LoadedScene, DatasetError> {
+        let mut o = base_overrides.clone();
+        o.extend_from_slice(extra);
+        let ls = load_scene(scene_file.as_deref(), &o)
+            .map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
+        System::build(&ls).map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
+        Ok(ls)
+    };
+    let mut scenes = Vec::new();
+    for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
+        let key = if params.is_empty() { "scene" } else { "vary" };
+        let loaded = load(&overrides, key)?;
+        scenes.push(PlannedScene {
+            id: format!("scene_{k:03}"),
+            overrides,
+            params,
+            loaded,
+        });
+    }
+    // Ranged keys: both ends must give valid scenes.
+    for (i, v) in recipe.vary.iter().enumerate() {
+        if let Some([lo, hi]) = v.range {
+            for x in [lo, hi] {
+                load(
+                    &[format!("{}={}", v.key, fmt_value(x))],
+                    &format!("vary[{i}].range"),
+                )?;
+            }
+        }
+    }
+    let mut images = Vec::new();
+    for (i, src) in recipe.objects.sources.iter().enumerate() {
+        if let Source::Images {
+            folder, recursive, ..
+        } = src
+        {
+            let dir = base.join(folder);
+            let key = format!("objects.sources[{i}].folder");
+            if !dir.is_dir() {
+                return Err(recipe_err(
+                    recipe_path,
+                    key,
+                    format!("{} is not a folder", dir.display()),
+                ));
+            }
+            let files = list_images(&dir, folder, *recursive)
+                .map_err(|m| recipe_err(recipe_path, &key, m))?;
+            if files.is_empty() {
+                return Err(recipe_err(
+                    recipe_path,
+                    key,
+                    format!("no .png, .jpg or .jpeg files in {}", dir.display()),
+                ));
+            }
+            images.push(files);
+        } else {
+            images.push(Vec::new());
+        }
+    }
+    let has_matrix = recipe.vary.iter().all(|v| v.values.is_some());
+    let counts = recipe.split_counts();
+    let id_width = (recipe.samples - 1).to_string().len().max(6);
+    Ok(Plan {
+        recipe,
+        recipe_path: recipe_path.to_path_buf(),
+        recipe_sha256,
+        scene_file,
+        scenes,
+        images,
+        has_matrix,
+        counts,
+        id_width,
+    })
+}
+
+impl Plan {
+    /// The seed of sample `id`.
+    pub fn sample_seed(&self, id: usize) -> u64 {
+        NoiseRng::new(&[self.recipe.seed, SAMPLE_TAG, id as u64]).next_u64() >> 11
+    }
+
+    /// Everything about sample `id` except its pixels.
+    pub fn sample(&self, id: usize) -> SampleSpec {
+        let seed = self.sample_seed(id);
+        let split = if id < self.counts[0] {
+            0
+        } else if id < self.counts[0] + self.counts[1] {
+            1
+        } else {
+            2
+        };
+        let mut rng = NoiseRng::new(&[seed, VARY_TAG]);
+        let mut scene = 0;
+        let mut params = BTreeMap::new();
+        for v in &self.recipe.vary {
+            if let Some(vals) = &v.values {
+                let k = ((rng.uniform() * vals.len() as f64) as usize).min(vals.len() - 1);
+                scene = scene * vals.len() + k;
+                params.insert(v.key.clone(), vals[k]);
+            } else if let Some([lo, hi]) = v.range {
+                params.insert(v.key.clone(), lo + (hi - lo) * rng.uniform());
+            }
+        }
+        SampleSpec {
+            id,
+            split,
+            seed,
+            object: draw(&self.recipe.objects, &self.images, seed),
+            scene,
+            params,
+        }
+    }
+
+    /// File name stem of sample `id` (zero-padded).
+    pub fn stem(&self, id: usize) -> String {
+        format!("{id:0width$}", width = self.id_width)
+    }
+
+    /// The four files of a sample, relative to the dataset root.
+    pub fn sample_files(&self, s: &SampleSpec) -> [String; 4] {
+        let (d, stem) = (SPLITS[s.split], self.stem(s.id));
+        [
+            format!("{d}/{stem}_object.npy"),
+            format!("{d}/{stem}_object.png"),
+            format!("{d}/{stem}_capture.npy"),
+            format!("{d}/{stem}_capture.png"),
+        ]
+    }
+
+    fn resize_of(&self, source: usize) -> Resize {
+        match &self.recipe.objects.sources[source] {
+            Source::Images { resize, .. } => *resize,
+            _ => Resize::CenterCrop,
+        }
+    }
+
+    fn scene_seed(&self, k: usize) -> u64 {
+        NoiseRng::new(&[self.recipe.seed, SCENE_TAG, k as u64]).next_u64() >> 11
+    }
+
+    /// The files of distinct scene `k`, relative to the root.
+    pub fn scene_files(&self, k: usize) -> Vec<String> {
+        let id = &self.scenes[k].id;
+        let mut f = vec![format!("{id}/scene.json")];
+        if self.has_matrix {
+            for n in ["H.npz", "offset.npy", "H.json"] {
+                f.push(format!("{id}/{n}"));
+            }
+        }
+        f
+    }
+
+    /// The scene of a sample with ranged keys applied.
+    fn sample_scene(&self, s: &SampleSpec) -> Result<System, DatasetError> {
+        let ps = &self.scenes[s.scene];
+        if self.has_matrix {
+            return System::build(&ps.loaded)
+                .map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()));
+        }
+        let mut o = self.recipe.scene.set.clone();
+        o.push(format!(
+            "display.image=black@{}",
+            self.recipe.objects.size_px
+        ));
+        for (k, v) in &s.params {
+            o.push(format!("{k}={}", fmt_value(*v)));
+        }
+        let ls = load_scene(self.scene_file.as_deref(), &o)
+            .map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()))?;
+        System::build(&ls).map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()))
+    }
+}
+
+/// Which part of a dataset a run makes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    /// Index, 0-based.
+    pub index: usize,
+    /// Number of shards.
+    pub count: usize,
+}
+
+impl Shard {
+    /// Parses `I/N` (0 ≤ I < N).
+    pub fn parse(spec: &str) -> Result<Shard, String> {
+        let (i, n) = spec
+            .split_once('/')
+            .ok_or_else(|| format!("{spec:?} is not I/N"))?;
+        let (i, n) = (
+            i.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("{spec:?}: I is not an integer"))?,
+            n.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("{spec:?}: N is not an integer"))?,
+        );
+        if n == 0 || i >= n {
+            return Err(format!("{spec:?}: need 0 <= I < N"));
+        }
+        Ok(Shard { index: i, count: n })
+    }
+
+    /// The shard from the environment of a cluster engine: SLURM job arrays
+    /// (`SLURM_ARRAY_TASK_ID` − `SLURM_ARRAY_TASK_MIN`, `SLURM_ARRAY_TASK_COUNT`) or a
+    /// Kubernetes Indexed Job (`JOB_COMPLETION_INDEX`, with the count in
+    /// `STSCAM_SHARD_COUNT`). `None` if neither is set.
+    pub fn from_env(get: impl Fn(&str) -> Option<String>) -> Result<Option<Shard>, String> {
+        let num = |k: &str| -> Result<Option<usize>, String> {
+            match get(k) {
+                None => Ok(None),
+                Some(v) => v
+                    .trim()
+                    .parse::<usize>()
+                    .map(Some)
+                    .map_err(|_| format!("environment variable {k}={v:?} is not an integer")),
+            }
+        };
+        if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
+            let count = num("SLURM_ARRAY_TASK_COUNT")?
+                .ok_or("SLURM_ARRAY_TASK_ID is set but SLURM_ARRAY_TASK_COUNT is not")?;
+            let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
+            let index = id
+                .checked_sub(min)
+                .ok_or("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN")?;
+            return Shard::parse(&format!("{index}/{count}"))
+                .map(Some)
+                .map_err(|e| format!("from SLURM_ARRAY_TASK_*: {e} (use a contiguous --array)"));
+        }
+        if let Some(index) = num("JOB_COMPLETION_INDEX")? {
+            let count = num("STSCAM_SHARD_COUNT")?.ok_or(
+                "JOB_COMPLETION_INDEX is set but STSCAM_SHARD_COUNT (the Job's completions) is not",
+            )?;
+            return Shard::parse(&format!("{index}/{count}"))
+                .map(Some)
+                .map_err(|e| format!("from JOB_COMPLETION_INDEX: {e}"));
+        }
+        Ok(None)
+    }
+
+    /// Sample ids of this shard among `samples`.
+    pub fn range(&self, samples: usize) -> std::ops::Range<usize> {
+        self.index * samples / self.count..(self.index + 1) * samples / self.count
+    }
+}
+
+/// Options of a run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Output folder.
+    pub out: PathBuf,
+    /// Part to make (None: all).
+    pub shard: Option<Shard>,
+    /// Continue a run in `out`.
+    pub resume: bool,
+    /// Progress bar on a terminal.
+    pub progress: bool,
+}
+
+/// What a run did.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunSummary {
+    /// Samples of this run (shard).
+    pub samples: usize,
+    /// Samples generated now (the rest were already finished).
+    pub generated: usize,
+    /// Seconds spent on H and the exposure.
+    pub scenes_s: f64,
+    /// Seconds spent generating samples.
+    pub samples_s: f64,
+    /// Generated samples per second.
+    pub samples_per_s: f64,
+    /// Seconds to finish (checksums, metadata, card).
+    pub finish_s: f64,
+}
+
+/// The dataset card (`dataset.json`). A shard's `shard.json` is the card of its part plus the
+/// shard fields.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Card {
+    /// Format tag.
+    pub format: String,
+    /// Recipe name.
+    pub name: String,
+    /// Recipe description.
+    pub description: String,
+    /// stscam version that generated it.
+    pub stscam_version: String,
+    /// The recipe, parsed (defaults filled in).
+    pub recipe: Recipe,
+    /// SHA-256 of the canonical JSON of `recipe`.
+    pub recipe_sha256: String,
+    /// Samples in the dataset.
+    pub samples: usize,
+    /// Samples per split, in this card.
+    pub counts: BTreeMap<String, usize>,
+    /// Object shape [height, width].
+    pub object_shape: [usize; 2],
+    /// Capture shape ([height, width] or [channels, height, width]).
+    pub capture_shape: Vec<usize>,
+    /// Capture channel names.
+    pub channels: Vec<String>,
+    /// Seeds.
+    pub seeds: serde_json::Value,
+    /// Units and encodings.
+    pub units: BTreeMap<String, String>,
+    /// Exposure and sensor noise.
+    pub exposure: serde_json::Value,
+    /// Distinct scenes with files in this card.
+    pub scenes: Vec<serde_json::Value>,
+    /// How to load it.
+    pub loading: BTreeMap<String, String>,
+    /// Every other file: relative path → {sha256, bytes}.
+    pub files: BTreeMap<String, FileEntry>,
+}
+
+/// Checksum and size of a file.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileEntry {
+    /// SHA-256, hex.
+    pub sha256: String,
+    /// Size in bytes.
+    pub bytes: u64,
+}
+
+/// `shard.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardCard {
+    /// The shard.
+    pub shard: Shard,
+    /// Its sample ids [start, end).
+    pub ids: [usize; 2],
+    /// The card of its part.
+    pub card: Card,
+}
+
+#[derive(Serialize, Deserialize, PartialEq)]
+struct RunMarker {
+    recipe_sha256: String,
+    shard: Option<Shard>,
+}
+
+/// H of one scene, in memory.
+struct SceneMatrix {
+    h: CsrMatrix,
+    offset: Vec<f32>,
+}
+
+/// Removes the temporary files (`.NAME.tmp-PID`) a killed run left in `root` and its
+/// sub-folders; returns how many.
+fn remove_temporaries(root: &Path) -> Result<usize, DatasetError> {
+    let mut n = 0;
+    let mut dirs = vec![root.to_path_buf()];
+    while let Some(d) = dirs.pop() {
+        for e in std::fs::read_dir(&d).map_err(|e| IoError::Io {
+            path: d.clone(),
+            source: e,
+        })? {
+            let e = e.map_err(|e| IoError::Io {
+                path: d.clone(),
+                source: e,
+            })?;
+            let p = e.path();
+            let name = e.file_name().to_string_lossy().into_owned();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if name.starts_with('.') && name.contains(".tmp-") {
+                std::fs::remove_file(&p).map_err(|e| IoError::Io {
+                    path: p.clone(),
+                    source: e,
+                })?;
+                n += 1;
+            }
+        }
+    }
+    Ok(n)
+}
+
+fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
+    let out = &opts.out;
+    let marker = RunMarker {
+        recipe_sha256: plan.recipe_sha256.clone(),
+        shard: opts.shard,
+    };
+    let nonempty = out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| IoError::Io {
+                path: out.clone(),
+                source: e,
+            })?
+            .next()
+            .is_some();
+    if out.exists() && !out.is_dir() {
+        return Err(out_err(out, "exists and is not a folder"));
+    }
+    if nonempty {
+        if !opts.resume {
+            return Err(out_err(
+                out,
+                "is not empty: pass --resume to continue the run that wrote it, or choose another --out",
+            ));
+        }
+        let found: Option<RunMarker> = std::fs::read(out.join(RUN_MARKER))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .or_else(|| {
+                let card = if opts.shard.is_some() {
+                    "shard.json"
+                } else {
+                    "dataset.json"
+                };
+                let b = std::fs::read(out.join(card)).ok()?;
+                if let Some(s) = opts.shard {
+                    let c: ShardCard = serde_json::from_slice(&b).ok()?;
+                    Some(RunMarker {
+                        recipe_sha256: c.card.recipe_sha256,
+                        shard: Some(s).filter(|s| *s == c.shard),
+                    })
+                } else {
+                    let c: Card = serde_json::from_slice(&b).ok()?;
+                    Some(RunMarker {
+                        recipe_sha256: c.recipe_sha256,
+                        shard: None,
+                    })
+                }
+            });
+        match found {
+            Some(m) if m == marker => {}
+            Some(_) => {
+                return Err(out_err(
+                    out,
+                    "was written by a different recipe or shard; --resume needs the same recipe and --shard",
+                ));
+            }
+            None => {
+                return Err(out_err(
+                    out,
+                    "is not a stscam dataset run (no .stscam-run.json); cannot --resume it",
+                ));
+            }
+        }
+        remove_temporaries(out)?;
+    } else {
+        std::fs::create_dir_all(out)
+            .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
+    }
+    let bytes = serde_json::to_vec_pretty(&marker).map_err(|e| out_err(out, e.to_string()))?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), &bytes)?;
+    Ok(())
+}
+
+/// Writes a file of a sample: temporary name, rename (no fsync per file; the card is synced).
+fn put(root: &Path, rel: &str, bytes: &[u8]) -> Result<(), DatasetError> {
+    crate::io::atomic::write_atomic_unsynced(&root.join(rel), bytes)?;
+    Ok(())
+}
+
+fn npy(rel: &str, shape: &[usize], v: &[f32]) -> Result<Vec<u8>, DatasetError> {
+    Ok(crate::io::npz::encode_npy_f32(Path::new(rel), shape, v)?)
+}
+
+/// The exposure of the dataset.
+struct Exposure {
+    white_peak: f64,
+    full_scale: f64,
+    noise: Option<SensorNoise>,
+}
+
+/// Generates a dataset (or one shard of it) into `opts.out`.
+pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
+    let recipe = &plan.recipe;
+    let ids = opts
+        .shard
+        .map_or(0..recipe.samples, |s| s.range(recipe.samples));
+    prepare_out(plan, opts)?;
+    let root = &opts.out;
+    let t0 = Instant::now();
+    let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
+    let done = |s: &SampleSpec| plan.sample_files(s).iter().all(|f| root.join(f).is_file());
+    let todo: Vec<&SampleSpec> = specs.iter().filter(|s| !done(s)).collect();
+    // Scenes: the reference scene 0 and every scene a sample of this run uses.
+    let used: BTreeSet<usize> = std::iter::once(0)
+        .chain(specs.iter().map(|s| s.scene))
+        .collect();
+    let need_h: BTreeSet<usize> = std::iter::once(0)
+        .chain(
+            todo.iter()
+                .filter(|_| recipe.mode == CaptureMode::Matrix)
+                .map(|s| s.scene),
+        )
+        .collect();
+    let mut matrices: BTreeMap<usize, SceneMatrix> = BTreeMap::new();
+    let object = (recipe.objects.size_px, recipe.objects.size_px);
+    let mut crop = (0, 0);
+    let mut channel_names: Vec<String> = Vec::new();
+    for &k in &used {
+        let ps = &plan.scenes[k];
+        let sys = System::build(&ps.loaded)
+            .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))?;
+        crop = (sys.camera.width_px, sys.camera.height_px);
+        channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
+        let dir = root.join(&ps.id);
+        let files = plan.scene_files(k);
+        let complete = files.iter().all(|f| root.join(f).is_file());
+        if plan.has_matrix && complete && need_h.contains(&k) {
+            let m = crate::matrix::load_matrix(&dir.join("H.npz"), Some(object), None)?;
+            let offset = m.offset.ok_or_else(|| {
+                out_err(
+                    &dir.join("offset.npy"),
+                    "missing; delete the scene folder and --resume",
+                )
+            })?;
+            matrices.insert(k, SceneMatrix { h: m.h, offset });
+        } else if !complete {
+            let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
+                .map_err(|e| out_err(&dir, e.to_string()))?;
+            if plan.has_matrix {
+                let m: SystemMatrix = compute_matrix(
+                    &sys,
+                    &RenderSettings {
+                        spp: recipe.spp,
+                        seed: plan.scene_seed(k),
+                        sampler: crate::sampler::SamplerKind::Lattice,
+                        spectral_bins: None,
+                        progress: opts.progress,
+                    },
+                );
+                let sidecar = serde_json::json!({
+                    "object_px": [object.0, object.1],
+                    "crop_px": [m.crop.0, m.crop.1],
+                    "shape": [m.h.rows, m.h.cols],
+                    "nnz": m.h.nnz(),
+                    "channels": m.channels,
+                    "spp": recipe.spp,
+                    "seed": plan.scene_seed(k),
+                    "overrides": ps.overrides,
+                    "units": crate::matrix::MATRIX_UNITS,
+                    "stscam_version": crate::VERSION,
+                });
+                crate::output::write_matrix(&dir, &m, &sidecar)?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+                matrices.insert(
+                    k,
+                    SceneMatrix {
+                        h: m.h,
+                        offset: m.offset,
+                    },
+                );
+            } else {
+                std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
+                    path: dir.clone(),
+                    source: e,
+                })?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+            }
+        }
+    }
+    // Exposure from the reference scene's all-white capture.
+    let ref_sys = System::build(&plan.scenes[0].loaded)
+        .map_err(|e| recipe_err(&plan.recipe_path, "scene", e.to_string()))?;
+    let white_peak = if let Some(m) = matrices.get(&0) {
+        let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
+        g.iter()
+            .zip(&m.offset)
+            .map(|(a, &b)| a + f64::from(b))
+            .fold(0.0, f64::max)
+    } else {
+        let mut s = ref_sys.clone();
+        s.display.set_intensity(&vec![1.0; object.0 * object.1]);
+        let cap = render(
+            &s,
+            &RenderSettings {
+                spp: recipe.spp,
+                seed: NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11,
+                sampler: crate::sampler::SamplerKind::Lattice,
+                spectral_bins: None,
+                progress: false,
+            },
+        );
+        cap.channels
+            .iter()
+            .flatten()
+            .fold(0.0f64, |a, &v| a.max(f64::from(v)))
+    };
+    let noise_desc = &ref_sys.scene.noise;
+    let exposure = Exposure {
+        white_peak,
+        full_scale: white_peak / noise_desc.exposure_fraction,
+        noise: (recipe.noise == NoiseModel::Sensor)
+            .then(|| SensorNoise::new(noise_desc, white_peak)),
+    };
+    let scenes_s = t0.elapsed().as_secs_f64();
+    // Samples.
+    let t1 = Instant::now();
+    let bar = progress_bar(opts.progress, todo.len());
+    let counter = AtomicUsize::new(0);
+    let one = |s: &SampleSpec, sys: &System| -> Result<(), DatasetError> {
+        let gamma = sys.scene.display.gamma;
+        let f = s
+            .object
+            .intensity(
+                recipe.objects.size_px,
+                gamma,
+                plan.resize_of(s.object.source),
+            )
+            .map_err(|m| {
+                recipe_err(
+                    &plan.recipe_path,
+                    format!("objects.sources[{}]", s.object.source),
+                    m,
+                )
+            })?;
+        let clean: Vec<f64> = match recipe.mode {
+            CaptureMode::Matrix => {
+                let m = &matrices[&s.scene];
+                let g = m.h.mul_vec(&f);
+                g.iter()
+                    .zip(&m.offset)
+                    .map(|(a, &b)| a + f64::from(b))
+                    .collect()
+            }
+            CaptureMode::Render => {
+                let mut sy = sys.clone();
+                sy.display.set_intensity(&f);
+                let cap = render(
+                    &sy,
+                    &RenderSettings {
+                        spp: recipe.spp,
+                        seed: s.seed,
+                        sampler: crate::sampler::SamplerKind::Lattice,
+                        spectral_bins: None,
+                        progress: false,
+                    },
+                );
+                cap.channels
+                    .iter()
+                    .flatten()
+                    .map(|&v| f64::from(v))
+                    .collect()
+            }
+        };
+        let capture: Vec<f32> = match &exposure.noise {
+            Some(n) => {
+                let dark = n.dark_offset_units();
+                clean
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        (n.measure(v, &mut NoiseRng::new(&[s.seed, NOISE_TAG, i as u64])) - dark)
+                            as f32
+                    })
+                    .collect()
+            }
+            None => clean.iter().map(|&v| v as f32).collect(),
+        };
+        write_sample(
+            plan,
+            root,
+            s,
+            &f,
+            &capture,
+            crop,
+            channel_names.len(),
+            gamma,
+            exposure.full_scale,
+        )?;
+        counter.fetch_add(1, Ordering::Relaxed);
+        bar.inc(1);
+        Ok(())
+    };
+    match recipe.mode {
+        CaptureMode::Matrix => {
+            let systems: BTreeMap<usize, System> = used
+                .iter()
+                .map(|&k| {
+                    System::build(&plan.scenes[k].loaded)
+                        .map(|s| (k, s))
+                        .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))
+                })
+                .collect::<Result<_, _>>()?;
+            todo.par_iter()
+                .try_for_each(|s| one(s, &systems[&s.scene]))?;
+        }
+        CaptureMode::Render => {
+            for s in &todo {
+                let sys = plan.sample_scene(s)?;
+                one(s, &sys)?;
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let samples_s = t1.elapsed().as_secs_f64();
+    let generated = counter.load(Ordering::Relaxed);
+    // Finish: metadata, checksums, card.
+    let t2 = Instant::now();
+    let capture_shape = if channel_names.len() == 1 {
+        vec![crop.1, crop.0]
+    } else {
+        vec![channel_names.len(), crop.1, crop.0]
+    };
+    let ctx = CardContext {
+        plan,
+        capture_shape,
+        channels: channel_names,
+        exposure: serde_json::json!({
+            "rule": "fixed once for the whole dataset from the reference scene's all-white capture (scene_000)",
+            "white_peak": exposure.white_peak,
+            "capture_full_scale": exposure.full_scale,
+            "noise_model": recipe.noise,
+            "sensor": noise_desc,
+            "electrons_per_unit": exposure.noise.as_ref().map(|n| n.electrons_per_unit),
+        }),
+    };
+    let metadata: Vec<(usize, String)> = specs
+        .iter()
+        .map(|s| Ok((s.split, metadata_line(plan, s)?)))
+        .collect::<Result<_, DatasetError>>()?;
+    let scene_ids: Vec<usize> = used.into_iter().collect();
+    let card = finish(root, &ctx, &metadata, &scene_ids, &specs)?;
+    match opts.shard {
+        Some(shard) => {
+            let sc = ShardCard {
+                shard,
+                ids: [ids.start, ids.end],
+                card,
+            };
+            let bytes = serde_json::to_vec_pretty(&sc).map_err(|e| out_err(root, e.to_string()))?;
+            crate::io::write_atomic(&root.join("shard.json"), &bytes)?;
+        }
+        None => {
+            let bytes =
+                serde_json::to_vec_pretty(&card).map_err(|e| out_err(root, e.to_string()))?;
+            crate::io::write_atomic(&root.join("dataset.json"), &bytes)?;
+        }
+    }
+    std::fs::remove_file(root.join(RUN_MARKER)).map_err(|e| IoError::Io {
+        path: root.join(RUN_MARKER),
+        source: e,
+    })?;
+    let finish_s = t2.elapsed().as_secs_f64();
+    Ok(RunSummary {
+        samples: specs.len(),
+        generated,
+        scenes_s,
+        samples_s,
+        samples_per_s: if samples_s > 0.0 {
+            generated as f64 / samples_s
+        } else {
+            0.0
+        },
+        finish_s,
+    })
+}
+
+fn progress_bar(show: bool, len: usize) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "samples {bar:30} {pos}/{len}  {per_sec}  ETA {eta}",
+    ) {
+        bar.set_style(style);
+    }
+    bar
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_sample(
+    plan: &Plan,
+    root: &Path,
+    s: &SampleSpec,
+    f: &[f64],
+    capture: &[f32],
+    crop: (usize, usize),
+    channels: usize,
+    gamma: f64,
+    full_scale: f64,
+) -> Result<(), DatasetError> {
+    let n = plan.recipe.objects.size_px;
+    let [on, op, cn, cp] = plan.sample_files(s);
+    let dir = root.join(SPLITS[s.split]);
+    if !dir.is_dir() {
+        std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
+            path: dir.clone(),
+            source: e,
+        })?;
+    }
+    let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
+    put(root, &on, &npy(&on, &[n, n], &f32s)?)?;
+    let png = crate::output::encode_object_png(f, n, n, gamma)
+        .map_err(|m| out_err(&root.join(&op), m))?;
+    put(root, &op, &png)?;
+    let shape: Vec<usize> = if channels == 1 {
+        vec![crop.1, crop.0]
+    } else {
+        vec![channels, crop.1, crop.0]
+    };
+    put(root, &cn, &npy(&cn, &shape, capture)?)?;
+    // PNG: pixel-major, channels interleaved.
+    let p = crop.0 * crop.1;
+    let q = |v: f32| ((f64::from(v) / full_scale).clamp(0.0, 1.0) * 65535.0).round() as u16;
+    let samples: Vec<u16> = if channels == 1 {
+        capture.iter().map(|&v| q(v)).collect()
+    } else {
+        (0..p)
+            .flat_map(|i| (0..channels).map(move |c| q(capture[c * p + i])))
+            .collect()
+    };
+    let png = crate::io::encode_png16(crop.0, crop.1, channels.min(3), &samples)
+        .map_err(|m| out_err(&root.join(&cp), m))?;
+    put(root, &cp, &png)?;
+    Ok(())
+}
+
+/// One `metadata.jsonl` line (Hugging Face imagefolder: `file_name` is the capture PNG).
+fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
+    let [on, op, cn, cp] = plan.sample_files(s);
+    let base = |p: &str| p.rsplit('/').next().unwrap_or(p).to_string();
+    let mut m = serde_json::Map::new();
+    m.insert("file_name".into(), base(&cp).into());
+    m.insert("object_file_name".into(), base(&op).into());
+    m.insert("capture_npy".into(), base(&cn).into());
+    m.insert("object_npy".into(), base(&on).into());
+    m.insert("id".into(), s.id.into());
+    m.insert("split".into(), SPLITS[s.split].into());
+    m.insert("seed".into(), s.seed.into());
+    m.insert(
+        "source".into(),
+        plan.recipe.objects.sources[s.object.source].name().into(),
+    );
+    m.insert("object".into(), s.object.describe().into());
+    m.insert("scene".into(), plan.scenes[s.scene].id.clone().into());
+    if plan.has_matrix {
+        m.insert(
+            "matrix".into(),
+            format!("../{}/H.npz", plan.scenes[s.scene].id).into(),
+        );
+    }
+    for (k, v) in &s.params {
+        m.insert(k.clone(), (*v).into());
+    }
+    serde_json::to_string(&m).map_err(|e| out_err(&plan.recipe_path, e.to_string()))
+}
+
+struct CardContext<'a> {
+    plan: &'a Plan,
+    capture_shape: Vec<usize>,
+    channels: Vec<String>,
+    exposure: serde_json::Value,
+}
+
+fn file_entry(root: &Path, rel: &str) -> Result<FileEntry, DatasetError> {
+    let p = root.join(rel);
+    let bytes = std::fs::read(&p).map_err(|e| IoError::Io {
+        path: p.clone(),
+        source: e,
+    })?;
+    Ok(FileEntry {
+        sha256: sha256_hex(&bytes),
+        bytes: bytes.len() as u64,
+    })
+}
+
+/// Writes the metadata of the samples in `lines` (split, line; sorted by id) and builds the
+/// card over them, the scenes `scene_ids` and every file.
+fn finish(
+    root: &Path,
+    ctx: &CardContext,
+    lines: &[(usize, String)],
+    scene_ids: &[usize],
+    specs: &[SampleSpec],
+) -> Result<Card, DatasetError> {
+    let plan = ctx.plan;
+    let mut rel_files: Vec<String> = Vec::new();
+    let mut counts = BTreeMap::new();
+    for (si, split) in SPLITS.iter().enumerate() {
+        let mine: Vec<&str> = lines
+            .iter()
+            .filter(|l| l.0 == si)
+            .map(|l| l.1.as_str())
+            .collect();
+        counts.insert(split.to_string(), mine.len());
+        if mine.is_empty() {
+            continue;
+        }
+        let mut text = mine.join("\n");
+        text.push('\n');
+        let rel = format!("{split}/metadata.jsonl");
+        put(root, &rel, text.as_bytes())?;
+        rel_files.push(rel);
+    }
+    for s in specs {
+        rel_files.extend(plan.sample_files(s));
+    }
+    for &k in scene_ids {
+        rel_files.extend(plan.scene_files(k));
+    }
+    let entries: Vec<FileEntry> = rel_files
+        .par_iter()
+        .map(|r| file_entry(root, r))
+        .collect::<Result<_, _>>()?;
+    let files: BTreeMap<String, FileEntry> = rel_files.into_iter().zip(entries).collect();
+    Ok(build_card(ctx, counts, scene_ids, files))
+}
+
+fn build_card(
+    ctx: &CardContext,
+    counts: BTreeMap<String, usize>,
+    scene_ids: &[usize],
+    files: BTreeMap<String, FileEntry>,
+) -> Card {
+    let plan = ctx.plan;
+    let r = &plan.recipe;
+    let n = r.objects.size_px;
+    let scenes = scene_ids
+        .iter()
+        .map(|&k| {
+            let s = &plan.scenes[k];
+            serde_json::json!({
+                "id": s.id,
+                "overrides": s.overrides,
+                "params": s.params,
+                "matrix": plan.has_matrix.then(|| format!("{}/H.npz", s.id)),
+                "matrix_seed": plan.has_matrix.then(|| plan.scene_seed(k)),
+            })
+        })
+        .collect();
+    let units: BTreeMap<String, String> = [
+        ("object_npy", "float32 [h, w]: linear display intensity f in [0, 1] (0 = black, 1 = white; display gamma removed), the vector of g = H f (row-major)".to_string()),
+        ("object_png", "16-bit grey: display code values round(65535 * f^(1/gamma)); shown on the scene's display it gives f".to_string()),
+        ("capture_npy", format!("float32 [h, w] (or [channels, h, w]): {}; with sensor noise the ADC output converted back to these units with the mean dark offset removed", crate::output::CAPTURE_UNITS)),
+        ("capture_png", "16-bit: round(65535 * clamp(capture / exposure.capture_full_scale, 0, 1)), linear".to_string()),
+        ("matrix", crate::matrix::MATRIX_UNITS.to_string()),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    let loading: BTreeMap<String, String> = [
+        ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),
+        ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG; other columns from metadata.jsonl"),
+        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name, capture_npy, object_npy, id, split, seed, source, object (the draw), scene, matrix, and every varied scene key"),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    Card {
+        format: FORMAT.to_string(),
+        name: r.name.clone(),
+        description: r.description.clone(),
+        stscam_version: crate::VERSION.to_string(),
+        recipe: r.clone(),
+        recipe_sha256: plan.recipe_sha256.clone(),
+        samples: counts.values().sum(),
+        counts,
+        object_shape: [n, n],
+        capture_shape: ctx.capture_shape.clone(),
+        channels: ctx.channels.clone(),
+        seeds: serde_json::json!({
+            "recipe_seed": r.seed,
+            "sample_seed": "NoiseRng([recipe_seed, 0x53414D50, id]).next_u64() >> 11 (listed per sample in metadata.jsonl)",
+            "matrix_seed": "NoiseRng([recipe_seed, 0x5343454E, scene_index]).next_u64() >> 11 (listed per scene)",
+            "render_seed": "the sample seed (render mode)",
+            "noise": "pixel i of sample s: NoiseRng([sample_seed, 0x4E4F4953, i])",
+        }),
+        units,
+        exposure: ctx.exposure.clone(),
+        scenes,
+        loading,
+        files,
+    }
+}
+
+/// Joins shard folders into `out` (which must not exist or be empty): checks that they come
+/// from one recipe, that shards 0..N−1 are each present once and finished, and every file's
+/// checksum; copies the files, concatenates the metadata in id order and writes the card.
+/// The result is byte-identical to an unsharded run.
+pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError> {
+    let t0 = Instant::now();
+    if shards.is_empty() {
+        return Err(out_err(out, "no shard folders given"));
+    }
+    let mut cards: Vec<(PathBuf, ShardCard)> = Vec::new();
+    for d in shards {
+        let p = d.join("shard.json");
+        let bytes = std::fs::read(&p).map_err(|_| {
+            out_err(
+                d,
+                "has no shard.json (not a finished shard; finish it with --resume)",
+            )
+        })?;
+        let c: ShardCard = serde_json::from_slice(&bytes)
+            .map_err(|e| out_err(&p, format!("not a shard card: {e}")))?;
+        cards.push((d.clone(), c));
+    }
+    cards.sort_by_key(|c| c.1.shard.index);
+    let first = &cards[0].1;
+    let n = first.shard.count;
+    for (d, c) in &cards {
+        if c.card.recipe_sha256 != first.card.recipe_sha256
+            || c.card.stscam_version != first.card.stscam_version
+        {
+            return Err(out_err(
+                d,
+                "comes from a different recipe or stscam version than the other shards",
+            ));
+        }
+        if c.shard.count != n {
+            return Err(out_err(
+                d,
+                format!(
+                    "is shard {}/{} but others are of {n}",
+                    c.shard.index, c.shard.count
+                ),
+            ));
+        }
+        if c.card.exposure != first.card.exposure {
+            return Err(out_err(d, "has a different exposure than the other shards"));
+        }
+    }
+    let indices: Vec<usize> = cards.iter().map(|c| c.1.shard.index).collect();
+    if indices != (0..n).collect::<Vec<_>>() {
+        return Err(out_err(
+            out,
+            format!("need shards 0..{n} each exactly once, got {indices:?}"),
+        ));
+    }
+    // Verify every file before writing anything.
+    let mut files: BTreeMap<String, FileEntry> = BTreeMap::new();
+    let mut origin: BTreeMap<String, PathBuf> = BTreeMap::new();
+    for (d, c) in &cards {
+        let checks: Vec<Result<(), DatasetError>> = c
+            .card
+            .files
+            .par_iter()
+            .map(|(rel, want)| {
+                let got = file_entry(d, rel)?;
+                if &got != want {
+                    return Err(out_err(
+                        &d.join(rel),
+                        "checksum differs from shard.json (corrupted or modified)",
+                    ));
+                }
+                Ok(())
+            })
+            .collect();
+        checks.into_iter().collect::<Result<(), _>>()?;
+        for (rel, e) in &c.card.files {
+            if rel.ends_with("metadata.jsonl") {
+                continue;
+            }
+            if let Some(prev) = files.get(rel) {
+                if prev != e {
+                    return Err(out_err(&d.join(rel), "differs between shards"));
+                }
+            } else {
+                files.insert(rel.clone(), e.clone());
+                origin.insert(rel.clone(), d.clone());
+            }
+        }
+    }
+    let nonempty = out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| IoError::Io {
+                path: out.to_path_buf(),
+                source: e,
+            })?
+            .next()
+            .is_some();
+    if nonempty || (out.exists() && !out.is_dir()) {
+        return Err(out_err(out, "exists and is not empty"));
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")?;
+    origin
+        .par_iter()
+        .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
+            let dst = out.join(rel);
+            if let Some(parent) = dst.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| IoError::Io {
+                    path: parent.to_path_buf(),
+                    source: e,
+                })?;
+            }
+            let bytes = std::fs::read(d.join(rel)).map_err(|e| IoError::Io {
+                path: d.join(rel),
+                source: e,
+            })?;
+            put(out, rel, &bytes)
+        })?;
+    // Metadata: concatenate per split in shard (= id) order.
+    let mut counts = BTreeMap::new();
+    for split in SPLITS {
+        let rel = format!("{split}/metadata.jsonl");
+        let mut text = String::new();
+        for (d, c) in &cards {
+            if c.card.files.contains_key(&rel) {
+                text.push_str(
+                    &std::fs::read_to_string(d.join(&rel)).map_err(|e| IoError::Io {
+                        path: d.join(&rel),
+                        source: e,
+                    })?,
+                );
+            }
+        }
+        let lines = text.lines().count();
+        counts.insert(split.to_string(), lines);
+        if lines > 0 {
+            put(out, &rel, text.as_bytes())?;
+            files.insert(rel.clone(), file_entry(out, &rel)?);
+        }
+    }
+    // Scenes: union, in index order (ids sort as indices).
+    let mut scenes: BTreeMap<String, serde_json::Value> = BTreeMap::new();
+    for (_, c) in &cards {
+        for s in &c.card.scenes {
+            let id = s
+                .get("id")
+                .and_then(|v| v.as_str())
+                .unwrap_or_default()
+                .to_string();
+            scenes.entry(id).or_insert_with(|| s.clone());
+        }
+    }
+    let mut card = first.card.clone();
+    card.samples = counts.values().sum();
+    if card.samples != card.recipe.samples {
+        let _ = std::fs::remove_dir_all(out);
+        return Err(out_err(out, "the shards do not cover every sample"));
+    }
+    card.counts = counts;
+    card.scenes = scenes.into_values().collect();
+    card.files = files;
+    let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
+    crate::io::write_atomic(&out.join("dataset.json"), &bytes)?;
+    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| IoError::Io {
+        path: out.join(RUN_MARKER),
+        source: e,
+    })?;
+    Ok(RunSummary {
+        samples: card.samples,
+        generated: 0,
+        scenes_s: 0.0,
+        samples_s: 0.0,
+        samples_per_s: 0.0,
+        finish_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shard_ranges_tile_the_samples() {
+        for samples in [1, 7, 300] {
+            for count in 1..6 {
+                let mut next = 0;
+                for index in 0..count {
+                    let r = Shard { index, count }.range(samples);
+                    assert_eq!(r.start, next);
+                    next = r.end;
+                }
+                assert_eq!(next, samples);
+            }
+        }
+        assert!(Shard::parse("3/3").is_err());
+        assert_eq!(Shard::parse("2/3").unwrap(), Shard { index: 2, count: 3 });
+    }
+
+    #[test]
+    fn shard_from_cluster_environments() {
+        let env = |pairs: &'static [(&'static str, &'static str)]| {
+            move |k: &str| pairs.iter().find(|p| p.0 == k).map(|p| p.1.to_string())
+        };
+        assert_eq!(Shard::from_env(env(&[])).unwrap(), None);
+        assert_eq!(
+            Shard::from_env(env(&[
+                ("SLURM_ARRAY_TASK_ID", "5"),
+                ("SLURM_ARRAY_TASK_COUNT", "4"),
+                ("SLURM_ARRAY_TASK_MIN", "3")
+            ]))
+            .unwrap(),
+            Some(Shard { index: 2, count: 4 })
+        );
+        assert_eq!(
+            Shard::from_env(env(&[
+                ("JOB_COMPLETION_INDEX", "1"),
+                ("STSCAM_SHARD_COUNT", "3")
+            ]))
+            .unwrap(),
+            Some(Shard { index: 1, count: 3 })
+        );
+        assert!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "1")])).is_err());
+        assert!(
+            Shard::from_env(env(&[
+                ("SLURM_ARRAY_TASK_ID", "4"),
+                ("SLURM_ARRAY_TASK_COUNT", "4")
+            ]))
+            .is_err()
+        );
+    }
+}
