@@ -115,14 +115,31 @@ fn three_shards_merged_equal_one_run_byte_for_byte() {
     let mut shards = Vec::new();
     for i in 0..3 {
         let d = dir.path().join(format!("s{i}"));
-        ok(&[
-            "dataset",
-            r,
-            "--shard",
-            &format!("{i}/3"),
-            "--out",
-            d.to_str().unwrap(),
-        ]);
+        // Shard 0 from --shard, shard 1 from a SLURM job array (ids 1..3), shard 2 from a
+        // Kubernetes Indexed Job.
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_stscam"));
+        cmd.args(["dataset", r, "--out", d.to_str().unwrap()]);
+        match i {
+            0 => {
+                cmd.args(["--shard", "0/3"]);
+            }
+            1 => {
+                cmd.env("SLURM_ARRAY_TASK_ID", "2")
+                    .env("SLURM_ARRAY_TASK_MIN", "1")
+                    .env("SLURM_ARRAY_TASK_COUNT", "3");
+            }
+            _ => {
+                cmd.env("JOB_COMPLETION_INDEX", "2")
+                    .env("STSCAM_SHARD_COUNT", "3");
+            }
+        }
+        let out = cmd.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("shard {i}/3")));
         assert!(d.join("shard.json").is_file());
         assert!(!d.join("dataset.json").exists());
         shards.push(d);
