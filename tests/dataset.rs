@@ -411,7 +411,7 @@ fn image_folders_png_and_jpeg_are_read_and_resized() {
     let meta = std::fs::read_to_string(out.join("train/metadata.jsonl")).unwrap();
     let v: serde_json::Value = serde_json::from_str(meta.lines().next().unwrap()).unwrap();
     assert_eq!(v["source"], "images");
-    assert_eq!(v["object"], "images file=imgs/half.jpg flip=false");
+    assert_eq!(v["object_draw"], "images file=imgs/half.jpg flip=false");
     let (shape, f) = read_npy(&out.join("train/000000_object.npy"));
     assert_eq!(shape, vec![16, 16]);
     // Centre crop 30×30 of a 40-wide image split at x = 20: the crop spans x = 5..35, so the

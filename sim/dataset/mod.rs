@@ -1011,7 +1011,7 @@ fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
         "source".into(),
         plan.recipe.objects.sources[s.object.source].name().into(),
     );
-    m.insert("object".into(), s.object.describe().into());
+    m.insert("object_draw".into(), s.object.describe().into());
     m.insert("scene".into(), plan.scenes[s.scene].id.clone().into());
     if plan.has_matrix {
         m.insert(
@@ -1120,8 +1120,8 @@ fn build_card(
     .collect();
     let loading: BTreeMap<String, String> = [
         ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),
-        ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG; other columns from metadata.jsonl"),
-        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name, capture_npy, object_npy, id, split, seed, source, object (the draw), scene, matrix, and every varied scene key"),
+        ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG, 'object' the object PNG (datasets 5.2, the version CI tests, reads *_file_name columns as images; older versions give the file name), the rest from metadata.jsonl; the split 'val' is named 'validation'"),
+        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key"),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v.to_string()))
