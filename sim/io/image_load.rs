@@ -341,13 +341,19 @@ mod tests {
         let err = load_image(&missing).unwrap_err();
         assert!(matches!(err, IoError::Io { ref path, .. } if path == &missing));
 
-        let err = load_image(&dir.path().join("picture.jpg")).unwrap_err();
+        let err = load_image(&dir.path().join("picture.tif")).unwrap_err();
         let msg = err.to_string();
         assert!(matches!(err, IoError::Format { .. }));
         assert!(
-            msg.contains("picture.jpg") && msg.contains(".png") && msg.contains(".exr"),
+            msg.contains("picture.tif") && msg.contains(".png") && msg.contains(".jpg"),
             "{msg}"
         );
+        // A file with a JPEG name that is not a JPEG is a format error naming it.
+        let fake = dir.path().join("fake.jpeg");
+        std::fs::write(&fake, b"not a jpeg at all").unwrap();
+        let err = load_image(&fake).unwrap_err();
+        assert!(matches!(err, IoError::Format { .. }), "{err}");
+        assert!(err.to_string().contains("fake.jpeg"), "{err}");
 
         for name in ["corrupt.png", "corrupt.exr"] {
             let path = dir.path().join(name);
