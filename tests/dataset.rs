@@ -239,7 +239,7 @@ fn sigkill_and_resume_give_the_uninterrupted_files() {
     assert!(killed.join(".stscam-run.json").is_file());
     assert!(!killed.join("dataset.json").exists());
     let n_before = common::files_in(&killed.join("train")).len();
-    assert!(n_before >= 12 && n_before < 4 * 24, "{n_before} files");
+    assert!((12..4 * 24).contains(&n_before), "{n_before} files");
     // Without --resume the folder is refused.
     let out = stscam(&[
         "dataset",

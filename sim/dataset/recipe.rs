@@ -407,33 +407,29 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
                 min_spokes,
                 max_spokes,
                 ..
-            } => {
-                if *min_spokes < 1 || max_spokes < min_spokes || *max_spokes > 256 {
-                    return err(
-                        &key("max_spokes"),
-                        format!(
-                            "need 1 <= min_spokes <= max_spokes <= 256, got {min_spokes}..{max_spokes}"
-                        ),
-                    );
-                }
+            } if *min_spokes < 1 || max_spokes < min_spokes || *max_spokes > 256 => {
+                return err(
+                    &key("max_spokes"),
+                    format!(
+                        "need 1 <= min_spokes <= max_spokes <= 256, got {min_spokes}..{max_spokes}"
+                    ),
+                );
             }
             Source::Bars {
                 min_period_px,
                 max_period_px,
                 ..
-            } => {
-                if *min_period_px < 1
-                    || max_period_px < min_period_px
-                    || 5 * max_period_px > o.size_px
-                {
-                    return err(
-                        &key("max_period_px"),
-                        format!(
-                            "need 1 <= min_period_px <= max_period_px and five bar widths within objects.size_px ({}), got {min_period_px}..{max_period_px}",
-                            o.size_px
-                        ),
-                    );
-                }
+            } if *min_period_px < 1
+                || max_period_px < min_period_px
+                || 5 * max_period_px > o.size_px =>
+            {
+                return err(
+                    &key("max_period_px"),
+                    format!(
+                        "need 1 <= min_period_px <= max_period_px and five bar widths within objects.size_px ({}), got {min_period_px}..{max_period_px}",
+                        o.size_px
+                    ),
+                );
             }
             Source::Images { folder, .. } if folder.is_empty() => {
                 return err(&key("folder"), "must name a folder".into());
