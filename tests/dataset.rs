@@ -422,21 +422,28 @@ fn image_folders_png_and_jpeg_are_read_and_resized() {
     }
 }
 
+/// Runs `stscam dataset RECIPE --out OUT`, expects exit code 2 with one line naming `expect`,
+/// and returns that line.
+fn fails_with_one_line(recipe: &Path, out_dir: &Path, expect: &str) -> String {
+    let out = stscam(&[
+        "dataset",
+        recipe.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains(expect), "{err} lacks {expect}");
+    err
+}
+
 fn refused(recipe_text: &str, setup: impl Fn(&Path), expect: &str) {
     let dir = tempfile::tempdir().unwrap();
     setup(dir.path());
     let r = write(dir.path(), "bad.toml", recipe_text);
     let out_dir = dir.path().join("out");
-    let out = stscam(&[
-        "dataset",
-        r.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
-    assert!(err.contains(expect), "{err} lacks {expect}");
+    let err = fails_with_one_line(&r, &out_dir, expect);
     assert!(err.contains("bad.toml"), "{err}");
     assert!(!out_dir.exists(), "something was written");
 }
@@ -483,17 +490,7 @@ fn bad_recipes_are_refused_with_one_line_and_nothing_written() {
     let dir = tempfile::tempdir().unwrap();
     let r = write(dir.path(), "r.toml", &good);
     std::fs::write(dir.path().join("file"), b"x").unwrap();
-    let out_dir = dir.path().join("file/out");
-    let out = stscam(&[
-        "dataset",
-        r.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
-    assert!(err.contains("file/out"), "{err}");
+    fails_with_one_line(&r, &dir.path().join("file/out"), "file/out");
     assert_eq!(std::fs::read(dir.path().join("file")).unwrap(), b"x");
     // A bad --shard.
     let out = stscam(&["dataset", r.to_str().unwrap(), "--shard", "3/3"]);

@@ -699,13 +699,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             if plan.has_matrix {
                 let m: SystemMatrix = compute_matrix(
                     &sys,
-                    &RenderSettings {
-                        spp: recipe.spp,
-                        seed: plan.scene_seed(k),
-                        sampler: crate::sampler::SamplerKind::Lattice,
-                        spectral_bins: None,
-                        progress: opts.progress,
-                    },
+                    &render_settings(recipe.spp, plan.scene_seed(k), opts.progress),
                 );
                 let sidecar = serde_json::json!({
                     "object_px": [object.0, object.1],
@@ -747,22 +741,11 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             .map(|(a, &b)| a + f64::from(b))
             .fold(0.0, f64::max)
     } else {
-        let mut s = ref_sys.clone();
-        s.display.set_intensity(&vec![1.0; object.0 * object.1]);
-        let cap = render(
-            &s,
-            &RenderSettings {
-                spp: recipe.spp,
-                seed: NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11,
-                sampler: crate::sampler::SamplerKind::Lattice,
-                spectral_bins: None,
-                progress: false,
-            },
-        );
-        cap.channels
-            .iter()
-            .flatten()
-            .fold(0.0f64, |a, &v| a.max(f64::from(v)))
+        let white = vec![1.0; object.0 * object.1];
+        let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
+        render_object(&ref_sys, &white, recipe.spp, seed)
+            .into_iter()
+            .fold(0.0f64, f64::max)
     };
     let noise_desc = &ref_sys.scene.noise;
     let exposure = Exposure {
@@ -801,25 +784,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     .map(|(a, &b)| a + f64::from(b))
                     .collect()
             }
-            CaptureMode::Render => {
-                let mut sy = sys.clone();
-                sy.display.set_intensity(&f);
-                let cap = render(
-                    &sy,
-                    &RenderSettings {
-                        spp: recipe.spp,
-                        seed: s.seed,
-                        sampler: crate::sampler::SamplerKind::Lattice,
-                        spectral_bins: None,
-                        progress: false,
-                    },
-                );
-                cap.channels
-                    .iter()
-                    .flatten()
-                    .map(|&v| f64::from(v))
-                    .collect()
-            }
+            CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
         };
         let capture: Vec<f32> = match &exposure.noise {
             Some(n) => {
@@ -932,6 +897,28 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         },
         finish_s,
     })
+}
+
+fn render_settings(spp: u32, seed: u64, progress: bool) -> RenderSettings {
+    RenderSettings {
+        spp,
+        seed,
+        sampler: crate::sampler::SamplerKind::Lattice,
+        spectral_bins: None,
+        progress,
+    }
+}
+
+/// The capture of object `f` (linear intensities) rendered by the tracer, channel-major.
+fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64) -> Vec<f64> {
+    let mut s = sys.clone();
+    s.display.set_intensity(f);
+    let cap = render(&s, &render_settings(spp, seed, false));
+    cap.channels
+        .iter()
+        .flatten()
+        .map(|&v| f64::from(v))
+        .collect()
 }
 
 fn progress_bar(show: bool, len: usize) -> indicatif::ProgressBar {
