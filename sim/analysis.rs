@@ -12,6 +12,7 @@
 use glam::{DVec2, DVec3};
 use serde::Serialize;
 
+use crate::camera::Camera;
 use crate::optics::interface::critical_angle;
 use crate::system::System;
 use crate::trace::{Branch, BranchKind, plate_crossing, trace_camera_path};
@@ -335,17 +336,56 @@ fn count_above(p: &ProbeResult, frac: f64) -> usize {
         .count()
 }
 
+/// The unit direction (leaving the lens toward the screen) of the chief ray at field angle
+/// `deg` in air: (0, sin θ, −cos θ) when `vertical`, else (sin θ, 0, −cos θ).
+pub(crate) fn field_direction(deg: f64, vertical: bool) -> DVec3 {
+    let t = deg.to_radians();
+    if vertical {
+        DVec3::new(0.0, t.sin(), -t.cos())
+    } else {
+        DVec3::new(t.sin(), 0.0, -t.cos())
+    }
+}
+
+/// Centre and half size (mm) of the sensor crop in the image plane (+x right, +y up).
+fn crop_bounds_mm(cam: &Camera) -> (DVec2, DVec2) {
+    (
+        cam.offset_px * cam.pitch_mm,
+        DVec2::new(cam.width_px as f64, cam.height_px as f64) * (0.5 * cam.pitch_mm),
+    )
+}
+
+/// Field angles in air (degrees, [low, high]) of the chief rays along one axis
+/// ([`field_direction`]) that land inside the sensor crop, or `None` if that line of fields
+/// misses the crop altogether.
+pub(crate) fn crop_field_range_deg(cam: &Camera, vertical: bool) -> Option<[f64; 2]> {
+    let (centre, half) = crop_bounds_mm(cam);
+    let (along_c, along_h, across_c, across_h) = if vertical {
+        (centre.y, half.y, centre.x, half.x)
+    } else {
+        (centre.x, half.x, centre.y, half.y)
+    };
+    // The chief ray at angle θ meets the image plane at d0·tan θ along the axis, 0 across.
+    if across_c.abs() > across_h {
+        return None;
+    }
+    let d0 = cam.sensor_distance_mm;
+    Some([
+        ((along_c - along_h) / d0).atan().to_degrees(),
+        ((along_c + along_h) / d0).atan().to_degrees(),
+    ])
+}
+
 /// Why the chief ray at a field angle fails, or `None` if it reaches the display.
-fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option<&'static str> {
+pub(crate) fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option<&'static str> {
     let cam = &sys.camera;
     let wg = &sys.waveguide;
     if with_crop {
         let d0 = cam.sensor_distance_mm;
         let img = DVec2::new(dir.x, dir.y) * (d0 / -dir.z);
-        let half = DVec2::new(cam.width_px as f64, cam.height_px as f64) * (0.5 * cam.pitch_mm);
-        if (img.x - cam.offset_px.x * cam.pitch_mm).abs() > half.x
-            || (img.y - cam.offset_px.y * cam.pitch_mm).abs() > half.y
-        {
+        let (centre, half) = crop_bounds_mm(cam);
+        let off = (img - centre).abs();
+        if off.x > half.x || off.y > half.y {
             return Some("sensor crop");
         }
     }
@@ -372,14 +412,7 @@ fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option<&'static s
 
 fn scan_fov(sys: &System, vertical: bool, with_crop: bool) -> Fov {
     let step = 0.05f64;
-    let dir_of = |deg: f64| {
-        let t = deg.to_radians();
-        if vertical {
-            DVec3::new(0.0, t.sin(), -t.cos())
-        } else {
-            DVec3::new(t.sin(), 0.0, -t.cos())
-        }
-    };
+    let dir_of = |deg: f64| field_direction(deg, vertical);
     let edge = |sign: f64| -> FovEdge {
         let mut last_ok = f64::NAN;
         let mut k = 0;

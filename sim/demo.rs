@@ -82,13 +82,89 @@ pub struct DemoOutput {
     pub summary: serde_json::Value,
 }
 
-fn intensity_of_spec(spec: &str, gamma: f64) -> Result<(usize, usize, Vec<f64>), String> {
+/// A built-in target spec as (width, height, linear intensities in [0, 1]) under display
+/// gamma `gamma`.
+pub(crate) fn intensity_of_spec(
+    spec: &str,
+    gamma: f64,
+) -> Result<(usize, usize, Vec<f64>), String> {
     let t = crate::targets::builtin_target(spec)?;
     Ok((
         t.width,
         t.height,
         crate::display::Display::intensity_of(&t.values, 1, false, gamma),
     ))
+}
+
+/// Render settings of the demo's H and captures: lattice sampler, no spectral channels.
+pub(crate) fn render_settings(spp: u32, seed: u64, progress: bool) -> RenderSettings {
+    RenderSettings {
+        spp,
+        seed,
+        sampler: crate::sampler::SamplerKind::Lattice,
+        spectral_bins: None,
+        progress,
+    }
+}
+
+/// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
+/// `m` (physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
+/// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
+pub(crate) fn exposure_and_dark(
+    sys: &System,
+    m: &SystemMatrix,
+    seed: u64,
+) -> (SensorNoise, Vec<f64>) {
+    let (ow, oh) = m.object;
+    let white = m.capture_of(&vec![1.0; ow * oh]);
+    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
+    let noise = SensorNoise::new(&sys.scene.noise, white_peak);
+    let dark: Vec<f64> = m
+        .offset
+        .iter()
+        .enumerate()
+        .map(|(i, &o)| {
+            noise.measure(
+                f64::from(o),
+                &mut NoiseRng::new(&[seed, 0x4441_524B, i as u64]),
+            )
+        })
+        .collect();
+    (noise, dark)
+}
+
+/// The measured capture of the linear object `truth` (the object size of `sys`'s display):
+/// rendered by the Monte Carlo tracer at `set.spp` with the independent seed `set.seed + 1` (no
+/// inverse crime with an H computed at `set.seed`), measured by `noise` from the stream
+/// (`set.seed`, `index`). Returns (noisy frame, g = noisy frame − `dark`).
+pub(crate) fn measured_capture(
+    sys: &System,
+    truth: &[f64],
+    set: &DemoSettings,
+    noise: &SensorNoise,
+    dark: &[f64],
+    index: u64,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut s = sys.clone();
+    s.display.set_intensity(truth);
+    let cap = render(
+        &s,
+        &render_settings(set.spp, set.seed.wrapping_add(1), set.progress),
+    );
+    let noisy: Vec<f64> = cap
+        .channels
+        .iter()
+        .flat_map(|c| c.iter().map(|&v| f64::from(v)))
+        .enumerate()
+        .map(|(i, v)| {
+            noise.measure(
+                v,
+                &mut NoiseRng::new(&[set.seed, 0x4341_5054, index, i as u64]),
+            )
+        })
+        .collect();
+    let g: Vec<f64> = noisy.iter().zip(dark).map(|(a, d)| a - d).collect();
+    (noisy, g)
 }
 
 /// Runs the demo on `sys` (its display target fixes the object size, which must be square).
@@ -101,33 +177,13 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         ));
     }
     let gamma = sys.scene.display.gamma;
-    let rs = |seed: u64| RenderSettings {
-        spp: set.spp,
-        seed,
-        sampler: crate::sampler::SamplerKind::Lattice,
-        spectral_bins: None,
-        progress: set.progress,
-    };
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     // 1. H.
     let t0 = Instant::now();
-    let m: SystemMatrix = compute_matrix(sys, &rs(set.seed));
+    let m: SystemMatrix = compute_matrix(sys, &render_settings(set.spp, set.seed, set.progress));
     let matrix_s = t0.elapsed().as_secs_f64();
     let rows_per_channel = m.crop.0 * m.crop.1;
-    let white = m.capture_of(&vec![1.0; ow * oh]);
-    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
-    let noise = SensorNoise::new(&sys.scene.noise, white_peak);
-    let dark: Vec<f64> = m
-        .offset
-        .iter()
-        .enumerate()
-        .map(|(i, &o)| {
-            noise.measure(
-                f64::from(o),
-                &mut NoiseRng::new(&[set.seed, 0x4441_524B, i as u64]),
-            )
-        })
-        .collect();
+    let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
     // 2. Captures.
     let t0 = Instant::now();
     struct Shot {
@@ -142,25 +198,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     for (ti, (name, kind, spec)) in DEMO_TARGETS.iter().enumerate() {
         let spec = format!("{spec}@{ow}");
         let (_, _, truth) = intensity_of_spec(&spec, gamma)?;
-        let mut s = sys.clone();
-        s.display.set_intensity(&truth);
-        let cap = render(&s, &rs(set.seed.wrapping_add(1)));
-        let clean: Vec<f64> = cap
-            .channels
-            .iter()
-            .flat_map(|c| c.iter().map(|&v| f64::from(v)))
-            .collect();
-        let noisy: Vec<f64> = clean
-            .iter()
-            .enumerate()
-            .map(|(i, &v)| {
-                noise.measure(
-                    v,
-                    &mut NoiseRng::new(&[set.seed, 0x4341_5054, ti as u64, i as u64]),
-                )
-            })
-            .collect();
-        let g: Vec<f64> = noisy.iter().zip(&dark).map(|(a, d)| a - d).collect();
+        let (noisy, g) = measured_capture(sys, &truth, set, &noise, &dark, ti as u64);
         shots.push(Shot {
             name,
             kind,

@@ -67,6 +67,9 @@ pub struct Branch {
 pub struct TraceSummary {
     /// Plate contacts visited by the guided part.
     pub contacts: u32,
+    /// Front-face contacts of the guided part under the top vHOE after the out-coupling point
+    /// (each loses the top vHOE's out-coupled share, physics.md §5).
+    pub top_contacts: u32,
     /// Guided weight left when the path stopped on `min_weight` or `max_contacts` (max of TE,
     /// TM): an upper bound on each missing replica's weight.
     pub truncated_weight: f64,
@@ -277,6 +280,7 @@ pub fn trace_camera_path_until(
             }
         } else if wg.top.contains(p) {
             g = mul(g, cont_top);
+            summary.top_contacts += 1;
         } else {
             g = mul(g, r_face);
         }
