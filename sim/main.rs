@@ -188,6 +188,36 @@ enum Command {
     /// Generate a dataset from a recipe (datasets/*.toml), or merge shards
     /// (`stscam dataset merge SHARD_DIR... --out DIR`).
     Dataset(DatasetArgs),
+    /// Design sweep: FOV (and what limits it), scene field, replicas, pitch, light efficiency,
+    /// Bragg range and optionally the ADMM-TV PSNR over a grid of scene-key values:
+    /// DIR/sweep.{csv,json} and a PNG + SVG plot per quantity.
+    Sweep {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Varied key and its grid, e.g. `bottom_hoe.height_mm=10:80:15` (STEPS points from START
+        /// to STOP; repeatable: the Cartesian product, first axis slowest).
+        #[arg(long, value_name = "KEY=START:STOP:STEPS", required = true)]
+        vary: Vec<String>,
+        /// Output directory.
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+        /// FOV: field angles whose throughput is at least this fraction of the peak.
+        #[arg(long, default_value_t = stscam::sweep::DEFAULT_FOV_FRACTION)]
+        fov_fraction: f64,
+        /// Also compute the ADMM-TV PSNR of this built-in target (H, capture and noise as in
+        /// `demo`; seconds per grid point), e.g. `letter:A`.
+        #[arg(long, value_name = "TARGET")]
+        psnr: Option<String>,
+        /// Samples per pixel of H and the capture for --psnr.
+        #[arg(long, default_value_t = 64)]
+        psnr_spp: u32,
+        /// Print the rows as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -1121,6 +1151,93 @@ fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
+fn cmd_sweep(
+    scene: &SceneArgs,
+    vary: &[String],
+    out: &std::path::Path,
+    fov_fraction: f64,
+    psnr: Option<&str>,
+    psnr_spp: u32,
+    json: bool,
+    threads: Option<usize>,
+) -> Result<(), Failure> {
+    use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
+    let axes = vary
+        .iter()
+        .map(|v| VaryAxis::parse(v))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| bad_input(e.to_string()))?;
+    if psnr_spp == 0 {
+        return Err(bad_input("--psnr-spp: must be at least 1"));
+    }
+    if let Some(t) = psnr {
+        stscam::targets::builtin_target(t).map_err(|e| bad_input(format!("--psnr: {e}")))?;
+    }
+    check_out_dir(out)?;
+    let pool = thread_pool(threads)?;
+    let set = SweepSettings {
+        fov_fraction,
+        psnr: psnr.map(|t| PsnrSettings {
+            target: t.to_string(),
+            spp: psnr_spp,
+            ..PsnrSettings::default()
+        }),
+        progress: std::io::stderr().is_terminal(),
+        ..SweepSettings::default()
+    };
+    let t0 = Instant::now();
+    let res = pool
+        .install(|| run_sweep(scene.scene.as_deref(), &scene.set, &axes, &set))
+        .map_err(|e| bad_input(e.to_string()))?;
+    let refs: Vec<(&str, &[u8])> = res
+        .files
+        .iter()
+        .map(|(n, b)| (n.as_str(), b.as_slice()))
+        .collect();
+    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    if json {
+        println!("{}", to_json(&res.rows)?);
+    } else {
+        for r in &res.rows {
+            let f = &r.figures;
+            let key: Vec<String> = r
+                .varied
+                .iter()
+                .map(|v| format!("{}={}", v.key, v.value))
+                .collect();
+            println!(
+                "{}: FOV {:.2}° x {:.2}° (V x H), scene field {:.1} mm ({:.2}°) vertically, replicas {} (>= 5 %) / {}, pitch {:.3} mm, efficiency {:.4} (crop mean), Bragg {:.1}-{:.1} nm{}",
+                key.join(" "),
+                f.fov_vertical.full_deg,
+                f.fov_horizontal.full_deg,
+                f.scene_field_vertical.extent_mm,
+                f.scene_field_vertical.full_deg,
+                f.replicas_above_5pct,
+                f.replicas_total,
+                f.replica_pitch_mm,
+                f.efficiency_crop_mean,
+                f.bragg_min_nm,
+                f.bragg_max_nm,
+                f.psnr_db
+                    .map_or(String::new(), |p| format!(", PSNR {p:.2} dB"))
+            );
+        }
+    }
+    let mut secs = res.point_seconds.clone();
+    secs.sort_by(f64::total_cmp);
+    eprintln!(
+        "wrote {} ({} grid points, {} files) in {:.1} s; median {:.2} s per point ({} threads)",
+        out.display(),
+        res.rows.len(),
+        res.files.len(),
+        t0.elapsed().as_secs_f64(),
+        secs.get(secs.len() / 2).copied().unwrap_or(f64::NAN),
+        pool.current_num_threads()
+    );
+    Ok(())
+}
+
 /// Peak resident memory of this process so far (VmHWM), MiB, where the OS reports it.
 fn peak_rss_mib() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -1851,6 +1968,25 @@ fn main() -> ExitCode {
         ),
         Command::Demo { scene, out, run } => cmd_demo(scene, out, run),
         Command::Dataset(args) => cmd_dataset(args),
+        Command::Sweep {
+            scene,
+            vary,
+            out,
+            fov_fraction,
+            psnr,
+            psnr_spp,
+            json,
+            threads,
+        } => cmd_sweep(
+            scene,
+            vary,
+            out,
+            *fov_fraction,
+            psnr.as_deref(),
+            *psnr_spp,
+            *json,
+            *threads,
+        ),
         Command::Bench { which } => match which {
             BenchCommand::Recon {
                 scene,

@@ -43,6 +43,14 @@
 //!   "Bragg/Kogelnik efficiency falloff". Note that T varies strongly across the field in the
 //!   paper's scene (white-LED spectrum and the top-vHOE re-coupling steps), so the FOV depends
 //!   on `fov_fraction` much more than a geometric FOV would.
+//!   The default fraction is 0.1 ([`DEFAULT_FOV_FRACTION`]): at 0.5 the paper's FOV would be an
+//!   off-axis 6° window set by the spectrum and the re-coupling steps, not by an aperture.
+//! - **Scene field** (what the user sees as the camera's field, and what a taller bottom vHOE
+//!   widens): the chief rays of the capture FOV along one axis, traced at their Bragg
+//!   wavelengths; the object points (display plane) of their replicas carrying ≥ 5 % of each
+//!   ray's strongest; their extent (mm, from the bottom vHOE's centre) and the full angle it
+//!   subtends at the bottom vHOE's centre. Each strong replica adds one pitch 2w·tanΘ' of scene
+//!   below the first: more field, and more overlapping copies to unmix — the paper's dilemma.
 //! - **Capture FOV**: the throughput FOV intersected with the field angles whose chief rays land
 //!   inside the sensor crop; "sensor crop" names the edges the crop sets.
 //! - **Replicas** (from `analysis::info`, chief ray of the crop's centre pixel at its Bragg
@@ -99,6 +107,11 @@ pub const BOTTOM_CONTACT_LIMITER: &str = "bottom vHOE (fewer strong contacts)";
 pub const CROP_LIMITER: &str = "sensor crop";
 /// Limiter named when the response stays above the threshold up to the end of the scan.
 pub const SCAN_LIMITER: &str = "end of the angle scan";
+/// Default throughput fraction of the FOV. T varies by more than 2× across the paper's field
+/// for reasons other than its edges (the white-LED spectrum times the sensor response at each
+/// field's Bragg colour; the top vHOE re-coupling steps), so a half-maximum FOV would be an
+/// off-axis 6° window; at 10 % the FOV is within 1.5° of the geometric one.
+pub const DEFAULT_FOV_FRACTION: f64 = 0.1;
 /// Fraction of the strongest replica above which a replica counts (as `analysis::info`).
 pub const REPLICA_FRACTION: f64 = 0.05;
 /// Largest number of grid points per axis.
@@ -300,7 +313,7 @@ impl Default for PsnrSettings {
 /// Settings of a sweep.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SweepSettings {
-    /// The FOV is where T ≥ this fraction of its maximum (default 0.5).
+    /// The FOV is where T ≥ this fraction of its maximum (default [`DEFAULT_FOV_FRACTION`]).
     pub fov_fraction: f64,
     /// Compute the PSNR figure (`None` = skip).
     pub psnr: Option<PsnrSettings>,
@@ -313,7 +326,7 @@ pub struct SweepSettings {
 impl Default for SweepSettings {
     fn default() -> Self {
         SweepSettings {
-            fov_fraction: 0.5,
+            fov_fraction: DEFAULT_FOV_FRACTION,
             psnr: None,
             progress: false,
             grid: ResponseGrid::default(),
@@ -345,6 +358,10 @@ pub struct DesignFigures {
     pub geometric_fov_vertical_deg: f64,
     /// Geometric horizontal FOV of the waveguide (`analysis::info`), degrees.
     pub geometric_fov_horizontal_deg: f64,
+    /// Part of the display plane the capture sees through its strong replicas, vertically.
+    pub scene_field_vertical: SceneField,
+    /// The same horizontally.
+    pub scene_field_horizontal: SceneField,
     /// Replicas of the centre field carrying ≥ 5 % of the strongest.
     pub replicas_above_5pct: usize,
     /// All replicas (bottom-vHOE contacts) of the centre field.
@@ -366,6 +383,70 @@ pub struct DesignFigures {
     /// ADMM-TV PSNR of the target, dB (when computed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psnr_db: Option<f64>,
+}
+
+/// The part of the display (object) plane that the capture sees through its strong replicas,
+/// along one axis (module header: "scene field").
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneField {
+    /// Lowest (bottom or left) object coordinate seen, mm from the bottom vHOE's centre.
+    pub min_mm: f64,
+    /// Highest (top or right) object coordinate seen, mm.
+    pub max_mm: f64,
+    /// max − min, mm.
+    pub extent_mm: f64,
+    /// Full angle it subtends at the bottom vHOE's centre, degrees.
+    pub full_deg: f64,
+}
+
+/// The scene field along one axis: the chief rays of the capture FOV `capture` along that axis
+/// (`step_deg` apart) traced at their Bragg wavelengths, and the object points of their
+/// replicas carrying at least [`REPLICA_FRACTION`] of each ray's strongest.
+fn scene_field(sys: &System, vertical: bool, capture: &Fov, step_deg: f64) -> SceneField {
+    let nan = SceneField {
+        min_mm: f64::NAN,
+        max_mm: f64::NAN,
+        extent_mm: f64::NAN,
+        full_deg: f64::NAN,
+    };
+    let (lo, hi) = (capture.min.angle_deg, capture.max.angle_deg);
+    if !(lo.is_finite() && hi.is_finite() && hi >= lo) {
+        return nan;
+    }
+    let n = (((hi - lo) / step_deg).ceil() as usize).max(1);
+    let axis = usize::from(vertical);
+    let spans: Vec<(f64, f64)> = (0..=n)
+        .into_par_iter()
+        .filter_map(|k| {
+            let a = lo + (hi - lo) * k as f64 / n as f64;
+            let p = analysis::probe_direction(
+                sys,
+                sys.camera.lens_center_mm,
+                field_direction(a, vertical),
+                [0, 0],
+            )?;
+            let strongest = p.replicas.iter().map(|r| r.weight).fold(0.0, f64::max);
+            p.replicas
+                .iter()
+                .filter(|r| strongest > 0.0 && r.weight >= REPLICA_FRACTION * strongest)
+                .map(|r| r.object_point_mm[axis])
+                .fold(None, |acc: Option<(f64, f64)>, y| {
+                    Some(acc.map_or((y, y), |(a, b)| (a.min(y), b.max(y))))
+                })
+        })
+        .collect();
+    if spans.is_empty() {
+        return nan;
+    }
+    let min_mm = spans.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
+    let max_mm = spans.iter().map(|s| s.1).fold(f64::NEG_INFINITY, f64::max);
+    let d = -sys.display.z_mm;
+    SceneField {
+        min_mm,
+        max_mm,
+        extent_mm: max_mm - min_mm,
+        full_deg: ((max_mm / d).atan() - (min_mm / d).atan()).to_degrees(),
+    }
 }
 
 /// One grid point: the varied values and the figures.
@@ -741,9 +822,13 @@ pub fn design_figures(sys: &System, set: &SweepSettings) -> DesignFigures {
     let info = analysis::info(sys);
     let centre = info.field.iter().find(|f| f.name == "centre");
     let mid = va.len() / 2;
+    let cap_v = capture_fov(&fov_v, crop_field_range_deg(&sys.camera, true));
+    let cap_h = capture_fov(&fov_h, crop_field_range_deg(&sys.camera, false));
     DesignFigures {
-        fov_vertical_capture: capture_fov(&fov_v, crop_field_range_deg(&sys.camera, true)),
-        fov_horizontal_capture: capture_fov(&fov_h, crop_field_range_deg(&sys.camera, false)),
+        scene_field_vertical: scene_field(sys, true, &cap_v, grid.angle_step_deg),
+        scene_field_horizontal: scene_field(sys, false, &cap_h, grid.angle_step_deg),
+        fov_vertical_capture: cap_v,
+        fov_horizontal_capture: cap_h,
         fov_vertical: fov_v,
         fov_horizontal: fov_h,
         geometric_fov_vertical_deg: info.fov_vertical_waveguide.full_deg,
@@ -949,6 +1034,10 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
         "the FOV intersected with the field angles whose chief rays land inside the sensor crop ('sensor crop' where the crop binds)",
     ),
     (
+        "scene_field",
+        "the part of the display plane the capture sees: chief rays of the capture FOV along the axis (angle_step_deg apart) traced at their Bragg wavelengths; object points of the replicas carrying >= 5 % of each ray's strongest; min_mm/max_mm from the bottom vHOE centre, extent_mm, and full_deg = the angle the extent subtends at the bottom vHOE centre at the display distance. Taller bottom vHOEs add replicas, which widen it: the paper's dilemma",
+    ),
+    (
         "geometric_fov",
         "full FOV of the waveguide from `stscam info` (chief rays at their Bragg wavelength, 0.05 deg steps, no throughput threshold)",
     ),
@@ -1062,7 +1151,19 @@ fn csv_columns(axes: &[VaryAxis], with_psnr: bool) -> Vec<Column> {
             Box::new(move |r| csv_text(&get(&r.figures).max.limited_by)),
         ));
     }
-    let nums: [(&str, Figure); 10] = [
+    let nums: [(&str, Figure); 14] = [
+        ("scene_field_vertical_mm", |f| {
+            f.scene_field_vertical.extent_mm
+        }),
+        ("scene_field_vertical_deg", |f| {
+            f.scene_field_vertical.full_deg
+        }),
+        ("scene_field_horizontal_mm", |f| {
+            f.scene_field_horizontal.extent_mm
+        }),
+        ("scene_field_horizontal_deg", |f| {
+            f.scene_field_horizontal.full_deg
+        }),
         ("geometric_fov_vertical_deg", |f| {
             f.geometric_fov_vertical_deg
         }),
@@ -1139,6 +1240,15 @@ fn quantities(with_psnr: bool) -> Vec<Quantity> {
             parts: vec![
                 ("vertical", |f| f.fov_vertical_capture.full_deg),
                 ("horizontal", |f| f.fov_horizontal_capture.full_deg),
+            ],
+        },
+        Quantity {
+            stem: "scene_field",
+            title: "Scene field: display region seen through strong replicas",
+            y_label: "full angle at the plate (deg)",
+            parts: vec![
+                ("vertical", |f| f.scene_field_vertical.full_deg),
+                ("horizontal", |f| f.scene_field_horizontal.full_deg),
             ],
         },
         Quantity {
@@ -1265,7 +1375,10 @@ fn encode_outputs(
         serde_json::to_vec_pretty(&json).map_err(|e| SweepError::Output(e.to_string()))?,
     ));
     for q in quantities(with_psnr) {
-        let plot = quantity_plot(axes, rows, &q);
+        let mut plot = quantity_plot(axes, rows, &q);
+        if q.stem.starts_with("fov") {
+            let _ = write!(plot.title, " (T >= {} of peak)", set.fov_fraction);
+        }
         files.push((
             format!("{}.png", q.stem),
             plot.to_png().map_err(SweepError::Output)?,

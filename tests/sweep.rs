@@ -176,12 +176,12 @@ fn throughput_fov_matches_the_geometric_fov_at_the_top_vhoe_aperture() {
     assert!((cap.full_deg - 19.76).abs() < 0.05, "{cap:?}");
 }
 
-/// The paper's dilemma: a taller bottom vHOE widens the FOV and adds replicas. With the paper's
-/// white-LED spectrum, at half the maximum the vertical FOV is set by the spectrum and by the
-/// top vHOE's re-coupling step once the bottom vHOE is taller than about 8 mm, so the growth is
-/// checked at 10 % of the maximum over 4–12 mm, and at the default threshold over 2–8 mm: the
-/// ranges where the bottom vHOE binds. (Beyond them the relative threshold rises with the
-/// peak field's extra replicas, and the FOV need not grow monotonically.)
+/// The paper's dilemma: a taller bottom vHOE widens the FOV and the scene field and adds
+/// replicas. Checked at 10 % of the maximum (the default) over 4–12 mm and at half the maximum
+/// over 2–8 mm: the ranges where the bottom vHOE binds. (At half the maximum the vertical FOV
+/// is set by the white-LED spectrum and by the top vHOE's re-coupling step once the bottom vHOE
+/// is taller than about 8 mm; beyond 12 mm the relative threshold rises with the peak field's
+/// extra replicas, and the FOV need not grow monotonically.)
 #[test]
 fn fov_and_replicas_grow_with_the_bottom_vhoe_height() {
     let set = SweepSettings {
@@ -222,6 +222,26 @@ fn fov_and_replicas_grow_with_the_bottom_vhoe_height() {
         "{reps:?} {strong:?}"
     );
     assert!(geo[2] > geo[0], "geometric FOV {geo:?}");
+    // The scene field (display region seen through strong replicas) widens too, and is at least
+    // the capture FOV's direct view at the display distance (550 mm).
+    let scene: Vec<f64> = out
+        .rows
+        .iter()
+        .map(|r| r.figures.scene_field_vertical.extent_mm)
+        .collect();
+    for w in scene.windows(2) {
+        assert!(w[1] > w[0], "scene field {scene:?}");
+    }
+    for r in &out.rows {
+        let c = &r.figures.fov_vertical_capture;
+        let direct =
+            550.0 * (c.max.angle_deg.to_radians().tan() - c.min.angle_deg.to_radians().tan());
+        let e = r.figures.scene_field_vertical.extent_mm;
+        assert!(
+            e >= direct - 1.0 && e < direct + 8.0 * 6.8,
+            "{e} vs {direct}"
+        );
+    }
     // 4 mm: the bottom vHOE is what stops the field on both sides.
     let first = &out.rows[0].figures.fov_vertical;
     assert!(
@@ -234,12 +254,15 @@ fn fov_and_replicas_grow_with_the_bottom_vhoe_height() {
     assert!((p0 - 6.785).abs() < 0.01, "{p0}");
     assert!(out.rows.iter().all(|r| r.figures.replica_pitch_mm == p0));
 
-    // Default threshold, bottom vHOE 2–8 mm: still limited by the bottom vHOE, still growing.
+    // Half the maximum, bottom vHOE 2–8 mm: still limited by the bottom vHOE, still growing.
     let out = run_sweep(
         None,
         &[],
         &[axis("bottom_hoe.height_mm=2:8:4")],
-        &SweepSettings::default(),
+        &SweepSettings {
+            fov_fraction: 0.5,
+            ..Default::default()
+        },
     )
     .expect("sweep");
     let fov: Vec<f64> = out
@@ -387,6 +410,7 @@ fn outputs_are_identical_for_one_and_two_threads() {
     for stem in [
         "fov",
         "fov_capture",
+        "scene_field",
         "replicas",
         "replica_pitch_mm",
         "replica_pitch_px",
@@ -397,7 +421,7 @@ fn outputs_are_identical_for_one_and_two_threads() {
         assert!(names.contains(&format!("{stem}.svg").as_str()), "{names:?}");
         assert_eq!(&file(&one.files, &format!("{stem}.png"))[1..4], b"PNG");
     }
-    assert_eq!(names.len(), 2 + 2 * 7, "{names:?}");
+    assert_eq!(names.len(), 2 + 2 * 8, "{names:?}");
     // Grid order: first axis slowest.
     let pts: Vec<(f64, f64)> = one
         .rows
@@ -439,7 +463,7 @@ fn outputs_are_identical_for_one_and_two_threads() {
     let json: serde_json::Value =
         serde_json::from_slice(file(&one.files, "sweep.json")).expect("json");
     assert_eq!(json["stscam_version"], stscam::VERSION);
-    assert_eq!(json["settings"]["fov_fraction"], 0.5);
+    assert_eq!(json["settings"]["fov_fraction"], 0.1);
     assert!(json["definitions"]["field_response"].as_str().is_some());
     assert_eq!(json["rows"].as_array().map(Vec::len), Some(4));
     assert_eq!(json["rows"][2]["varied"][0]["value"], 50.0);
@@ -505,4 +529,31 @@ fn psnr_follows_the_demo_protocol() {
     assert!(out.files.iter().any(|f| f.0 == "psnr.png"));
     let csv = String::from_utf8(file(&out.files, "sweep.csv").to_vec()).expect("utf-8");
     assert!(csv.lines().next().is_some_and(|h| h.ends_with(",psnr_db")));
+}
+
+#[test]
+fn cli_refuses_bad_axes_and_values_with_one_line_and_writes_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("sweep");
+    for (vary, expect) in [
+        ("plate.thickness_mm=-1:1:3", "plate.thickness_mm"),
+        ("bottom_hoe.height_mm", "KEY=START:STOP:STEPS"),
+        ("no.such_key=1:2:2", "no.such_key"),
+    ] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
+            .args([
+                "sweep",
+                "--vary",
+                vary,
+                "--out",
+                out.to_str().expect("utf-8"),
+            ])
+            .output()
+            .expect("run stscam");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{vary}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(err.contains(expect), "{err}");
+        assert!(!out.exists());
+    }
 }
