@@ -232,7 +232,12 @@ impl VaryAxis {
             .map(|i| match i {
                 0 => self.start,
                 i if i == last => self.stop,
-                i => self.start + (self.stop - self.start) * i as f64 / last as f64,
+                // Interior points are rounded to 12 significant digits, so that a grid such
+                // as 0.01:0.03:3 gives 0.02 rather than 0.019999999999999997.
+                i => {
+                    let v = self.start + (self.stop - self.start) * i as f64 / last as f64;
+                    format!("{v:.11e}").parse().unwrap_or(v)
+                }
             })
             .collect()
     }

@@ -46,7 +46,9 @@ fn vary_axis_parses_good_specs_with_exact_ends() {
     let b = axis(" hoe.index_modulation = 0.005 : 0.03 : 7 ");
     let v = b.values();
     assert_eq!((v[0], v[6]), (0.005, 0.03));
-    assert!((v[1] - (0.005 + 0.025 / 6.0)).abs() < 1e-15);
+    assert!((v[1] - (0.005 + 0.025 / 6.0)).abs() < 1e-14);
+    // Interior points are rounded to 12 significant digits.
+    assert_eq!(axis("k=0.01:0.03:3").values(), vec![0.01, 0.02, 0.03]);
     // Descending and negative ranges, and a single point.
     assert_eq!(axis("k=1:-1:3").values(), vec![1.0, 0.0, -1.0]);
     assert_eq!(axis("k=2.5:2.5:1").values(), vec![2.5]);
