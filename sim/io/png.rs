@@ -40,6 +40,9 @@ pub fn encode_png16(
     let mut encoder = Encoder::new(&mut out, w, h);
     encoder.set_color(color);
     encoder.set_depth(BitDepth::Sixteen);
+    // fdeflate: several times faster than the default level (datasets write a 440×440 capture
+    // PNG per sample) for files about 10–20 % larger.
+    encoder.set_compression(png::Compression::Fast);
     let mut writer = encoder
         .write_header()
         .map_err(|e| format!("cannot encode PNG: {e}"))?;
