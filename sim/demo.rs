@@ -96,17 +96,6 @@ pub(crate) fn intensity_of_spec(
     ))
 }
 
-/// Render settings of the demo's H and captures: lattice sampler, no spectral channels.
-pub(crate) fn render_settings(spp: u32, seed: u64, progress: bool) -> RenderSettings {
-    RenderSettings {
-        spp,
-        seed,
-        sampler: crate::sampler::SamplerKind::Lattice,
-        spectral_bins: None,
-        progress,
-    }
-}
-
 /// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
 /// `m` (physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
@@ -149,7 +138,7 @@ pub(crate) fn measured_capture(
     s.display.set_intensity(truth);
     let cap = render(
         &s,
-        &render_settings(set.spp, set.seed.wrapping_add(1), set.progress),
+        &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
     );
     let noisy: Vec<f64> = cap
         .channels
@@ -180,7 +169,10 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     // 1. H.
     let t0 = Instant::now();
-    let m: SystemMatrix = compute_matrix(sys, &render_settings(set.spp, set.seed, set.progress));
+    let m: SystemMatrix = compute_matrix(
+        sys,
+        &RenderSettings::lattice(set.spp, set.seed, set.progress),
+    );
     let matrix_s = t0.elapsed().as_secs_f64();
     let rows_per_channel = m.crop.0 * m.crop.1;
     let (noise, dark) = exposure_and_dark(sys, &m, set.seed);

@@ -560,6 +560,15 @@ fn check_out_dir(out: &std::path::Path) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Writes named in-memory files into `out` as one unit (all or nothing).
+fn write_files(out: &std::path::Path, files: &[(String, Vec<u8>)]) -> Result<(), Failure> {
+    let refs: Vec<(&str, &[u8])> = files
+        .iter()
+        .map(|(n, b)| (n.as_str(), b.as_slice()))
+        .collect();
+    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)
+}
+
 fn write_failure(e: impl std::fmt::Display) -> Failure {
     Failure {
         code: 1,
@@ -1071,12 +1080,7 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
     let res = pool
         .install(|| stscam::demo::run_demo(&sys, &set))
         .map_err(bad_input)?;
-    let refs: Vec<(&str, &[u8])> = res
-        .files
-        .iter()
-        .map(|(n, b)| (n.as_str(), b.as_slice()))
-        .collect();
-    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    write_files(out, &res.files)?;
     println!("{}", stscam::demo::table_markdown(&res.rows));
     let t = &res.summary["timings_s"];
     eprintln!(
@@ -1190,12 +1194,7 @@ fn cmd_sweep(
     let res = pool
         .install(|| run_sweep(scene.scene.as_deref(), &scene.set, &axes, &set))
         .map_err(|e| bad_input(e.to_string()))?;
-    let refs: Vec<(&str, &[u8])> = res
-        .files
-        .iter()
-        .map(|(n, b)| (n.as_str(), b.as_slice()))
-        .collect();
-    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    write_files(out, &res.files)?;
     if json {
         println!("{}", to_json(&res.rows)?);
     } else {
@@ -1719,11 +1718,7 @@ fn cmd_validate_analytic(
         files.push((format!("{name}.svg"), p.to_svg().into_bytes()));
         files.push((format!("{name}.png"), p.to_png().map_err(write_failure)?));
     }
-    let refs: Vec<(&str, &[u8])> = files
-        .iter()
-        .map(|(n, b)| (n.as_str(), b.as_slice()))
-        .collect();
-    stscam::io::write_all_atomic(out, &refs).map_err(write_failure)?;
+    write_files(out, &files)?;
     println!("{}", report.to_markdown());
     if !report.pass {
         return Err(Failure {

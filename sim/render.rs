@@ -56,6 +56,20 @@ pub struct RenderSettings {
     pub progress: bool,
 }
 
+impl RenderSettings {
+    /// The default sequence (lattice), no spectral output: what `matrix`, `demo`, datasets and
+    /// sweeps use.
+    pub fn lattice(spp: u32, seed: u64, progress: bool) -> RenderSettings {
+        RenderSettings {
+            spp,
+            seed,
+            sampler: crate::sampler::SamplerKind::Lattice,
+            spectral_bins: None,
+            progress,
+        }
+    }
+}
+
 /// Counters gathered over a render (summed in row order).
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct RenderStats {

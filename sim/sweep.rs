@@ -890,8 +890,10 @@ pub fn psnr_figure(sys: &System, p: &PsnrSettings, progress: bool) -> Result<f64
     let truth = psnr_target(sys, p)?;
     let (ow, oh) = (sys.display.width_px, sys.display.height_px);
     let set = psnr_demo_settings(p, progress);
-    let m =
-        crate::matrix::compute_matrix(sys, &crate::demo::render_settings(p.spp, p.seed, progress));
+    let m = crate::matrix::compute_matrix(
+        sys,
+        &crate::render::RenderSettings::lattice(p.spp, p.seed, progress),
+    );
     let (noise, dark) = crate::demo::exposure_and_dark(sys, &m, p.seed);
     let (_, g) = crate::demo::measured_capture(sys, &truth, &set, &noise, &dark, 0);
     let problem = crate::recon::Problem::new(&m.h, ow, oh);

@@ -699,7 +699,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             if plan.has_matrix {
                 let m: SystemMatrix = compute_matrix(
                     &sys,
-                    &render_settings(recipe.spp, plan.scene_seed(k), opts.progress),
+                    &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
                 );
                 let sidecar = serde_json::json!({
                     "object_px": [object.0, object.1],
@@ -899,21 +899,11 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     })
 }
 
-fn render_settings(spp: u32, seed: u64, progress: bool) -> RenderSettings {
-    RenderSettings {
-        spp,
-        seed,
-        sampler: crate::sampler::SamplerKind::Lattice,
-        spectral_bins: None,
-        progress,
-    }
-}
-
 /// The capture of object `f` (linear intensities) rendered by the tracer, channel-major.
 fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64) -> Vec<f64> {
     let mut s = sys.clone();
     s.display.set_intensity(f);
-    let cap = render(&s, &render_settings(spp, seed, false));
+    let cap = render(&s, &RenderSettings::lattice(spp, seed, false));
     cap.channels
         .iter()
         .flatten()
