@@ -271,7 +271,7 @@ struct DatasetArgs {
     /// Recipe (TOML).
     #[arg(required = true)]
     recipe: Option<PathBuf>,
-    /// Output directory (default: out/datasets/NAME, or out/datasets/NAME-shard-I-of-N).
+    /// Output directory (default: out/datasets/NAME, or out/datasets/NAME-shard-III-of-NNN).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Make only shard I of N (0-based). Default: from SLURM_ARRAY_TASK_ID/_COUNT/_MIN, or
