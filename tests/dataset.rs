@@ -467,6 +467,14 @@ fn bad_recipes_are_refused_with_one_line_and_nothing_written() {
         "no .png, .jpg or .jpeg files",
     );
     refused(
+        &format!("{good}\n[[objects.sources]]\ngenerator = \"images\"\nfolder = \"bad\"\n"),
+        |d| {
+            std::fs::create_dir(d.join("bad")).unwrap();
+            std::fs::write(d.join("bad/photo.jpg"), b"this is not a JPEG").unwrap();
+        },
+        "photo.jpg",
+    );
+    refused(
         &format!("{good}\n[[objects.sources]]\ngenerator = \"images\"\nfolder = \"missing\"\n"),
         |_| {},
         "is not a folder",

@@ -235,6 +235,12 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
                     format!("no .png, .jpg or .jpeg files in {}", dir.display()),
                 ));
             }
+            // Every header is read now, so that a file that is not an image stops the run
+            // before anything is written (pixel data is decoded when a sample draws it).
+            files
+                .par_iter()
+                .try_for_each(|(p, _)| crate::io::image_load::probe_image(p).map(|_| ()))
+                .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
             images.push(files);
         } else {
             images.push(Vec::new());

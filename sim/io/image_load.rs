@@ -127,6 +127,57 @@ fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     })
 }
 
+/// Reads only the header of a PNG or JPEG file and returns its (width, height): a cheap check
+/// that a file [`load_image`] will be asked for later is an image of a supported kind (the
+/// pixel data is not decoded).
+pub fn probe_image(path: &Path) -> Result<(usize, usize), IoError> {
+    use std::io::BufReader;
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let size = match ext.as_deref() {
+        Some("png") => {
+            let reader = Decoder::new(BufReader::new(file))
+                .read_info()
+                .map_err(|e| IoError::format(path, format!("not a readable PNG file ({e})")))?;
+            (reader.info().width as usize, reader.info().height as usize)
+        }
+        Some("jpg" | "jpeg") => {
+            let probed = std::panic::catch_unwind(move || {
+                let mut d = zune_jpeg::JpegDecoder::new(BufReader::new(file));
+                d.decode_headers().map_err(|e| format!("{e:?}"))?;
+                let info = d.info().ok_or("no image header")?;
+                Ok::<_, String>((usize::from(info.width), usize::from(info.height)))
+            });
+            match probed {
+                Ok(Ok(v)) => v,
+                Ok(Err(e)) => {
+                    return Err(IoError::format(
+                        path,
+                        format!("not a readable JPEG file ({e})"),
+                    ));
+                }
+                Err(_) => {
+                    return Err(IoError::format(
+                        path,
+                        "not a readable JPEG file (decoder failure)",
+                    ));
+                }
+            }
+        }
+        _ => return Err(IoError::format(path, "not a .png, .jpg or .jpeg file")),
+    };
+    if size.0 == 0 || size.1 == 0 || size.0.saturating_mul(size.1) > MAX_PIXELS {
+        return Err(IoError::format(
+            path,
+            format!("image size {}x{} is empty or too large", size.0, size.1),
+        ));
+    }
+    Ok(size)
+}
+
 /// True if `path` has an extension [`load_image`] reads as display code values (PNG, JPEG).
 pub fn is_code_value_image(path: &Path) -> bool {
     path.extension()
