@@ -681,10 +681,17 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let object = (recipe.objects.size_px, recipe.objects.size_px);
     let mut crop = (0, 0);
     let mut channel_names: Vec<String> = Vec::new();
+    let systems: BTreeMap<usize, System> = used
+        .iter()
+        .map(|&k| {
+            System::build(&plan.scenes[k].loaded)
+                .map(|s| (k, s))
+                .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))
+        })
+        .collect::<Result<_, _>>()?;
     for &k in &used {
         let ps = &plan.scenes[k];
-        let sys = System::build(&ps.loaded)
-            .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))?;
+        let sys = &systems[&k];
         crop = (sys.camera.width_px, sys.camera.height_px);
         channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
         let dir = root.join(&ps.id);
@@ -704,7 +711,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 .map_err(|e| out_err(&dir, e.to_string()))?;
             if plan.has_matrix {
                 let m: SystemMatrix = compute_matrix(
-                    &sys,
+                    sys,
                     &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
                 );
                 let sidecar = serde_json::json!({
@@ -738,8 +745,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         }
     }
     // Exposure from the reference scene's all-white capture.
-    let ref_sys = System::build(&plan.scenes[0].loaded)
-        .map_err(|e| recipe_err(&plan.recipe_path, "scene", e.to_string()))?;
+    let ref_sys = &systems[&0];
     let white_peak = if let Some(m) = matrices.get(&0) {
         let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
         g.iter()
@@ -749,7 +755,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     } else {
         let white = vec![1.0; object.0 * object.1];
         let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
-        render_object(&ref_sys, &white, recipe.spp, seed)
+        render_object(ref_sys, &white, recipe.spp, seed)
             .into_iter()
             .fold(0.0f64, f64::max)
     };
@@ -823,14 +829,6 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     };
     match recipe.mode {
         CaptureMode::Matrix => {
-            let systems: BTreeMap<usize, System> = used
-                .iter()
-                .map(|&k| {
-                    System::build(&plan.scenes[k].loaded)
-                        .map(|s| (k, s))
-                        .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))
-                })
-                .collect::<Result<_, _>>()?;
             todo.par_iter()
                 .try_for_each(|s| one(s, &systems[&s.scene]))?;
         }
