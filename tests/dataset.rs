@@ -285,12 +285,26 @@ fn read_npy(p: &Path) -> (Vec<usize>, Vec<f32>) {
 
 #[test]
 fn noiseless_captures_are_h_times_the_object_plus_offset() {
+    noiseless_case(None);
+}
+
+/// A colour sensor: captures are [3, h, w], channel-major like H's rows, and the PNG is RGB.
+#[test]
+fn noiseless_colour_captures_are_h_times_the_object_plus_offset() {
+    noiseless_case(Some("sensor.response=rgb-bayer"));
+}
+
+fn noiseless_case(sensor: Option<&str>) {
     let dir = tempfile::tempdir().unwrap();
-    let r = write(
-        dir.path(),
-        "r.toml",
-        &recipe("clean", 12, "matrix", "none", ""),
-    );
+    let mut text = recipe("clean", 12, "matrix", "none", "");
+    if let Some(s) = sensor {
+        text = text.replace(
+            "\"sensor.pitch_um=44.0\"",
+            &format!("\"sensor.pitch_um=44.0\", \"{s}\""),
+        );
+    }
+    let channels = if sensor.is_some() { 3 } else { 1 };
+    let r = write(dir.path(), "r.toml", &text);
     let out = dir.path().join("ds");
     ok(&[
         "dataset",
@@ -300,6 +314,9 @@ fn noiseless_captures_are_h_times_the_object_plus_offset() {
     ]);
     let m = stscam::matrix::load_matrix(&out.join("scene_000/H.npz"), None, None).unwrap();
     let offset = m.offset.unwrap();
+    let card: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("dataset.json")).unwrap()).unwrap();
+    let full_scale = card["exposure"]["capture_full_scale"].as_f64().unwrap();
     let meta = std::fs::read_to_string(out.join("train/metadata.jsonl")).unwrap();
     let mut n = 0;
     for line in meta.lines() {
@@ -307,7 +324,25 @@ fn noiseless_captures_are_h_times_the_object_plus_offset() {
         let (os, obj) = read_npy(&out.join("train").join(v["object_npy"].as_str().unwrap()));
         let (cs, cap) = read_npy(&out.join("train").join(v["capture_npy"].as_str().unwrap()));
         assert_eq!(os, vec![16, 16]);
-        assert_eq!(cs, vec![48, 48]);
+        if channels == 1 {
+            assert_eq!(cs, vec![48, 48]);
+        } else {
+            assert_eq!(cs, vec![3, 48, 48]);
+            assert_eq!(m.h.rows, 3 * 48 * 48);
+        }
+        // The capture PNG is the stated quantisation of the .npy (pixel-major, RGB interleaved).
+        let png = stscam::io::load_image(&out.join("train").join(v["file_name"].as_str().unwrap()))
+            .unwrap();
+        assert_eq!((png.width, png.height, png.channels), (48, 48, channels));
+        let p = 48 * 48;
+        for (i, &q) in png.values.iter().enumerate() {
+            let (px, c) = (i / channels, i % channels);
+            let want = (f64::from(cap[c * p + px]) / full_scale).clamp(0.0, 1.0);
+            assert!(
+                (f64::from(q) - want).abs() <= 0.6 / 65535.0 + 1e-7,
+                "{q} vs {want}"
+            );
+        }
         let f: Vec<f64> = obj.iter().map(|&x| f64::from(x)).collect();
         let g = m.h.mul_vec(&f);
         let peak = g.iter().cloned().fold(0.0, f64::max);

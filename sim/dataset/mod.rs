@@ -1101,7 +1101,7 @@ fn build_card(
     .collect();
     let loading: BTreeMap<String, String> = [
         ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),
-        ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG, 'object' the object PNG (datasets 5.2, the version CI tests, reads *_file_name columns as images; older versions give the file name), the rest from metadata.jsonl; the split 'val' is named 'validation'"),
+        ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG, 'object' the object PNG (datasets 5.2, the version CI tests, reads *_file_name columns as images; older versions give the file name), the rest from metadata.jsonl; the split 'val' is named 'validation'; Pillow reads 16-bit RGB PNGs (colour sensors) as 8-bit, the .npy files are exact"),
         ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key"),
     ]
     .into_iter()

@@ -77,13 +77,17 @@ def read_png16(path: Path) -> np.ndarray:
 
 
 def load_png16(path: Path) -> np.ndarray:
+    """16-bit samples of a PNG: with Pillow for 16-bit grey (mode I;16); Pillow reduces 16-bit
+    RGB to 8 bits, so RGB (and everything without Pillow) goes through read_png16."""
     try:
         from PIL import Image  # noqa: PLC0415
 
         with Image.open(path) as im:
-            return np.array(im).astype(np.uint16)
+            if im.mode in ("I;16", "I;16B", "I"):
+                return np.array(im).astype(np.uint16)
     except ImportError:
-        return read_png16(path)
+        pass
+    return read_png16(path)
 
 
 def main(argv: list[str]) -> int:
@@ -185,6 +189,8 @@ def main(argv: list[str]) -> int:
             want = np.round(65535 * np.clip(g / full_scale, 0, 1))
             if g.ndim == 3:
                 want = np.moveaxis(want, 0, -1)
+            if img.mode == "RGB":  # Pillow keeps the high byte of 16-bit RGB samples
+                want = np.floor(want / 256)
             check(np.abs(a - want).max() <= 1, "HF image differs from the capture npy")
         print(f"check_dataset: Hugging Face imagefolder loads {dict((k, v.num_rows) for k, v in ds.items())}")
 
