@@ -151,21 +151,7 @@ pub fn probe_image(path: &Path) -> Result<(usize, usize), IoError> {
                 let info = d.info().ok_or("no image header")?;
                 Ok::<_, String>((usize::from(info.width), usize::from(info.height)))
             });
-            match probed {
-                Ok(Ok(v)) => v,
-                Ok(Err(e)) => {
-                    return Err(IoError::format(
-                        path,
-                        format!("not a readable JPEG file ({e})"),
-                    ));
-                }
-                Err(_) => {
-                    return Err(IoError::format(
-                        path,
-                        "not a readable JPEG file (decoder failure)",
-                    ));
-                }
-            }
+            jpeg_result(path, probed)?
         }
         _ => return Err(IoError::format(path, "not a .png, .jpg or .jpeg file")),
     };
@@ -186,6 +172,22 @@ pub fn is_code_value_image(path: &Path) -> bool {
         .is_some_and(|e| matches!(e.as_str(), "png" | "jpg" | "jpeg"))
 }
 
+/// The outcome of a JPEG decoder call run under `catch_unwind`: a decoder error or a panic on a
+/// malformed file becomes a format error naming the file.
+fn jpeg_result<T>(path: &Path, r: std::thread::Result<Result<T, String>>) -> Result<T, IoError> {
+    match r {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(IoError::format(
+            path,
+            format!("not a readable JPEG file ({e})"),
+        )),
+        Err(_) => Err(IoError::format(
+            path,
+            "not a readable JPEG file (decoder failure)",
+        )),
+    }
+}
+
 fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     use zune_core::bytestream::ZCursor;
     use zune_core::colorspace::ColorSpace;
@@ -203,21 +205,7 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
         let info = decoder.info().ok_or("no image header")?;
         Ok::<_, String>((usize::from(info.width), usize::from(info.height), pixels))
     });
-    let (width, height, pixels) = match decoded {
-        Ok(Ok(v)) => v,
-        Ok(Err(e)) => {
-            return Err(IoError::format(
-                path,
-                format!("not a readable JPEG file ({e})"),
-            ));
-        }
-        Err(_) => {
-            return Err(IoError::format(
-                path,
-                "not a readable JPEG file (decoder failure)",
-            ));
-        }
-    };
+    let (width, height, pixels) = jpeg_result(path, decoded)?;
     if pixels.len() != width * height * 3 {
         return Err(IoError::format(
             path,
