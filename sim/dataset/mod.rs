@@ -108,6 +108,8 @@ pub struct PlannedScene {
     pub params: BTreeMap<String, f64>,
     /// The loaded, validated scene.
     pub loaded: LoadedScene,
+    /// Its runtime system.
+    pub system: System,
 }
 
 /// A recipe checked against everything it refers to, ready to generate.
@@ -121,6 +123,8 @@ pub struct Plan {
     pub recipe_sha256: String,
     /// Scene file, resolved.
     scene_file: Option<PathBuf>,
+    /// The recipe's overrides and the object size, before any varied key.
+    base_overrides: Vec<String>,
     /// Distinct discrete scenes (index 0 is the reference scene).
     pub scenes: Vec<PlannedScene>,
     /// Image files per source.
@@ -163,6 +167,22 @@ fn sha256_hex(bytes: &[u8]) -> String {
     d.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// Loads the scene with `base` and `extra` overrides and builds its system; errors name the
+/// recipe and `key`.
+fn load_system(
+    scene_file: Option<&Path>,
+    base: &[String],
+    extra: &[String],
+    recipe_path: &Path,
+    key: &str,
+) -> Result<(LoadedScene, System), DatasetError> {
+    let overrides: Vec<String> = base.iter().chain(extra).cloned().collect();
+    let ls = load_scene(scene_file, &overrides)
+        .map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
+    let sys = System::build(&ls).map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
+    Ok((ls, sys))
+}
+
 /// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
 /// scene, image folders), without writing anything.
 pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
@@ -181,23 +201,25 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
     let scene_file = recipe.scene.file.as_ref().map(|f| base.join(f));
     let mut base_overrides = recipe.scene.set.clone();
     base_overrides.push(format!("display.image=black@{}", recipe.objects.size_px));
-    let load = |extra: &[String], key: &str| -> Result<LoadedScene, DatasetError> {
-        let mut o = base_overrides.clone();
-        o.extend_from_slice(extra);
-        let ls = load_scene(scene_file.as_deref(), &o)
-            .map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
-        System::build(&ls).map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
-        Ok(ls)
+    let load = |extra: &[String], key: &str| {
+        load_system(
+            scene_file.as_deref(),
+            &base_overrides,
+            extra,
+            recipe_path,
+            key,
+        )
     };
     let mut scenes = Vec::new();
     for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
         let key = if params.is_empty() { "scene" } else { "vary" };
-        let loaded = load(&overrides, key)?;
+        let (loaded, system) = load(&overrides, key)?;
         scenes.push(PlannedScene {
             id: format!("scene_{k:03}"),
             overrides,
             params,
             loaded,
+            system,
         });
     }
     // Ranged keys: both ends must give valid scenes.
@@ -254,6 +276,7 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
         recipe_path: recipe_path.to_path_buf(),
         recipe_sha256,
         scene_file,
+        base_overrides,
         scenes,
         images,
         has_matrix,
@@ -339,24 +362,24 @@ impl Plan {
         f
     }
 
-    /// The scene of a sample with ranged keys applied.
-    fn sample_scene(&self, s: &SampleSpec) -> Result<System, DatasetError> {
-        let ps = &self.scenes[s.scene];
+    /// The scene of a sample: its discrete scene, or with ranged keys one built for it.
+    fn sample_scene(&self, s: &SampleSpec) -> Result<std::borrow::Cow<'_, System>, DatasetError> {
         if self.has_matrix {
-            return System::build(&ps.loaded)
-                .map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()));
+            return Ok(std::borrow::Cow::Borrowed(&self.scenes[s.scene].system));
         }
-        let mut o = self.recipe.scene.set.clone();
-        o.push(format!(
-            "display.image=black@{}",
-            self.recipe.objects.size_px
-        ));
-        for (k, v) in &s.params {
-            o.push(format!("{k}={}", fmt_value(*v)));
-        }
-        let ls = load_scene(self.scene_file.as_deref(), &o)
-            .map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()))?;
-        System::build(&ls).map_err(|e| recipe_err(&self.recipe_path, "vary", e.to_string()))
+        let extra: Vec<String> = s
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k}={}", fmt_value(*v)))
+            .collect();
+        let (_, sys) = load_system(
+            self.scene_file.as_deref(),
+            &self.base_overrides,
+            &extra,
+            &self.recipe_path,
+            "vary",
+        )?;
+        Ok(std::borrow::Cow::Owned(sys))
     }
 }
 
@@ -681,17 +704,9 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let object = (recipe.objects.size_px, recipe.objects.size_px);
     let mut crop = (0, 0);
     let mut channel_names: Vec<String> = Vec::new();
-    let systems: BTreeMap<usize, System> = used
-        .iter()
-        .map(|&k| {
-            System::build(&plan.scenes[k].loaded)
-                .map(|s| (k, s))
-                .map_err(|e| recipe_err(&plan.recipe_path, "vary", e.to_string()))
-        })
-        .collect::<Result<_, _>>()?;
     for &k in &used {
         let ps = &plan.scenes[k];
-        let sys = &systems[&k];
+        let sys = &ps.system;
         crop = (sys.camera.width_px, sys.camera.height_px);
         channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
         let dir = root.join(&ps.id);
@@ -745,7 +760,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         }
     }
     // Exposure from the reference scene's all-white capture.
-    let ref_sys = &systems[&0];
+    let ref_sys = &plan.scenes[0].system;
     let white_peak = if let Some(m) = matrices.get(&0) {
         let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
         g.iter()
@@ -830,7 +845,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     match recipe.mode {
         CaptureMode::Matrix => {
             todo.par_iter()
-                .try_for_each(|s| one(s, &systems[&s.scene]))?;
+                .try_for_each(|s| one(s, &plan.scenes[s.scene].system))?;
         }
         CaptureMode::Render => {
             for s in &todo {
