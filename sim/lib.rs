@@ -29,6 +29,7 @@ pub mod system;
 pub mod targets;
 pub mod trace;
 pub mod waveguide;
+pub mod world;
 pub mod wavelength;
 
 /// The crate version, recorded in every output.

@@ -38,6 +38,18 @@ pub struct LoadedImage {
 /// one channel; `linear` is `true`. JPEG (baseline or progressive, any colour space the
 /// decoder converts to RGB): three channels of code value / 255, `linear` is `false`.
 pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
+    load_with(path, exr_to_gray)
+}
+
+/// As [`load_image`], but an EXR with `R`, `G`, `B` channels keeps them (three linear
+/// channels) instead of being reduced to luminance: for colour textures.
+pub fn load_image_rgb(path: &Path) -> Result<LoadedImage, IoError> {
+    load_with(path, exr_to_rgb)
+}
+
+type Decode = fn(&Path, Vec<u8>) -> Result<LoadedImage, IoError>;
+
+fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -45,7 +57,7 @@ pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
     let decode = match ext.as_deref() {
         Some("png") => decode_png,
         Some("jpg" | "jpeg") => decode_jpeg,
-        Some("exr") => exr_to_gray,
+        Some("exr") => exr,
         _ => {
             return Err(IoError::format(
                 path,
@@ -224,8 +236,35 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     })
 }
 
+fn exr_to_rgb(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+    let (width, height, channels) = decode_exr(path, bytes)?;
+    let find = |name: &str| channels.iter().find(|c| c.name == name);
+    if let (Some(r), Some(g), Some(b)) = (find("R"), find("G"), find("B")) {
+        let values = (0..width * height)
+            .flat_map(|i| [r.data[i], g.data[i], b.data[i]])
+            .collect();
+        return Ok(LoadedImage {
+            width,
+            height,
+            channels: 3,
+            values,
+            linear: true,
+        });
+    }
+    gray_from_channels(path, width, height, channels)
+}
+
 fn exr_to_gray(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
-    let (width, height, mut channels) = decode_exr(path, bytes)?;
+    let (width, height, channels) = decode_exr(path, bytes)?;
+    gray_from_channels(path, width, height, channels)
+}
+
+fn gray_from_channels(
+    path: &Path,
+    width: usize,
+    height: usize,
+    mut channels: Vec<super::exr::ExrChannel>,
+) -> Result<LoadedImage, IoError> {
     let position = |name: &str| channels.iter().position(|c| c.name == name);
     let values = if let Some(y) = position("Y") {
         channels.swap_remove(y).data
