@@ -11,7 +11,7 @@ use std::time::Instant;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use stscam::analysis;
-use stscam::output::{CAPTURE_UNITS, write_capture};
+use stscam::output::{CAPTURE_UNITS, write_capture_with};
 use stscam::render::{RenderSettings, render};
 use stscam::sampler::SamplerKind;
 use stscam::scene::{LoadedScene, load_scene};
@@ -85,6 +85,10 @@ enum Command {
         /// Sample sequence.
         #[arg(long, value_enum, default_value = "lattice")]
         sampler: SamplerArg,
+        /// 3-D scenes: size of frontal.exr, depth.exr and mask.png, `N` or `WxH` (default: the
+        /// capture's crop size).
+        #[arg(long, value_name = "N|WxH")]
+        frontal_px: Option<String>,
     },
     /// Compute the system matrix H in one pass: DIR/H.npz (scipy CSR), H.json, offset.npy.
     Matrix {
@@ -458,8 +462,10 @@ fn cmd_render(
     run: &RunArgs,
     spectral: bool,
     sampler: SamplerArg,
+    frontal_px: Option<&str>,
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
+    let frontal_size = frontal_px.map(parse_frontal_px).transpose()?;
     let start = Instant::now();
     if out.exists() && !out.is_dir() {
         return Err(bad_input(format!(
@@ -489,6 +495,10 @@ fn cmd_render(
     let t0 = Instant::now();
     let cap = pool.install(|| render(&sys, &settings));
     let render_s = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
+    let frontal = pool.install(|| stscam::world::frontal::render_frontal(&sys, fw, fh, spp, seed));
+    let frontal_s = t1.elapsed().as_secs_f64();
     let scene_json = serde_json::to_string(&sys.scene).map_err(|e| Failure {
         code: 1,
         message: e.to_string(),
@@ -513,9 +523,33 @@ fn cmd_render(
         "paths_per_second": cap.stats.camera_paths as f64 / render_s,
         "stats": cap.stats,
     });
+    let mut sidecar = sidecar;
+    if let (Some(world), Some(f)) = (sys.world.as_deref(), frontal.as_ref()) {
+        sidecar["world"] = serde_json::json!({
+            "objects": world.objects,
+            "triangles": world.mesh.triangles.len(),
+            "lights": sys.scene.light.len(),
+            "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
+            "display_enabled": sys.scene.display.enabled,
+        });
+        sidecar["frontal"] = serde_json::json!({
+            "files": {
+                "frontal.exr": format!("channels {:?}: {}", f.channel_names, stscam::output::FRONTAL_UNITS),
+                "frontal.png": "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)",
+                "depth.exr": "channel Z: distance from the plate's front face along -z in mm, +inf where nothing is hit (pixel centre ray)",
+                "mask.png": "16-bit grey: object index + 1 (see world.objects[].mask_value), 65535 the display, 0 nothing (pixel centre ray)",
+            },
+            "width": f.width,
+            "height": f.height,
+            "spp": spp,
+            "camera": "pinhole at (0, 0, 0) mm (front face, bottom vHOE centre) looking along -z; pixel (c, r) looks along the capture's chief ray at crop position ((c + 0.5) * crop_w / w, (r + 0.5) * crop_h / h)",
+            "rays": f.rays,
+            "render_time_s": frontal_s,
+        });
+    }
     // A missing or unwritable output location is the user's to fix, but it is not bad input
     // to the simulator: exit 1.
-    write_capture(out, &cap, &scene_json, seed, spp, &sidecar).map_err(|e| Failure {
+    write_capture_with(out, &cap, &scene_json, seed, spp, &sidecar, frontal.as_ref()).map_err(|e| Failure {
         code: 1,
         message: e.to_string(),
     })?;
@@ -548,6 +582,19 @@ fn cmd_render(
         pool.current_num_threads()
     );
     Ok(())
+}
+
+/// `N` or `WxH` for `--frontal-px`.
+fn parse_frontal_px(spec: &str) -> Result<(usize, usize), Failure> {
+    let bad = || bad_input(format!("--frontal-px: expected N or WxH (1..=8192 each), got {spec:?}"));
+    let (w, h) = match spec.split_once(['x', 'X']) {
+        Some((a, b)) => (a.trim().parse::<usize>(), b.trim().parse::<usize>()),
+        None => (spec.trim().parse::<usize>(), spec.trim().parse::<usize>()),
+    };
+    match (w, h) {
+        (Ok(w), Ok(h)) if (1..=8192).contains(&w) && (1..=8192).contains(&h) => Ok((w, h)),
+        _ => Err(bad()),
+    }
 }
 
 fn check_out_dir(out: &std::path::Path) -> Result<(), Failure> {
@@ -1905,7 +1952,8 @@ fn main() -> ExitCode {
             run,
             spectral,
             sampler,
-        } => cmd_render(scene, out, run, *spectral, *sampler),
+            frontal_px,
+        } => cmd_render(scene, out, run, *spectral, *sampler, frontal_px.as_deref()),
         Command::Matrix {
             scene,
             out,

@@ -77,26 +77,82 @@ pub fn write_capture(
     spp: u32,
     sidecar: &serde_json::Value,
 ) -> Result<(), IoError> {
-    let exr = encode_capture_exr(cap, scene_json, seed, spp).map_err(|m| IoError::Format {
-        path: dir.join("capture.exr"),
+    write_capture_with(dir, cap, scene_json, seed, spp, sidecar, None)
+}
+
+/// What the frontal ground truth's pixels mean.
+pub const FRONTAL_UNITS: &str = "spectral radiance weighted by the sensor response, in the capture unit (1 = a white display pixel), seen by an ideal pinhole at the front face at the bottom vHOE's centre over the capture's angular field; no waveguide, lens falloff or noise";
+
+fn fmt_err(path: std::path::PathBuf) -> impl Fn(String) -> IoError {
+    move |m| IoError::Format {
+        path: path.clone(),
         message: m,
-    })?;
-    let png = encode_capture_png(cap).map_err(|m| IoError::Format {
-        path: dir.join("capture.png"),
-        message: m,
-    })?;
+    }
+}
+
+/// As [`write_capture`], plus (for 3-D scenes) `frontal.exr`, `frontal.png`, `depth.exr` and
+/// `mask.png` (16-bit grey: object index + 1, 65535 the display, 0 nothing), all or nothing.
+pub fn write_capture_with(
+    dir: &Path,
+    cap: &Capture,
+    scene_json: &str,
+    seed: u64,
+    spp: u32,
+    sidecar: &serde_json::Value,
+    frontal: Option<&crate::world::frontal::Frontal>,
+) -> Result<(), IoError> {
+    let exr = encode_capture_exr(cap, scene_json, seed, spp).map_err(fmt_err(dir.join("capture.exr")))?;
+    let png = encode_capture_png(cap).map_err(fmt_err(dir.join("capture.png")))?;
     let json = serde_json::to_vec_pretty(sidecar).map_err(|e| IoError::Format {
         path: dir.join("capture.json"),
         message: e.to_string(),
     })?;
-    write_all_atomic(
-        dir,
-        &[
-            ("capture.exr", &exr),
-            ("capture.png", &png),
-            ("capture.json", &json),
-        ],
-    )?;
+    let mut files: Vec<(&str, Vec<u8>)> = vec![
+        ("capture.exr", exr),
+        ("capture.png", png),
+        ("capture.json", json),
+    ];
+    if let Some(f) = frontal {
+        let attrs = |units: &str| {
+            vec![
+                ("stscam.version".to_string(), ExrAttr::Text(crate::VERSION.to_string())),
+                ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
+                ("stscam.units".to_string(), ExrAttr::Text(units.to_string())),
+                ("stscam.scene".to_string(), ExrAttr::Text(scene_json.to_string())),
+            ]
+        };
+        let chans: Vec<ExrChannel> = f
+            .channel_names
+            .iter()
+            .zip(&f.channels)
+            .map(|(n, d)| ExrChannel {
+                name: (*n).to_string(),
+                data: d.clone(),
+            })
+            .collect();
+        let fexr = encode_exr(f.width, f.height, chans, &attrs(FRONTAL_UNITS))
+            .map_err(fmt_err(dir.join("frontal.exr")))?;
+        let refs: Vec<&[f32]> = f.channels.iter().map(|c| c.as_slice()).collect();
+        let fpng = encode_png16(f.width, f.height, refs.len(), &preview_u16(&refs, 0.999))
+            .map_err(fmt_err(dir.join("frontal.png")))?;
+        let dexr = encode_exr(
+            f.width,
+            f.height,
+            vec![ExrChannel {
+                name: "Z".to_string(),
+                data: f.depth_mm.clone(),
+            }],
+            &attrs("distance from the plate's front face along -z, mm; +inf where nothing is hit"),
+        )
+        .map_err(fmt_err(dir.join("depth.exr")))?;
+        let mpng = encode_png16(f.width, f.height, 1, &f.mask).map_err(fmt_err(dir.join("mask.png")))?;
+        files.push(("frontal.exr", fexr));
+        files.push(("frontal.png", fpng));
+        files.push(("depth.exr", dexr));
+        files.push(("mask.png", mpng));
+    }
+    let refs: Vec<(&str, &[u8])> = files.iter().map(|(n, b)| (*n, b.as_slice())).collect();
+    write_all_atomic(dir, &refs)?;
     Ok(())
 }
 

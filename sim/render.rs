@@ -87,6 +87,13 @@ pub struct RenderStats {
     pub max_truncated_weight: f64,
     /// Largest branch weight seen (must be ≤ 1).
     pub max_branch_weight: f64,
+    /// 3-D scenes: rays traced on the user side (closest-hit and shadow rays).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub scene_rays: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 impl RenderStats {
@@ -99,6 +106,7 @@ impl RenderStats {
         self.max_contacts_hits += o.max_contacts_hits;
         self.max_truncated_weight = self.max_truncated_weight.max(o.max_truncated_weight);
         self.max_branch_weight = self.max_branch_weight.max(o.max_branch_weight);
+        self.scene_rays += o.scene_rays;
     }
 }
 
@@ -133,6 +141,9 @@ pub(crate) struct CameraSample {
     pub(crate) ray: crate::camera::CameraRay,
     pub(crate) lambda_nm: f64,
     pub(crate) factor: f64,
+    /// cos⁴θ/p(λ): the factor without the display spectrum (3-D scenes, whose emitters carry
+    /// their own spectra).
+    pub(crate) geometric: f64,
 }
 
 /// Sample `i` of pixel (col, row), or `None` when its wavelength falls outside the band.
@@ -179,10 +190,12 @@ fn camera_sample_with(
     if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
         return None;
     }
+    let geometric = ray.cos4 / pdf;
     Some(CameraSample {
         ray,
         lambda_nm: lambda,
-        factor: ray.cos4 * sys.display.spectrum.eval(lambda) / pdf,
+        factor: geometric * sys.display.spectrum.eval(lambda),
+        geometric,
     })
 }
 
@@ -235,6 +248,41 @@ pub(crate) fn trace_sample(
         }
         ControlFlow::Continue(())
     });
+}
+
+/// Radiance a sample collects from a 3-D scene: every branch's exit ray (front-face exit
+/// point, the camera ray's direction) traced on the user side with its own random stream,
+/// weighted by the branch's TE/TM weights (the display's polarisation for the display seen
+/// directly, unpolarised for the rest).
+fn world_sample(
+    sys: &System,
+    world: &crate::world::World,
+    s: &CameraSample,
+    key: [u64; 3],
+    stats: &mut RenderStats,
+) -> f64 {
+    use crate::world::integrator::{PathCounts, PathRng, branch_weights, exit_point};
+    let pol = sys.display.polarization_weights;
+    let mut counts = PathCounts::default();
+    let mut total = 0.0;
+    trace_counted(sys, s, stats, |b| {
+        if b.weight[0] > 0.0 || b.weight[1] > 0.0 {
+            let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(b.contact)]);
+            let l = world.radiance(
+                &sys.display,
+                exit_point(b.exit_point_mm),
+                s.ray.dir,
+                s.lambda_nm,
+                &mut rng,
+                &mut counts,
+            );
+            let (wd, wo) = branch_weights(b.weight, pol);
+            total += wd * l.display + wo * l.other;
+        }
+        ControlFlow::Continue(())
+    });
+    stats.scene_rays += counts.rays;
+    total
 }
 
 /// One analog outcome of a sample: the polarisation and the branch (or none: the path dies)
@@ -323,15 +371,21 @@ fn render_row(
                 continue;
             };
             let mut radiance = 0.0;
-            match estimator {
-                Estimator::Bragg => trace_sample(sys, &s, &mut stats, |wt, x| {
-                    radiance += wt * disp.radiance_at(x);
-                }),
-                Estimator::UniformAnalog => {
-                    radiance = trace_analog(sys, &s, set.seed, pixel, i, &mut stats);
+            let base = match (&sys.world, estimator) {
+                (Some(world), _) => {
+                    s.geometric * world_sample(sys, world, &s, [set.seed, pixel, i], &mut stats)
                 }
-            }
-            let base = s.factor * radiance;
+                (None, Estimator::Bragg) => {
+                    trace_sample(sys, &s, &mut stats, |wt, x| {
+                        radiance += wt * disp.radiance_at(x);
+                    });
+                    s.factor * radiance
+                }
+                (None, Estimator::UniformAnalog) => {
+                    radiance = trace_analog(sys, &s, set.seed, pixel, i, &mut stats);
+                    s.factor * radiance
+                }
+            };
             if !base.is_finite() {
                 stats.nonfinite_samples += 1;
                 continue;

@@ -223,6 +223,8 @@ pub struct DisplayDesc {
     pub gamma: f64,
     /// Black level as a fraction of white.
     pub black_level: f64,
+    /// Whether the LCD is there (it emits and lights 3-D scenes).
+    pub enabled: bool,
 }
 
 /// `[sampling]`: Monte Carlo estimator settings that belong to the scene.
@@ -239,6 +241,8 @@ pub struct SamplingDesc {
     pub min_guided_weight: f64,
     /// Hard limit on plate contacts per path.
     pub max_contacts: u32,
+    /// 3-D scenes: surface interactions per user-side path (1 = direct light only).
+    pub max_depth: u32,
 }
 
 /// `[noise]`: the camera's sensor noise model, used when a command adds noise to captures or
@@ -281,6 +285,22 @@ pub struct Scene {
     pub sampling: SamplingDesc,
     /// Sensor noise.
     pub noise: NoiseDesc,
+    /// Objects of the user side (`[[object]]`).
+    #[serde(default)]
+    pub object: Vec<crate::world::desc::ObjectDesc>,
+    /// Lights of the user side (`[[light]]`).
+    #[serde(default)]
+    pub light: Vec<crate::world::desc::LightDesc>,
+}
+
+/// Top-level arrays of tables that a scene file adds (the embedded scene has none).
+pub const LIST_SECTIONS: &[&str] = &["object", "light"];
+
+impl Scene {
+    /// True if the scene has a user side beyond the display (objects or lights).
+    pub fn has_world(&self) -> bool {
+        !self.object.is_empty() || !self.light.is_empty()
+    }
 }
 
 /// A scene with the context needed to resolve its assets and report errors.
@@ -366,6 +386,17 @@ fn merge(
         } else {
             format!("{prefix}.{k}")
         };
+        if prefix.is_empty() && LIST_SECTIONS.contains(&k.as_str()) {
+            if !matches!(&v, toml::Value::Array(a) if a.iter().all(toml::Value::is_table)) {
+                return Err(SceneError::Key {
+                    file: file.to_string(),
+                    key,
+                    message: format!("expected [[{k}]] tables"),
+                });
+            }
+            base.insert(k, v);
+            continue;
+        }
         match (base.get_mut(&k), v) {
             (None, _) => {
                 return Err(SceneError::Key {
@@ -400,7 +431,9 @@ fn parse_override_value(raw: &str) -> toml::Value {
     }
 }
 
-/// Applies one `KEY=VALUE` override to a full scene table.
+/// Applies one `KEY=VALUE` override to a full scene table. Array elements are addressed by
+/// index (`object.0.position_mm`); inside an `[[object]]` or `[[light]]` element a key the
+/// element does not list yet may be set (its name is checked when the scene is read).
 fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneError> {
     let Some((key, raw)) = spec.split_once('=') else {
         return Err(SceneError::Key {
@@ -410,32 +443,58 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
         });
     };
     let key = key.trim();
-    let unknown = || SceneError::Key {
+    let fail = |message: String| SceneError::Key {
         file: format!("--set {key}"),
         key: key.to_string(),
-        message: "unknown key".into(),
+        message,
     };
-    let mut parts = key.split('.').peekable();
-    let mut cur = table;
-    while let Some(part) = parts.next() {
-        if parts.peek().is_none() {
-            let slot = cur.get_mut(part).ok_or_else(unknown)?;
-            if slot.is_table() {
-                return Err(SceneError::Key {
-                    file: format!("--set {key}"),
-                    key: key.to_string(),
-                    message: "is a section; set one of its keys".into(),
-                });
-            }
-            *slot = parse_override_value(raw.trim());
-            return Ok(key.to_string());
+    let unknown = || fail("unknown key".into());
+    let parts: Vec<&str> = key.split('.').collect();
+    let in_list = parts.len() > 2 && LIST_SECTIONS.contains(&parts[0]);
+    let mut cur: &mut toml::Value = match table.get_mut(parts[0]) {
+        Some(v) => v,
+        None if LIST_SECTIONS.contains(&parts[0]) => {
+            return Err(fail(format!(
+                "the scene has no [[{}]] elements to set",
+                parts[0]
+            )));
         }
-        cur = match cur.get_mut(part) {
-            Some(toml::Value::Table(t)) => t,
+        None => return Err(unknown()),
+    };
+    for (depth, part) in parts.iter().enumerate().skip(1) {
+        let last = depth + 1 == parts.len();
+        cur = match cur {
+            toml::Value::Array(a) => {
+                let i: usize = part
+                    .parse()
+                    .map_err(|_| fail(format!("{part:?} is not an element index")))?;
+                let n = a.len();
+                a.get_mut(i).ok_or_else(|| {
+                    fail(format!("index {i} is out of range ({n} elements)"))
+                })?
+            }
+            toml::Value::Table(t) => {
+                if !t.contains_key(*part) {
+                    if !in_list {
+                        return Err(unknown());
+                    }
+                    let fill = if last {
+                        toml::Value::Boolean(false)
+                    } else {
+                        toml::Value::Table(toml::Table::new())
+                    };
+                    t.insert((*part).to_string(), fill);
+                }
+                t.get_mut(*part).ok_or_else(unknown)?
+            }
             _ => return Err(unknown()),
         };
     }
-    Err(unknown())
+    if parts.len() == 1 || cur.is_table() || (cur.is_array() && parts.len() == 1) {
+        return Err(fail("is a section; set one of its keys".into()));
+    }
+    *cur = parse_override_value(raw.trim());
+    Ok(key.to_string())
 }
 
 /// Loads a scene: the embedded paper scene, merged with `path` if given, then the overrides.
@@ -473,13 +532,18 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
     Ok(loaded)
 }
 
+/// `object[0].mesh` → `object.0.mesh` (the form `--set` takes).
+fn dotted_path(path: &str) -> String {
+    path.replace("].", ".").replace('[', ".").replace(']', "")
+}
+
 fn placeholder_free_deserialize(
     table: toml::Table,
     source: &str,
     overridden: &BTreeSet<String>,
 ) -> Result<Scene, SceneError> {
     serde_path_to_error::deserialize::<_, Scene>(table).map_err(|e| {
-        let key = e.path().to_string();
+        let key = dotted_path(&e.path().to_string());
         let file = if is_overridden(overridden, &key) {
             format!("--set {key}")
         } else {
@@ -761,6 +825,10 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
+    check(ls, (1..=64).contains(&sm.max_depth), "sampling.max_depth", || {
+        format!("must be in [1, 64], got {}", sm.max_depth)
+    })?;
+    crate::world::desc::validate_world(ls)?;
     Ok(())
 }
 

@@ -48,6 +48,8 @@ pub struct System {
     pub wavelengths: WavelengthSampler,
     /// Trace limits.
     pub limits: TraceLimits,
+    /// The user-side 3-D scene (None for a display-only scene: the fast path).
+    pub world: Option<std::sync::Arc<crate::world::World>>,
 }
 
 /// Glass model of a scene.
@@ -324,6 +326,11 @@ impl System {
             max_contacts: s.sampling.max_contacts,
         };
         let wavelengths = build_wavelength_sampler(s, &waveguide, &camera, &display, limits);
+        let world = if s.has_world() {
+            Some(std::sync::Arc::new(crate::world::World::build(ls, &display)?))
+        } else {
+            None
+        };
         Ok(System {
             scene: s.clone(),
             waveguide,
@@ -332,6 +339,7 @@ impl System {
             response,
             wavelengths,
             limits,
+            world,
         })
     }
 }

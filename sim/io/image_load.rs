@@ -47,6 +47,33 @@ pub fn load_image_rgb(path: &Path) -> Result<LoadedImage, IoError> {
     load_with(path, exr_to_rgb)
 }
 
+/// Decodes an image already in memory (for example embedded in a glTF buffer or data URI)
+/// whose type is given by `ext` (`png`, `jpg`/`jpeg` or `exr`, case-insensitive), as
+/// [`load_image_rgb`] decodes a file of that type. `path_for_messages` names the image in
+/// errors only; nothing is read from it.
+pub fn decode_image_bytes(
+    path_for_messages: &Path,
+    ext: &str,
+    bytes: Vec<u8>,
+) -> Result<LoadedImage, IoError> {
+    let decode: Decode = match ext.to_ascii_lowercase().as_str() {
+        "png" => decode_png,
+        "jpg" | "jpeg" => decode_jpeg,
+        "exr" => exr_to_rgb,
+        _ => {
+            return Err(IoError::format(
+                path_for_messages,
+                format!("unsupported image type {ext:?} (supported: png, jpeg, exr)"),
+            ));
+        }
+    };
+    let image = decode(path_for_messages, bytes)?;
+    if image.width == 0 || image.height == 0 {
+        return Err(IoError::format(path_for_messages, "image is empty"));
+    }
+    Ok(image)
+}
+
 type Decode = fn(&Path, Vec<u8>) -> Result<LoadedImage, IoError>;
 
 fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {

@@ -130,6 +130,17 @@ impl Texture {
         Texture::from_pixels(1, 1, 3, &rgb.map(|v| v as f32), true)
     }
 
+    /// Linear RGB of the texel containing texture coordinate `uv` (no filtering).
+    pub fn lookup_nearest(&self, uv: DVec2) -> [f64; 3] {
+        let (x, y) = ((uv.x * self.width as f64).floor(), (uv.y * self.height as f64).floor());
+        if !(x.is_finite() && y.is_finite()) {
+            return [0.0; 3];
+        }
+        let xi = self.wrap_s.index(x as i64, self.width);
+        let yi = self.wrap_t.index(y as i64, self.height);
+        self.texels[yi * self.width + xi].map(f64::from)
+    }
+
     /// Bilinearly filtered linear RGB at texture coordinate `uv`.
     pub fn lookup(&self, uv: DVec2) -> [f64; 3] {
         let x = uv.x * self.width as f64 - 0.5;

@@ -1,0 +1,149 @@
+//! Ground truth for learning: the 3-D scene as an ideal pinhole camera at the see-through
+//! screen sees it (`frontal`), its depth and an object mask.
+//!
+//! Model: the pinhole sits on the front face at the centre of the bottom vHOE (x = y = z = 0),
+//! the point the periscope makes the hidden camera look from, and looks along −z. Pixel
+//! (c, r) of a W×H frontal image looks along the chief-ray direction of the capture at the
+//! corresponding fractional crop position (c + ½)·W_crop/W, so the frontal image covers the
+//! capture's own angular field (each replica in the capture is this view, shifted). Values:
+//! E[R_c(λ)/∫R_c · L(λ)]/p(λ) with λ uniform over the sampling band and the same sensor
+//! response and capture unit (1 = display white) as the capture, but no waveguide, no lens
+//! falloff and no noise; pixel-area antialiasing with `spp` samples. Depth and mask come from
+//! each pixel's centre ray: depth = −z of the first surface hit in mm (the display plane
+//! included, +inf where nothing is hit); mask = object index + 1 for objects, 65535 for the
+//! display, 0 for nothing (lights and the environment).
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+
+use super::integrator::{PathCounts, PathRng};
+use crate::system::System;
+
+/// Mask value of the display.
+pub const MASK_DISPLAY: u16 = u16::MAX;
+
+/// The frontal ground truth of a render.
+#[derive(Clone, Debug)]
+pub struct Frontal {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Channel names (as the capture).
+    pub channel_names: Vec<&'static str>,
+    /// Channels, row-major.
+    pub channels: Vec<Vec<f32>>,
+    /// Depth in mm (+inf where nothing is hit).
+    pub depth_mm: Vec<f32>,
+    /// Object mask.
+    pub mask: Vec<u16>,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+/// Direction of the frontal pixel at fractional position (x, y) in [0, W)×[0, H).
+fn direction(sys: &System, w: usize, h: usize, x: f64, y: f64) -> DVec3 {
+    let cam = &sys.camera;
+    let fx = x * cam.width_px as f64 / w as f64;
+    let fy = y * cam.height_px as f64 / h as f64;
+    let (col, row) = (fx.floor(), fy.floor());
+    let img = cam.image_point_mm(col as usize, row as usize, [fx - col, fy - row]);
+    cam.ray_through(img, DVec2::ZERO).dir
+}
+
+/// Renders the frontal image, depth and mask at `width`×`height` with `spp` samples per pixel.
+pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed: u64) -> Option<Frontal> {
+    let world = sys.world.as_deref()?;
+    let disp = &sys.display;
+    let nch = sys.response.curves.len();
+    let (lo, hi) = (sys.scene.sampling.lambda_min_nm, sys.scene.sampling.lambda_max_nm);
+    let origin = DVec3::ZERO;
+    let rows: Vec<(Vec<f64>, Vec<f32>, Vec<u16>, u64)> = (0..height)
+        .into_par_iter()
+        .map(|r| {
+            let mut vals = vec![0.0; width * nch];
+            let mut depth = vec![f32::INFINITY; width];
+            let mut mask = vec![0u16; width];
+            let mut counts = PathCounts::default();
+            for c in 0..width {
+                let pixel = (r * width + c) as u64;
+                for i in 0..u64::from(spp) {
+                    let mut rng = PathRng::new(&[seed, pixel, i, 0xF80_17A1]);
+                    let (ux, uy, ul) = (rng.next(), rng.next(), rng.next());
+                    let d = direction(sys, width, height, c as f64 + ux, r as f64 + uy);
+                    let lambda = lo + (hi - lo) * ul;
+                    let l = world.radiance(disp, origin, d, lambda, &mut rng, &mut counts);
+                    let v = (l.display + l.other) * (hi - lo);
+                    if !v.is_finite() {
+                        continue;
+                    }
+                    let rc = crate::render::channel_weights(sys, lambda);
+                    for (k, w) in rc.iter().enumerate().take(nch) {
+                        vals[c * nch + k] += v * w;
+                    }
+                }
+                let inv = 1.0 / f64::from(spp.max(1));
+                for k in 0..nch {
+                    vals[c * nch + k] *= inv;
+                }
+                let d = direction(sys, width, height, c as f64 + 0.5, r as f64 + 0.5);
+                if let Some((t, m)) = world.first_hit(disp, origin, d) {
+                    depth[c] = (-(origin.z + d.z * t)) as f32;
+                    mask[c] = m;
+                }
+            }
+            (vals, depth, mask, counts.rays)
+        })
+        .collect();
+    let mut channels = vec![vec![0f32; width * height]; nch];
+    let mut depth_mm = Vec::with_capacity(width * height);
+    let mut mask = Vec::with_capacity(width * height);
+    let mut rays = 0;
+    for (r, (v, d, m, n)) in rows.into_iter().enumerate() {
+        for c in 0..width {
+            for (k, ch) in channels.iter_mut().enumerate() {
+                ch[r * width + c] = v[c * nch + k] as f32;
+            }
+        }
+        depth_mm.extend(d);
+        mask.extend(m);
+        rays += n;
+    }
+    Some(Frontal {
+        width,
+        height,
+        channel_names: sys.response.names.clone(),
+        channels,
+        depth_mm,
+        mask,
+        rays,
+    })
+}
+
+impl super::World {
+    /// First surface a ray meets for the depth and mask: (t, mask value), where mask is the
+    /// object index + 1, [`MASK_DISPLAY`] for the LCD, 0 for a light shape.
+    pub fn first_hit(&self, disp: &crate::display::Display, o: DVec3, d: DVec3) -> Option<(f64, u16)> {
+        let mut best: Option<(f64, u16)> = None;
+        if let Some(acc) = &self.accel
+            && let Some(h) = acc.intersect(o, d, 0.0, f64::INFINITY, None)
+        {
+            best = Some((h.t, self.objects[self.tri_object[h.triangle as usize] as usize].mask_value));
+        }
+        let tmax = best.map_or(f64::INFINITY, |b| b.0);
+        for l in &self.lights {
+            if let Some((t, _)) = l.hit(o, d, tmax, 550.0)
+                && best.is_none_or(|b| t < b.0)
+            {
+                best = Some((t, 0));
+            }
+        }
+        if self.display.is_some() && d.z < 0.0 {
+            let t = (disp.z_mm - o.z) / d.z;
+            if t > 0.0 && best.is_none_or(|b| t < b.0) && disp.on_lcd((o + d * t).truncate()) {
+                best = Some((t, MASK_DISPLAY));
+            }
+        }
+        best
+    }
+}

@@ -1,0 +1,364 @@
+//! The user-side path tracer: radiance arriving along a ray that leaves the plate's front
+//! face (a replica branch, with the camera ray's own direction) or a frontal pinhole.
+//!
+//! Estimator (pbrt-v4 `PathIntegrator`, §13.4): at every surface interaction the emitted
+//! radiance is added, weighted by multiple importance sampling (power heuristic, Veach 1997)
+//! against next-event estimation; next-event estimation picks one emitter uniformly among the
+//! lights, the display and the environment, samples a point or direction on it, and traces a
+//! shadow ray; the BSDF is then sampled for the next direction. `max_depth` interactions at
+//! most (1 = direct lighting only); Russian roulette from the fourth interaction on, with
+//! survival probability max(throughput) (unbiased). One wavelength per path, scalar spectra.
+//! Emissive mesh triangles are found only by BSDF sampling (weight 1; they are not
+//! next-event-estimation targets). Surfaces are two-sided (the side the ray arrives on is the
+//! front); emission is one-sided (the side the triangle's winding faces).
+//!
+//! Polarisation: the display's light is polarised as the display model says; light scattered
+//! by a surface or coming from the other emitters is taken as unpolarised. The result
+//! therefore separates the display seen directly from everything else, and the caller weights
+//! the two with the branch's TE/TM weights accordingly.
+//!
+//! Random numbers: a counter-based hash stream per (seed, pixel, sample, branch), the same
+//! for any thread count.
+
+use glam::{DVec2, DVec3};
+
+use super::bsdf::Frame;
+use super::{Emitter, World};
+use crate::display::Display;
+use crate::sampler::{mix64, to_unit};
+
+/// Random numbers of one user-side path: `hash(key, n)` for n = 1, 2, ….
+#[derive(Clone, Copy, Debug)]
+pub struct PathRng {
+    key: u64,
+    n: u64,
+}
+
+impl PathRng {
+    /// A stream addressed by `words` (e.g. seed, pixel, sample, branch).
+    pub fn new(words: &[u64]) -> PathRng {
+        PathRng {
+            key: crate::sampler::hash(words),
+            n: 0,
+        }
+    }
+
+    /// The next uniform number in [0, 1).
+    #[inline]
+    pub fn next(&mut self) -> f64 {
+        self.n += 1;
+        to_unit(mix64(self.key ^ mix64(self.n)))
+    }
+}
+
+/// Radiance along a ray, split by polarisation state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Radiance {
+    /// The display seen directly (polarised as the display).
+    pub display: f64,
+    /// Everything else (unpolarised).
+    pub other: f64,
+}
+
+/// Counters of user-side work.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PathCounts {
+    /// Rays traced against the scene (closest-hit and shadow).
+    pub rays: u64,
+}
+
+/// What a ray meets first.
+#[derive(Clone, Copy, Debug)]
+enum Hit {
+    Surface { t: f64, tri: u32, bary: [f64; 3] },
+    Light { t: f64, index: usize, le: f64 },
+    Display { t: f64, le: f64 },
+    Escape,
+}
+
+/// Offset of a ray origin along the geometric normal, relative to the coordinates' size.
+#[inline]
+fn offset_eps(p: DVec3) -> f64 {
+    1e-9 * (1.0 + p.abs().max_element()) * 1e3
+}
+
+impl World {
+    fn closest(&self, disp: &Display, o: DVec3, d: DVec3, skip: Option<u32>, lambda_nm: f64) -> Hit {
+        let mut best = Hit::Escape;
+        let mut tmax = f64::INFINITY;
+        if let Some(acc) = &self.accel
+            && let Some(h) = acc.intersect(o, d, 0.0, tmax, skip)
+        {
+            tmax = h.t;
+            best = Hit::Surface {
+                t: h.t,
+                tri: h.triangle,
+                bary: h.bary,
+            };
+        }
+        for (i, l) in self.lights.iter().enumerate() {
+            if let Some((t, le)) = l.hit(o, d, tmax, lambda_nm) {
+                tmax = t;
+                best = Hit::Light { t, index: i, le };
+            }
+        }
+        if self.display.is_some() && d.z != 0.0 {
+            let t = (disp.z_mm - o.z) / d.z;
+            if t > 0.0 && t < tmax {
+                let q = o + d * t;
+                if disp.on_lcd(q.truncate()) {
+                    let le = if d.z < 0.0 {
+                        disp.radiance_at(q.truncate()) * disp.spectrum.eval(lambda_nm)
+                    } else {
+                        0.0
+                    };
+                    best = Hit::Display { t, le };
+                }
+            }
+        }
+        best
+    }
+
+    /// True if nothing blocks the segment from `o` along unit `d` up to `dist` (the target
+    /// emitter itself excluded).
+    fn visible(&self, disp: &Display, o: DVec3, d: DVec3, dist: f64, skip: Option<u32>, target: Emitter) -> bool {
+        let tmax = dist * (1.0 - 1e-9);
+        for (i, l) in self.lights.iter().enumerate() {
+            if target != Emitter::Light(i) && l.hit(o, d, tmax, 550.0).is_some() {
+                return false;
+            }
+        }
+        if target != Emitter::Display && self.display.is_some() && d.z != 0.0 {
+            let t = (disp.z_mm - o.z) / d.z;
+            if t > 0.0 && t < tmax && disp.on_lcd((o + d * t).truncate()) {
+                return false;
+            }
+        }
+        match &self.accel {
+            Some(acc) => acc.unoccluded(o, d, 0.0, tmax, skip),
+            None => true,
+        }
+    }
+
+    /// Solid-angle density with which next-event estimation from `p` picks direction `d`
+    /// reaching emitter `e` at distance `t` (including the emitter choice).
+    fn light_pdf(&self, disp: &Display, e: Emitter, p: DVec3, d: DVec3, t: f64) -> f64 {
+        if self.emitters.is_empty() {
+            return 0.0;
+        }
+        let sel = 1.0 / self.emitters.len() as f64;
+        sel * match e {
+            Emitter::Light(i) => self.lights[i].pdf(p, d, t),
+            Emitter::Display => match &self.display {
+                Some(dl) => {
+                    let q = p + d * t;
+                    let cos_l = (-d.z).max(0.0);
+                    if cos_l <= 0.0 { 0.0 } else { dl.pdf_area(disp, q.truncate()) * t * t / cos_l }
+                }
+                None => 0.0,
+            },
+            Emitter::Environment => 1.0 / (4.0 * std::f64::consts::PI),
+        }
+    }
+
+    /// Samples one emitter for next-event estimation from `p`: (direction, distance, incident
+    /// radiance / combined density, density for MIS or None if delta, emitter).
+    fn sample_emitter(
+        &self,
+        disp: &Display,
+        p: DVec3,
+        lambda_nm: f64,
+        rng: &mut PathRng,
+    ) -> Option<(DVec3, f64, f64, Option<f64>, Emitter)> {
+        let n = self.emitters.len();
+        if n == 0 {
+            return None;
+        }
+        let k = ((rng.next() * n as f64) as usize).min(n - 1);
+        let e = self.emitters[k];
+        let sel = 1.0 / n as f64;
+        let (u0, u1, u2) = (rng.next(), rng.next(), rng.next());
+        match e {
+            Emitter::Light(i) => {
+                let s = self.lights[i].sample(p, [u0, u1], lambda_nm)?;
+                let pdf = sel * s.pdf;
+                Some((s.wi, s.dist, s.li / pdf, (!s.delta).then_some(pdf), e))
+            }
+            Emitter::Display => {
+                let dl = self.display.as_ref()?;
+                let q2 = dl.sample_point(disp, [u0, u1, u2]);
+                let q = DVec3::new(q2.x, q2.y, disp.z_mm);
+                let v = q - p;
+                let dist = v.length();
+                if dist <= 0.0 {
+                    return None;
+                }
+                let wi = v / dist;
+                let cos_l = -wi.z;
+                if cos_l <= 0.0 {
+                    return None;
+                }
+                let pdf = sel * dl.pdf_area(disp, q2) * dist * dist / cos_l;
+                let le = disp.radiance_at(q2) * disp.spectrum.eval(lambda_nm);
+                (pdf > 0.0).then_some((wi, dist, le / pdf, Some(pdf), e))
+            }
+            Emitter::Environment => {
+                let env = self.environment.as_ref()?;
+                let z = 1.0 - 2.0 * u0;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let phi = 2.0 * std::f64::consts::PI * u1;
+                let wi = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                let pdf = sel / (4.0 * std::f64::consts::PI);
+                Some((wi, f64::INFINITY, env.radiance(wi, lambda_nm) / pdf, Some(pdf), e))
+            }
+        }
+    }
+
+    /// Spectral radiance arriving at `o` from direction −`d` (unit `d` is the ray's
+    /// direction), at `lambda_nm`.
+    pub fn radiance(
+        &self,
+        disp: &Display,
+        o: DVec3,
+        d: DVec3,
+        lambda_nm: f64,
+        rng: &mut PathRng,
+        counts: &mut PathCounts,
+    ) -> Radiance {
+        let mut out = Radiance::default();
+        let mut beta = 1.0;
+        let (mut o, mut d) = (o, d);
+        let mut skip: Option<u32> = None;
+        // Density of the BSDF sample that produced the current ray (None: camera ray).
+        let mut prev_pdf: Option<f64> = None;
+        let mut depth = 0u32;
+        loop {
+            counts.rays += 1;
+            let hit = self.closest(disp, o, d, skip, lambda_nm);
+            let mis = |e: Emitter, t: f64| match prev_pdf {
+                None => 1.0,
+                Some(pb) => {
+                    let pl = self.light_pdf(disp, e, o, d, t);
+                    pb * pb / (pb * pb + pl * pl)
+                }
+            };
+            let (t, tri, bary) = match hit {
+                Hit::Escape => {
+                    if let Some(env) = &self.environment {
+                        out.other += beta * env.radiance(d, lambda_nm) * mis(Emitter::Environment, f64::INFINITY);
+                    }
+                    break;
+                }
+                Hit::Light { t, index, le } => {
+                    out.other += beta * le * mis(Emitter::Light(index), t);
+                    break;
+                }
+                Hit::Display { t, le } => {
+                    let v = beta * le * mis(Emitter::Display, t);
+                    if prev_pdf.is_none() {
+                        out.display += v;
+                    } else {
+                        out.other += v;
+                    }
+                    break;
+                }
+                Hit::Surface { t, tri, bary } => (t, tri, bary),
+            };
+            let tv = self.mesh.triangles[tri as usize];
+            let [a, b, c] = tv.map(|i| self.mesh.positions_mm[i as usize]);
+            let p = a * bary[0] + b * bary[1] + c * bary[2];
+            let _ = t;
+            let mut ng = (b - a).cross(c - a).normalize_or_zero();
+            let mut ns = (self.mesh.normals[tv[0] as usize] * bary[0]
+                + self.mesh.normals[tv[1] as usize] * bary[1]
+                + self.mesh.normals[tv[2] as usize] * bary[2])
+                .normalize_or_zero();
+            if ns == DVec3::ZERO {
+                ns = ng;
+            }
+            let front = d.dot(ng) < 0.0;
+            let uv = self.uv_at(tri, bary);
+            let mat = &self.materials[self.mesh.material_ids[tri as usize] as usize];
+            if front && mat.emits() {
+                out.other += beta * mat.emitted(uv, lambda_nm, &self.d65);
+            }
+            if depth >= self.max_depth {
+                break;
+            }
+            depth += 1;
+            if !front {
+                ng = -ng;
+                ns = -ns;
+            }
+            if ns.dot(ng) <= 0.0 {
+                ns = ng;
+            }
+            let wo = -d;
+            let mut frame = Frame::from_normal(ns);
+            let mut wo_l = frame.to_local(wo);
+            if wo_l.z <= 0.0 {
+                frame = Frame::from_normal(ng);
+                wo_l = frame.to_local(wo);
+            }
+            let bsdf = mat.bsdf(uv, lambda_nm);
+            let origin = p + ng * offset_eps(p);
+            // Next-event estimation.
+            if let Some((wi, dist, li_over_pdf, pdf_l, e)) = self.sample_emitter(disp, p, lambda_nm, rng)
+                && wi.dot(ng) > 0.0
+                && li_over_pdf > 0.0
+            {
+                let wi_l = frame.to_local(wi);
+                let f = bsdf.eval(wo_l, wi_l);
+                if f > 0.0 {
+                    counts.rays += 1;
+                    if self.visible(disp, origin, wi, dist, Some(tri), e) {
+                        let w = match pdf_l {
+                            Some(pl) => {
+                                let pb = bsdf.pdf(wo_l, wi_l);
+                                pl * pl / (pl * pl + pb * pb)
+                            }
+                            None => 1.0,
+                        };
+                        out.other += beta * f * li_over_pdf * w;
+                    }
+                }
+            }
+            // BSDF sampling.
+            let Some(s) = bsdf.sample(wo_l, [rng.next(), rng.next(), rng.next()]) else {
+                break;
+            };
+            let wi = frame.to_world(s.wi);
+            if wi.dot(ng) <= 0.0 || !(s.weight > 0.0) || !s.weight.is_finite() {
+                break;
+            }
+            beta *= s.weight;
+            prev_pdf = Some(s.pdf);
+            o = origin;
+            d = wi.normalize();
+            skip = Some(tri);
+            if depth > 3 && beta < 1.0 {
+                let q = (1.0 - beta).max(0.0);
+                if rng.next() < q {
+                    break;
+                }
+                beta /= 1.0 - q;
+            }
+        }
+        out
+    }
+}
+
+/// The unpolarised and polarised parts of a branch's weight: (display weight, other weight).
+#[inline]
+pub fn branch_weights(weight: [f64; 2], display_pol: [f64; 2]) -> (f64, f64) {
+    (
+        display_pol[0] * weight[0] + display_pol[1] * weight[1],
+        0.5 * (weight[0] + weight[1]),
+    )
+}
+
+/// Exit point of a branch on the front face as a 3-D point.
+#[inline]
+pub fn exit_point(p: DVec2) -> DVec3 {
+    DVec3::new(p.x, p.y, 0.0)
+}
