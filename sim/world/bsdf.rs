@@ -317,7 +317,7 @@ impl Bsdf {
     /// returns (wi, weight = eval/pdf, pdf), or `None` if wo is not above the surface or the
     /// sample falls below it (that probability is missing from `pdf`'s integral).
     pub fn sample(&self, wo: DVec3, u: [f64; 3]) -> Option<BsdfSample> {
-        if !(wo.z > 0.0) {
+        if wo.z.is_nan() || wo.z <= 0.0 {
             return None;
         }
         let u = u.map(clamp_u);
@@ -337,7 +337,7 @@ impl Bsdf {
                 }
             }
         };
-        if !(wi.z > 0.0) {
+        if wi.z.is_nan() || wi.z <= 0.0 {
             return None;
         }
         let pdf = self.pdf(wo, wi);
@@ -451,20 +451,37 @@ mod tests {
     /// p-value of Pearson's χ² test of `sample` (N_SAMPLES draws) against `pdf`, on a
     /// θ × φ grid of the upper hemisphere (θ uniform in [0, π/2], φ in [−π, π]); expected
     /// counts integrate pdf·sin θ over each cell with composite Simpson (SUB² points).
-    fn chi2_p(sample: &dyn Fn([f64; 3]) -> Option<DVec3>, pdf: &dyn Fn(DVec3) -> f64, seed: u64) -> f64 {
+    fn chi2_p(
+        sample: &dyn Fn([f64; 3]) -> Option<DVec3>,
+        pdf: &dyn Fn(DVec3) -> f64,
+        seed: u64,
+    ) -> f64 {
         let dt = 0.5 * PI / N_THETA as f64;
         let dp = 2.0 * PI / N_PHI as f64;
         let mut obs = vec![0.0f64; N_THETA * N_PHI];
         for i in 0..N_SAMPLES {
-            let Some(w) = sample(u3(seed, i)) else { continue };
-            assert!(w.z > 0.0 && (w.length() - 1.0).abs() < 1e-9, "bad sample {w}");
+            let Some(w) = sample(u3(seed, i)) else {
+                continue;
+            };
+            assert!(
+                w.z > 0.0 && (w.length() - 1.0).abs() < 1e-9,
+                "bad sample {w}"
+            );
             let t = w.z.clamp(-1.0, 1.0).acos();
             let p = w.y.atan2(w.x);
             let it = ((t / dt) as usize).min(N_THETA - 1);
             let ip = (((p + PI) / dp) as usize).min(N_PHI - 1);
             obs[it * N_PHI + ip] += 1.0;
         }
-        let simpson = |k: usize| if k == 0 || k == SUB { 1.0 } else if k % 2 == 1 { 4.0 } else { 2.0 };
+        let simpson = |k: usize| {
+            if k == 0 || k == SUB {
+                1.0
+            } else if k % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            }
+        };
         let mut exp = vec![0.0f64; N_THETA * N_PHI];
         for it in 0..N_THETA {
             for ip in 0..N_PHI {
@@ -538,14 +555,21 @@ mod tests {
     fn chi2_sample_matches_pdf() {
         for (k, (bsdf, theta_o)) in cases().into_iter().enumerate() {
             let wo = dir_deg(theta_o, 30.0);
-            let p = chi2_p(&|u| bsdf.sample(wo, u).map(|s| s.wi), &|w| bsdf.pdf(wo, w), 100 + k as u64);
+            let p = chi2_p(
+                &|u| bsdf.sample(wo, u).map(|s| s.wi),
+                &|w| bsdf.pdf(wo, w),
+                100 + k as u64,
+            );
             assert!(p > 0.01, "{bsdf:?} θo={theta_o}: p = {p}");
         }
     }
 
     #[test]
     fn chi2_rejects_wrong_pdf() {
-        for (bsdf, theta_o) in [(Bsdf::Diffuse { albedo: 0.7 }, 40.0), (mr(0.5, 0.0, 0.8), 70.0)] {
+        for (bsdf, theta_o) in [
+            (Bsdf::Diffuse { albedo: 0.7 }, 40.0),
+            (mr(0.5, 0.0, 0.8), 70.0),
+        ] {
             let wo = dir_deg(theta_o, 30.0);
             let p = chi2_p(
                 &|u| bsdf.sample(wo, u).map(|s| s.wi),
@@ -562,13 +586,23 @@ mod tests {
             let wo = dir_deg(theta_o, 10.0);
             let mut n_ok = 0;
             for i in 0..20_000 {
-                let Some(s) = bsdf.sample(wo, u3(900 + k as u64, i)) else { continue };
+                let Some(s) = bsdf.sample(wo, u3(900 + k as u64, i)) else {
+                    continue;
+                };
                 n_ok += 1;
                 let pdf = bsdf.pdf(wo, s.wi);
                 let eval = bsdf.eval(wo, s.wi);
-                assert!((s.pdf - pdf).abs() <= 1e-9 * pdf, "{bsdf:?} pdf {} vs {pdf}", s.pdf);
+                assert!(
+                    (s.pdf - pdf).abs() <= 1e-9 * pdf,
+                    "{bsdf:?} pdf {} vs {pdf}",
+                    s.pdf
+                );
                 assert!((s.weight - eval / pdf).abs() <= 1e-9 * s.weight.max(1.0));
-                assert!(s.weight >= 0.0 && s.weight <= 10.0 + 1e-9, "{bsdf:?} weight {}", s.weight);
+                assert!(
+                    s.weight >= 0.0 && s.weight <= 10.0 + 1e-9,
+                    "{bsdf:?} weight {}",
+                    s.weight
+                );
             }
             assert!(n_ok > 15_000, "{bsdf:?}: only {n_ok} samples succeeded");
         }
@@ -621,16 +655,21 @@ mod tests {
         let spec_eval = |wo: DVec3, wi: DVec3| {
             let h = (wo + wi).normalize();
             let f = m.fresnel(wo.dot(h));
-            let spec = m.eval(wo, wi) - m.c_diff * FRAC_1_PI * Mr::transmittance(wo.z)
-                * Mr::transmittance(wi.z) * wi.z / (1.0 - DIELECTRIC_F0);
+            let spec = m.eval(wo, wi)
+                - m.c_diff * FRAC_1_PI * Mr::transmittance(wo.z) * Mr::transmittance(wi.z) * wi.z
+                    / (1.0 - DIELECTRIC_F0);
             (1.0 - f) * m.c_diff * FRAC_1_PI * wi.z + spec
         };
         for (theta_o, at_least) in [(60.0, 1.02), (80.0, 1.3)] {
             let wo = dir_deg(theta_o, 0.0);
             let (e, se) = mean_se(400_000, |i| {
-                b.sample(wo, u3(5, i)).map_or(0.0, |s| spec_eval(wo, s.wi) / s.pdf)
+                b.sample(wo, u3(5, i))
+                    .map_or(0.0, |s| spec_eval(wo, s.wi) / s.pdf)
             });
-            assert!(e > 1.0 + 3.0 * se && e > at_least, "θo={theta_o}: {e} ± {se}");
+            assert!(
+                e > 1.0 + 3.0 * se && e > at_least,
+                "θo={theta_o}: {e} ± {se}"
+            );
         }
     }
 
@@ -648,7 +687,10 @@ mod tests {
             b.eval(wo, DVec3::new(r * p.cos(), r * p.sin(), z)) * 2.0 * PI
         });
         assert!((m - 0.7).abs() <= 3.0 * se, "{m} ± {se}");
-        assert!((m - 0.71).abs() > 3.0 * se, "test cannot resolve 0.01: σ = {se}");
+        assert!(
+            (m - 0.71).abs() > 3.0 * se,
+            "test cannot resolve 0.01: σ = {se}"
+        );
         // Importance-sampled weights are exactly the albedo.
         for i in 0..1000 {
             let s = b.sample(wo, u3(12, i)).unwrap();

@@ -24,8 +24,11 @@
 //!   32) was generated once with the `rgb2spec` crate 0.1.1 (`optimize(Gamut::SRGB, 32)`, a port
 //!   of mitsuba-renderer/rgb2spec) and is embedded as `rgb2spec_srgb_32.bin` in the original
 //!   binary format; a test regenerates it and compares bytes. Inputs are clamped to [0, 1]
-//!   (the model represents reflectances only). The coefficients act on λ in nm; the fit is
-//!   valid over 360–830 nm.
+//!   (the model represents reflectances only). The coefficients act on λ in nm (the crate's
+//!   `optimize` converts them from its normalised-λ fit), valid over 360–830 nm. Grey colours
+//!   (r = g = b = v) return the constant v exactly, as pbrt-v4's `RGBToSpectrumTable` does,
+//!   because the table's top slice is not flat: (1, 1, 1) would dip to 0.956 at 600 nm.
+//!   Colours with a component at 1 but not grey still use that slice (a few-percent ripple).
 //! - **RGB emission** follows Mitsuba 3's spectral variants (its `srgb_d65` spectrum: an RGB
 //!   emitter is the upsampled colour times the D65 illuminant): with m = max(r, g, b),
 //!   e(λ) = m·ρ_{rgb/m}(λ)·D65(λ), D65 normalised here to mean 1 over 380–780 nm (Mitsuba
@@ -139,7 +142,10 @@ pub fn emission_spectrum(spec: &str, base_dir: &Path) -> Result<Spectrum, String
         _ => {
             if let Some(t) = lower.strip_prefix("blackbody:") {
                 let t_k: f64 = t.trim().parse().map_err(|_| {
-                    format!("blackbody temperature {:?} is not a number (kelvin)", t.trim())
+                    format!(
+                        "blackbody temperature {:?} is not a number (kelvin)",
+                        t.trim()
+                    )
                 })?;
                 if !(BLACKBODY_MIN_K..=BLACKBODY_MAX_K).contains(&t_k) {
                     return Err(format!(
@@ -168,7 +174,9 @@ pub fn emission_spectrum(spec: &str, base_dir: &Path) -> Result<Spectrum, String
 pub fn reflectance_csv(path: &Path) -> Result<Spectrum, String> {
     let shown = path.display().to_string();
     let rows = read_csv(path, &shown, CsvKind::Reflectance)?;
-    Ok(Spectrum::on_grid(|l| bin_average(&rows, l, true).clamp(0.0, 1.0)))
+    Ok(Spectrum::on_grid(|l| {
+        bin_average(&rows, l, true).clamp(0.0, 1.0)
+    }))
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -219,11 +227,17 @@ fn parse_csv(text: &str, shown: &str, kind: CsvKind) -> Result<Vec<(f64, f64)>, 
             let v: f64 = f
                 .parse()
                 .map_err(|_| format!("{shown}: line {n}: not a number"))?;
-            if v.is_finite() { Ok(v) } else { Err(format!("{shown}: line {n}: not finite")) }
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(format!("{shown}: line {n}: not finite"))
+            }
         };
         let (l, v) = (num(fields[0])?, num(fields[1])?);
-        if !(l > 0.0) {
-            return Err(format!("{shown}: line {n}: wavelength {l} nm is not positive"));
+        if l <= 0.0 {
+            return Err(format!(
+                "{shown}: line {n}: wavelength {l} nm is not positive"
+            ));
         }
         if let Some(&(prev, _)) = rows.last()
             && l <= prev
@@ -244,7 +258,10 @@ fn parse_csv(text: &str, shown: &str, kind: CsvKind) -> Result<Vec<(f64, f64)>, 
         rows.push((l, v));
     }
     if rows.len() < 2 {
-        return Err(format!("{shown}: needs at least 2 data rows, found {}", rows.len()));
+        return Err(format!(
+            "{shown}: needs at least 2 data rows, found {}",
+            rows.len()
+        ));
     }
     Ok(rows)
 }
@@ -284,7 +301,11 @@ fn bin_average(rows: &[(f64, f64)], lambda_nm: f64, extend: bool) -> f64 {
     // The end bins of the standard grid are half bins.
     let a = (lambda_nm - h).max(GRID_START_NM);
     let b = (lambda_nm + h).min(GRID_END_NM);
-    if b > a { pl_integral(rows, a, b, extend) / (b - a) } else { 0.0 }
+    if b > a {
+        pl_integral(rows, a, b, extend) / (b - a)
+    } else {
+        0.0
+    }
 }
 
 /// A reflectance spectrum upsampled from an RGB colour (Jakob & Hanika 2019 coefficients).
@@ -354,7 +375,13 @@ mod tests {
     fn d65_published_values() {
         // CIE 015:2018 Table 5.
         let d = d65_relative();
-        for (l, v) in [(560.0, 100.0), (500.0, 109.354), (600.0, 90.0062), (300.0, 0.0341), (830.0, 60.3125)] {
+        for (l, v) in [
+            (560.0, 100.0),
+            (500.0, 109.354),
+            (600.0, 90.0062),
+            (300.0, 0.0341),
+            (830.0, 60.3125),
+        ] {
             assert!((d.eval(l) - v).abs() < 1e-9, "D65({l}) = {}", d.eval(l));
         }
         // Linear interpolation between table rows (CIE-recommended for D65 at 1 nm).
@@ -367,11 +394,23 @@ mod tests {
 
     #[test]
     fn named_spectra_have_mean_one() {
-        for name in ["d65", "white-led", "ccfl", "flat", "blackbody:2856", "Blackbody:6500"] {
+        for name in [
+            "d65",
+            "white-led",
+            "ccfl",
+            "flat",
+            "blackbody:2856",
+            "Blackbody:6500",
+        ] {
             let s = emission_spectrum(name, Path::new(".")).unwrap();
             assert!((mean_380_780(&s) - 1.0).abs() < 1e-12, "{name}");
         }
-        assert_eq!(emission_spectrum("flat", Path::new(".")).unwrap().eval(555.0), 1.0);
+        assert_eq!(
+            emission_spectrum("flat", Path::new("."))
+                .unwrap()
+                .eval(555.0),
+            1.0
+        );
     }
 
     #[test]
@@ -390,7 +429,13 @@ mod tests {
         let r = |l: f64| l.powi(-5) / ((PLANCK_C2_NM_K / (l * 3000.0)).exp() - 1.0);
         let s3 = emission_spectrum("blackbody:3000", Path::new(".")).unwrap();
         assert!((s3.eval(500.0) / s3.eval(700.0) - r(500.0) / r(700.0)).abs() < 1e-12);
-        for bad in ["blackbody:499", "blackbody:50001", "blackbody:nan", "blackbody:", "blackbody:inf"] {
+        for bad in [
+            "blackbody:499",
+            "blackbody:50001",
+            "blackbody:nan",
+            "blackbody:",
+            "blackbody:inf",
+        ] {
             let e = emission_spectrum(bad, Path::new(".")).unwrap_err();
             assert!(e.starts_with("blackbody temperature"), "{e}");
         }
@@ -411,38 +456,80 @@ mod tests {
     }
 
     fn write(dir: &Path, name: &str, text: &str) {
-        std::fs::File::create(dir.join(name)).unwrap().write_all(text.as_bytes()).unwrap();
+        std::fs::File::create(dir.join(name))
+            .unwrap()
+            .write_all(text.as_bytes())
+            .unwrap();
     }
 
     #[test]
     fn csv_emission() {
         let dir = tempfile::tempdir().unwrap();
-        write(dir.path(), "lamp.csv", "nm,value\n# comment\n500, 1\n\n600 ,1\n");
+        write(
+            dir.path(),
+            "lamp.csv",
+            "nm,value\n# comment\n500, 1\n\n600 ,1\n",
+        );
         let s = emission_spectrum("lamp.csv", dir.path()).unwrap();
         // Non-zero over 500–600 only: mean 1 over 400 nm ⇒ level 4.
         assert!((s.eval(550.0) - 4.0).abs() < 1e-12);
         assert_eq!(s.eval(450.0), 0.0);
         assert!((mean_380_780(&s) - 1.0).abs() < 1e-12);
         // A narrow line between grid points keeps its area: triangle of half-width 0.2 nm.
-        write(dir.path(), "line.csv", "540,0\n550.1,0\n550.3,1\n550.5,0\n560,0\n");
+        write(
+            dir.path(),
+            "line.csv",
+            "540,0\n550.1,0\n550.3,1\n550.5,0\n560,0\n",
+        );
         let s = emission_spectrum("line.csv", dir.path()).unwrap();
         assert!((s.integral(540.0, 560.0) - 400.0).abs() < 1e-9);
         let cases = [
-            ("a.csv", "nm,value\n500,1\n510,1\n520,x\n", "a.csv: line 4: not a number"),
-            ("b.csv", "500,1\n", "b.csv: needs at least 2 data rows, found 1"),
-            ("c.csv", "500,1\n490,1\n", "c.csv: line 2: wavelengths must be strictly ascending (490 after 500)"),
-            ("d.csv", "500,1\n510,-1\n", "d.csv: line 2: value -1 is negative"),
-            ("e.csv", "500,1,2\n", "e.csv: line 1: expected 2 columns (nm, value), found 3"),
-            ("f.csv", "500,0\n600,0\n", "f.csv: spectrum is zero over 380–780 nm and cannot be normalised"),
+            (
+                "a.csv",
+                "nm,value\n500,1\n510,1\n520,x\n",
+                "a.csv: line 4: not a number",
+            ),
+            (
+                "b.csv",
+                "500,1\n",
+                "b.csv: needs at least 2 data rows, found 1",
+            ),
+            (
+                "c.csv",
+                "500,1\n490,1\n",
+                "c.csv: line 2: wavelengths must be strictly ascending (490 after 500)",
+            ),
+            (
+                "d.csv",
+                "500,1\n510,-1\n",
+                "d.csv: line 2: value -1 is negative",
+            ),
+            (
+                "e.csv",
+                "500,1,2\n",
+                "e.csv: line 1: expected 2 columns (nm, value), found 3",
+            ),
+            (
+                "f.csv",
+                "500,0\n600,0\n",
+                "f.csv: spectrum is zero over 380–780 nm and cannot be normalised",
+            ),
             ("g.csv", "500,inf\n600,1\n", "g.csv: line 1: not finite"),
-            ("h.csv", "nm,value\n", "h.csv: needs at least 2 data rows, found 0"),
+            (
+                "h.csv",
+                "nm,value\n",
+                "h.csv: needs at least 2 data rows, found 0",
+            ),
         ];
         for (name, text, msg) in cases {
             write(dir.path(), name, text);
             assert_eq!(emission_spectrum(name, dir.path()).unwrap_err(), msg);
         }
         std::fs::create_dir(dir.path().join("sub.csv")).unwrap();
-        assert_eq!(emission_spectrum("sub.csv", dir.path()).unwrap_err(), "sub.csv: not a file");
+        assert_eq!(
+            emission_spectrum("sub.csv", dir.path()).unwrap_err(),
+            "sub.csv: not a file"
+        );
     }
 
     #[test]
@@ -456,14 +543,20 @@ mod tests {
         assert!((s.eval(800.0) - 0.8).abs() < 1e-12);
         write(dir.path(), "paint.csv", "400,0.2\n700,1.5\n");
         let e = reflectance_csv(&p).unwrap_err();
-        assert!(e.ends_with("paint.csv: line 2: reflectance 1.5 is above 1"), "{e}");
+        assert!(
+            e.ends_with("paint.csv: line 2: reflectance 1.5 is above 1"),
+            "{e}"
+        );
     }
 
     #[test]
     fn embedded_table_parses() {
         let t = RGB2Spec::from_reader(&mut &RGB2SPEC_SRGB_32[..]).unwrap();
         assert!(format!("{t:?}").contains("resolution: 32"));
-        assert_eq!(RGB2SPEC_SRGB_32.len(), 8 + 4 * 32 + 4 * 3 * 3 * 32 * 32 * 32);
+        assert_eq!(
+            RGB2SPEC_SRGB_32.len(),
+            8 + 4 * 32 + 4 * 3 * 3 * 32 * 32 * 32
+        );
     }
 
     /// Regenerates the res-32 sRGB table (≈ 6 s; rgb2spec is built at opt-level 3 even in the
@@ -473,7 +566,10 @@ mod tests {
         let t = rgb2spec::optimize::optimize(rgb2spec::optimize::gamut::Gamut::SRGB, 32).unwrap();
         let mut bytes = Vec::new();
         t.to_writer(&mut bytes).unwrap();
-        assert!(bytes == RGB2SPEC_SRGB_32, "rgb2spec_srgb_32.bin differs from a fresh optimisation");
+        assert!(
+            bytes == RGB2SPEC_SRGB_32,
+            "rgb2spec_srgb_32.bin differs from a fresh optimisation"
+        );
     }
 
     #[test]
@@ -483,14 +579,25 @@ mod tests {
         let white = reflectance_from_rgb([1.0; 3]);
         let grey = reflectance_from_rgb([0.5; 3]);
         for l in (400..=700).map(f64::from) {
-            assert!((white.eval(l) - 1.0).abs() < 0.01, "white({l}) = {}", white.eval(l));
-            assert!((grey.eval(l) - 0.5).abs() < 0.005, "grey({l}) = {}", grey.eval(l));
+            assert!(
+                (white.eval(l) - 1.0).abs() < 0.01,
+                "white({l}) = {}",
+                white.eval(l)
+            );
+            assert!(
+                (grey.eval(l) - 0.5).abs() < 0.005,
+                "grey({l}) = {}",
+                grey.eval(l)
+            );
         }
         let c = reflectance_from_rgb([0.8, 0.5, 0.3]).eval(550.0);
         assert!((c / 0.5222 - 1.0).abs() < 0.005, "ρ(550) = {c}");
         // Clamping and NaN.
         assert_eq!(reflectance_from_rgb([2.0, 5.0, 1.0]), white);
-        assert_eq!(reflectance_from_rgb([f64::NAN, 0.0, -1.0]), reflectance_from_rgb([0.0; 3]));
+        assert_eq!(
+            reflectance_from_rgb([f64::NAN, 0.0, -1.0]),
+            reflectance_from_rgb([0.0; 3])
+        );
         assert_eq!(reflectance_from_rgb([0.0; 3]).eval(550.0), 0.0);
         let near_grey = reflectance_from_rgb([0.5, 0.5, 0.501]);
         for l in (400..=700).map(f64::from) {
@@ -584,7 +691,10 @@ mod tests {
             let l = 360.0 + k as f64;
             let w = if k == 0 || k == 470 { 0.5 } else { 1.0 } * d65.eval(l);
             let r = rho(l);
-            for (j, t) in [&cmf::X_BAR, &cmf::Y_BAR, &cmf::Z_BAR].into_iter().enumerate() {
+            for (j, t) in [&cmf::X_BAR, &cmf::Y_BAR, &cmf::Z_BAR]
+                .into_iter()
+                .enumerate()
+            {
                 xyz[j] += w * r * cmf(t, l);
             }
             yw += w * cmf(&cmf::Y_BAR, l);
