@@ -250,10 +250,16 @@ pub(crate) fn trace_sample(
     });
 }
 
+/// Branches below this fraction of a path's strongest branch are traced on the user side only
+/// with probability (weight / (this × strongest)) and weighted up by its inverse (Russian
+/// roulette over branches: unbiased, and most of a path's weak replicas cost nothing).
+pub const BRANCH_ROULETTE_FRACTION: f64 = 0.25;
+
 /// Radiance a sample collects from a 3-D scene: every branch's exit ray (front-face exit
 /// point, the camera ray's direction) traced on the user side with its own random stream,
 /// weighted by the branch's TE/TM weights (the display's polarisation for the display seen
-/// directly, unpolarised for the rest).
+/// directly, unpolarised for the rest). Weak branches go through Russian roulette
+/// ([`BRANCH_ROULETTE_FRACTION`]).
 fn world_sample(
     sys: &System,
     world: &crate::world::World,
@@ -263,24 +269,38 @@ fn world_sample(
 ) -> f64 {
     use crate::world::integrator::{PathCounts, PathRng, branch_weights, exit_point};
     let pol = sys.display.polarization_weights;
-    let mut counts = PathCounts::default();
-    let mut total = 0.0;
+    let mut branches: Vec<(glam::DVec2, [f64; 2], u32)> = Vec::with_capacity(16);
     trace_counted(sys, s, stats, |b| {
         if b.weight[0] > 0.0 || b.weight[1] > 0.0 {
-            let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(b.contact)]);
-            let l = world.radiance(
-                &sys.display,
-                exit_point(b.exit_point_mm),
-                s.ray.dir,
-                s.lambda_nm,
-                &mut rng,
-                &mut counts,
-            );
-            let (wd, wo) = branch_weights(b.weight, pol);
-            total += wd * l.display + wo * l.other;
+            branches.push((b.exit_point_mm, b.weight, b.contact));
         }
         ControlFlow::Continue(())
     });
+    let strongest = branches
+        .iter()
+        .map(|b| b.1[0] + b.1[1])
+        .fold(0.0, f64::max);
+    let threshold = BRANCH_ROULETTE_FRACTION * strongest;
+    let mut counts = PathCounts::default();
+    let mut total = 0.0;
+    for (exit, weight, contact) in branches {
+        let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
+        let w = weight[0] + weight[1];
+        let keep = if w < threshold { w / threshold } else { 1.0 };
+        if keep < 1.0 && rng.next() >= keep {
+            continue;
+        }
+        let l = world.radiance(
+            &sys.display,
+            exit_point(exit),
+            s.ray.dir,
+            s.lambda_nm,
+            &mut rng,
+            &mut counts,
+        );
+        let (wd, wo) = branch_weights(weight, pol);
+        total += (wd * l.display + wo * l.other) / keep;
+    }
     stats.scene_rays += counts.rays;
     total
 }

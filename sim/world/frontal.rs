@@ -6,9 +6,13 @@
 //! (c, r) of a W×H frontal image looks along the chief-ray direction of the capture at the
 //! corresponding fractional crop position (c + ½)·W_crop/W, so the frontal image covers the
 //! capture's own angular field (each replica in the capture is this view, shifted). Values:
-//! E[R_c(λ)/∫R_c · L(λ)]/p(λ) with λ uniform over the sampling band and the same sensor
+//! E[R_c(λ)/∫R_c · L(λ)/p(λ)] with λ drawn from p ∝ Σ_c R_c(λ)/∫R_c (the sensor's own
+//! response, tabulated on 1 nm bins over the sampling band: for a mono sensor the spectral
+//! weight is then constant and only the scene's spectrum adds noise), the same sensor
 //! response and capture unit (1 = display white) as the capture, but no waveguide, no lens
-//! falloff and no noise; pixel-area antialiasing with `spp` samples. Depth and mask come from
+//! falloff and no noise; pixel-area antialiasing with `spp` samples. Pixel position and
+//! wavelength come from the capture's rank-1 lattice (stratified within a pixel), the
+//! user-side path from a hash stream per (seed, pixel, sample). Depth and mask come from
 //! each pixel's centre ray: depth = −z of the first surface hit in mm (the display plane
 //! included, +inf where nothing is hit); mask = object index + 1 for objects, 65535 for the
 //! display, 0 for nothing (lights and the environment).
@@ -17,6 +21,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::integrator::{PathCounts, PathRng};
+use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
 
 /// Mask value of the display.
@@ -41,6 +46,53 @@ pub struct Frontal {
     pub rays: u64,
 }
 
+/// A piecewise-constant density over the band ∝ Σ_c R_c(λ)/∫R_c on 1 nm bins.
+struct ResponseTable {
+    lo: f64,
+    step: f64,
+    cdf: Vec<f64>,
+    pdf: Vec<f64>,
+}
+
+impl ResponseTable {
+    fn new(sys: &System, lo: f64, hi: f64) -> ResponseTable {
+        let n = ((hi - lo).ceil() as usize).clamp(1, 100_000);
+        let step = (hi - lo) / n as f64;
+        let w: Vec<f64> = (0..n)
+            .map(|i| {
+                let l = lo + (i as f64 + 0.5) * step;
+                crate::render::channel_weights(sys, l).iter().sum::<f64>().max(0.0)
+            })
+            .collect();
+        let total: f64 = w.iter().sum::<f64>() * step;
+        let (pdf, cdf) = if total > 0.0 {
+            let pdf: Vec<f64> = w.iter().map(|v| v / total).collect();
+            let mut acc = 0.0;
+            let cdf = pdf.iter().map(|p| {
+                acc += p * step;
+                acc
+            }).collect();
+            (pdf, cdf)
+        } else {
+            let pdf = vec![1.0 / (hi - lo); n];
+            let cdf = (1..=n).map(|i| i as f64 / n as f64).collect();
+            (pdf, cdf)
+        };
+        ResponseTable { lo, step, cdf, pdf }
+    }
+
+    /// (λ, density) for a uniform number `u`.
+    fn sample(&self, u: f64) -> (f64, f64) {
+        let last = *self.cdf.last().unwrap_or(&1.0);
+        let v = u * last;
+        let k = self.cdf.partition_point(|c| *c <= v).min(self.cdf.len() - 1);
+        let before = if k == 0 { 0.0 } else { self.cdf[k - 1] };
+        let p = self.pdf[k];
+        let frac = if p > 0.0 { ((v - before) / (p * self.step)).clamp(0.0, 1.0) } else { 0.5 };
+        (self.lo + (k as f64 + frac) * self.step, p / last)
+    }
+}
+
 /// Direction of the frontal pixel at fractional position (x, y) in [0, W)×[0, H).
 fn direction(sys: &System, w: usize, h: usize, x: f64, y: f64) -> DVec3 {
     let cam = &sys.camera;
@@ -58,6 +110,8 @@ pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed:
     let nch = sys.response.curves.len();
     let (lo, hi) = (sys.scene.sampling.lambda_min_nm, sys.scene.sampling.lambda_max_nm);
     let origin = DVec3::ZERO;
+    let table = ResponseTable::new(sys, lo, hi);
+    let rule = LatticeRule::korobov(u64::from(spp));
     let rows: Vec<(Vec<f64>, Vec<f32>, Vec<u16>, u64)> = (0..height)
         .into_par_iter()
         .map(|r| {
@@ -67,13 +121,19 @@ pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed:
             let mut counts = PathCounts::default();
             for c in 0..width {
                 let pixel = (r * width + c) as u64;
+                let sampler = PixelSampler::new(SamplerKind::Lattice, seed ^ 0xF80_17A1, pixel)
+                    .with_rule(rule);
                 for i in 0..u64::from(spp) {
                     let mut rng = PathRng::new(&[seed, pixel, i, 0xF80_17A1]);
-                    let (ux, uy, ul) = (rng.next(), rng.next(), rng.next());
+                    let u = sampler.get(i);
+                    let (ux, uy, ul) = (u[0], u[1], u[4]);
                     let d = direction(sys, width, height, c as f64 + ux, r as f64 + uy);
-                    let lambda = lo + (hi - lo) * ul;
+                    let (lambda, pdf) = table.sample(ul);
+                    if !(pdf > 0.0) {
+                        continue;
+                    }
                     let l = world.radiance(disp, origin, d, lambda, &mut rng, &mut counts);
-                    let v = (l.display + l.other) * (hi - lo);
+                    let v = (l.display + l.other) / pdf;
                     if !v.is_finite() {
                         continue;
                     }

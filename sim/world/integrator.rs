@@ -3,9 +3,12 @@
 //!
 //! Estimator (pbrt-v4 `PathIntegrator`, §13.4): at every surface interaction the emitted
 //! radiance is added, weighted by multiple importance sampling (power heuristic, Veach 1997)
-//! against next-event estimation; next-event estimation picks one emitter uniformly among the
-//! lights, the display and the environment, samples a point or direction on it, and traces a
-//! shadow ray; the BSDF is then sampled for the next direction. `max_depth` interactions at
+//! against next-event estimation; next-event estimation samples every emitter (the lights,
+//! the display, the environment) once at each interaction when there are at most
+//! `ALL_EMITTERS_MAX` of them (no selection noise: a screen close to a hand and a ceiling
+//! light far above it are both estimated at every vertex), otherwise one chosen uniformly, and
+//! traces a shadow ray per sample; the environment is sampled cosine-weighted about the
+//! shading normal; the BSDF is then sampled for the next direction. `max_depth` interactions at
 //! most (1 = direct lighting only); Russian roulette from the fourth interaction on, with
 //! survival probability max(throughput) (unbiased). One wavelength per path, scalar spectra.
 //! Emissive mesh triangles are found only by BSDF sampling (weight 1; they are not
@@ -76,6 +79,9 @@ enum Hit {
     Escape,
 }
 
+/// Up to this many emitters, next-event estimation samples each of them at every vertex.
+pub const ALL_EMITTERS_MAX: usize = 8;
+
 /// Offset of a ray origin along the geometric normal, relative to the coordinates' size.
 #[inline]
 fn offset_eps(p: DVec3) -> f64 {
@@ -142,11 +148,11 @@ impl World {
 
     /// Solid-angle density with which next-event estimation from `p` picks direction `d`
     /// reaching emitter `e` at distance `t` (including the emitter choice).
-    fn light_pdf(&self, disp: &Display, e: Emitter, p: DVec3, d: DVec3, t: f64) -> f64 {
+    fn light_pdf(&self, disp: &Display, e: Emitter, p: DVec3, n: DVec3, d: DVec3, t: f64) -> f64 {
         if self.emitters.is_empty() {
             return 0.0;
         }
-        let sel = 1.0 / self.emitters.len() as f64;
+        let sel = self.selection_probability();
         sel * match e {
             Emitter::Light(i) => self.lights[i].pdf(p, d, t),
             Emitter::Display => match &self.display {
@@ -157,7 +163,16 @@ impl World {
                 }
                 None => 0.0,
             },
-            Emitter::Environment => 1.0 / (4.0 * std::f64::consts::PI),
+            Emitter::Environment => d.dot(n).max(0.0) / std::f64::consts::PI,
+        }
+    }
+
+    /// Probability that next-event estimation samples a given emitter at a vertex.
+    fn selection_probability(&self) -> f64 {
+        if self.emitters.len() <= ALL_EMITTERS_MAX {
+            1.0
+        } else {
+            1.0 / self.emitters.len() as f64
         }
     }
 
@@ -166,17 +181,13 @@ impl World {
     fn sample_emitter(
         &self,
         disp: &Display,
+        e: Emitter,
         p: DVec3,
+        normal: DVec3,
         lambda_nm: f64,
         rng: &mut PathRng,
     ) -> Option<(DVec3, f64, f64, Option<f64>, Emitter)> {
-        let n = self.emitters.len();
-        if n == 0 {
-            return None;
-        }
-        let k = ((rng.next() * n as f64) as usize).min(n - 1);
-        let e = self.emitters[k];
-        let sel = 1.0 / n as f64;
+        let sel = self.selection_probability();
         let (u0, u1, u2) = (rng.next(), rng.next(), rng.next());
         match e {
             Emitter::Light(i) => {
@@ -204,12 +215,14 @@ impl World {
             }
             Emitter::Environment => {
                 let env = self.environment.as_ref()?;
-                let z = 1.0 - 2.0 * u0;
-                let r = (1.0 - z * z).max(0.0).sqrt();
+                let _ = u2;
+                // Cosine-weighted about the shading normal.
+                let r = u0.sqrt();
                 let phi = 2.0 * std::f64::consts::PI * u1;
-                let wi = DVec3::new(r * phi.cos(), r * phi.sin(), z);
-                let pdf = sel / (4.0 * std::f64::consts::PI);
-                Some((wi, f64::INFINITY, env.radiance(wi, lambda_nm) / pdf, Some(pdf), e))
+                let local = DVec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u0).max(0.0).sqrt());
+                let wi = Frame::from_normal(normal).to_world(local).normalize();
+                let pdf = sel * wi.dot(normal).max(0.0) / std::f64::consts::PI;
+                (pdf > 0.0).then(|| (wi, f64::INFINITY, env.radiance(wi, lambda_nm) / pdf, Some(pdf), e))
             }
         }
     }
@@ -231,6 +244,7 @@ impl World {
         let mut skip: Option<u32> = None;
         // Density of the BSDF sample that produced the current ray (None: camera ray).
         let mut prev_pdf: Option<f64> = None;
+        let mut prev_n = DVec3::Z;
         let mut depth = 0u32;
         loop {
             counts.rays += 1;
@@ -238,7 +252,7 @@ impl World {
             let mis = |e: Emitter, t: f64| match prev_pdf {
                 None => 1.0,
                 Some(pb) => {
-                    let pl = self.light_pdf(disp, e, o, d, t);
+                    let pl = self.light_pdf(disp, e, o, prev_n, d, t);
                     pb * pb / (pb * pb + pl * pl)
                 }
             };
@@ -303,10 +317,22 @@ impl World {
             let bsdf = mat.bsdf(uv, lambda_nm);
             let origin = p + ng * offset_eps(p);
             // Next-event estimation.
-            if let Some((wi, dist, li_over_pdf, pdf_l, e)) = self.sample_emitter(disp, p, lambda_nm, rng)
-                && wi.dot(ng) > 0.0
-                && li_over_pdf > 0.0
-            {
+            let n_em = self.emitters.len();
+            let picks = if n_em <= ALL_EMITTERS_MAX {
+                0..n_em
+            } else {
+                let k = ((rng.next() * n_em as f64) as usize).min(n_em - 1);
+                k..k + 1
+            };
+            for k in picks {
+                let Some((wi, dist, li_over_pdf, pdf_l, e)) =
+                    self.sample_emitter(disp, self.emitters[k], p, ns, lambda_nm, rng)
+                else {
+                    continue;
+                };
+                if wi.dot(ng) <= 0.0 || !(li_over_pdf > 0.0) {
+                    continue;
+                }
                 let wi_l = frame.to_local(wi);
                 let f = bsdf.eval(wo_l, wi_l);
                 if f > 0.0 {
@@ -333,6 +359,7 @@ impl World {
             }
             beta *= s.weight;
             prev_pdf = Some(s.pdf);
+            prev_n = ns;
             o = origin;
             d = wi.normalize();
             skip = Some(tri);

@@ -11,6 +11,7 @@
 //! Assumption: the plate is transparent to user-side light (its ≈ 4 % Fresnel reflection back
 //! toward the user is neglected); the LCD is an opaque, non-reflecting surface over its area.
 
+pub mod bench_bvh;
 pub mod bsdf;
 pub mod bvh;
 pub mod desc;
