@@ -396,6 +396,19 @@ enum BenchCommand {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// BVH build time and closest-hit rays per second with 1 and 2 threads on a displaced
+    /// sphere of at least TRIANGLES triangles (incoherent rays; medians over RUNS seeds).
+    Bvh {
+        /// Triangles of the test mesh.
+        #[arg(long, default_value_t = 1_000_000)]
+        triangles: usize,
+        /// Rays per measurement.
+        #[arg(long, default_value_t = 1_000_000)]
+        rays: usize,
+        /// Runs (seeds 1..=RUNS); medians are reported.
+        #[arg(long, default_value_t = 3)]
+        runs: u64,
+    },
     /// H, calibration and reconstruction speed at the scene's size (medians).
     Recon {
         #[command(flatten)]
@@ -1302,6 +1315,42 @@ fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
     })
 }
 
+/// `stscam bench bvh`: prints the medians over seeds 1..=runs as JSON.
+fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64) -> Result<(), Failure> {
+    if !(1..=50_000_000).contains(&triangles) || !(1..=100_000_000).contains(&rays) || !(1..=99).contains(&runs) {
+        return Err(bad_input(
+            "bench bvh: --triangles must be 1..=50000000, --rays 1..=100000000, --runs 1..=99",
+        ));
+    }
+    let results: Vec<_> = (1..=runs)
+        .map(|seed| stscam::world::bench_bvh::bench_bvh(triangles, rays, seed))
+        .collect();
+    let median = |f: &dyn Fn(&stscam::world::bench_bvh::BvhBench) -> f64| {
+        let mut v: Vec<f64> = results.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let per_threads: Vec<serde_json::Value> = (0..results[0].runs.len())
+        .map(|k| {
+            serde_json::json!({
+                "threads": results[0].runs[k].threads,
+                "build_s_median": median(&|b| b.runs[k].build_s),
+                "rays_per_s_median": median(&|b| b.runs[k].rays_per_s),
+            })
+        })
+        .collect();
+    let out = serde_json::json!({
+        "triangles": results[0].triangles,
+        "rays": rays,
+        "runs": runs,
+        "hit_fraction": results[0].hit_fraction,
+        "medians": per_threads,
+        "all": results,
+    });
+    println!("{}", to_json(&out)?);
+    Ok(())
+}
+
 fn cmd_bench_recon(
     scene: &SceneArgs,
     spp: u32,
@@ -2031,6 +2080,11 @@ fn main() -> ExitCode {
             *threads,
         ),
         Command::Bench { which } => match which {
+            BenchCommand::Bvh {
+                triangles,
+                rays,
+                runs,
+            } => cmd_bench_bvh(*triangles, *rays, *runs),
             BenchCommand::Recon {
                 scene,
                 spp,

@@ -20,7 +20,7 @@ use glam::{DVec2, DVec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
-use obvhs::triangle::Triangle;
+use obvhs::aabb::Aabb;
 
 /// A ray in f64 with the shear constants of the watertight test precomputed.
 #[derive(Clone, Copy, Debug)]
@@ -134,18 +134,33 @@ fn to_f32(p: DVec3) -> Vec3A {
 
 impl Accel {
     /// Builds the BVH (in parallel) over `triangles` of `positions` (mm).
+    ///
+    /// The boxes are built from the f64 vertices padded by 2⁻²⁰ of the scene's scale (at
+    /// least 1 m): obvhs rounds vertices to f32, pads nothing and tests boxes in f32, so an
+    /// unpadded flat box (a face of an axis-aligned cube) could be culled for a ray through
+    /// its edge although the f64 watertight test hits the triangle. The padding only widens
+    /// culling; hits still come from the f64 test.
     pub fn build(positions: &[DVec3], triangles: &[[u32; 3]]) -> Accel {
         let start = Instant::now();
-        let f32_tris: Vec<Triangle> = triangles
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for p in positions {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+        let scale = (lo.abs().max(hi.abs()).max_element() + (hi - lo).max_element()).max(1000.0);
+        let pad = scale / 1_048_576.0;
+        let boxes: Vec<Aabb> = triangles
             .iter()
-            .map(|t| Triangle {
-                v0: to_f32(positions[t[0] as usize]),
-                v1: to_f32(positions[t[1] as usize]),
-                v2: to_f32(positions[t[2] as usize]),
+            .map(|t| {
+                let [a, b, c] = t.map(|i| positions[i as usize]);
+                Aabb::new(
+                    to_f32(a.min(b).min(c) - pad),
+                    to_f32(a.max(b).max(c) + pad),
+                )
             })
             .collect();
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &f32_tris,
+        let bvh = obvhs::cwbvh::builder::build_cwbvh(
+            &boxes,
             BvhBuildParams::medium_build(),
             &mut std::time::Duration::default(),
         );
