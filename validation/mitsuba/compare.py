@@ -11,9 +11,10 @@ Checks (all must pass; the same rules are in tests/mitsuba_reference.rs):
  1. relative RMSE r = ||s - m|| / ||m|| at full resolution <= 2 sqrt(eps_s^2 + eps_m^2) + delta;
  2. the same on 4x4-binned images (32x32), with the noise estimates of the binned images;
  3. waveguide only, replica positions: the peaks (local maxima above 10 % of the maximum, parabolic sub-pixel
-    position) of the row profile (sum over all columns) agree one to one within 1 px.
-delta is the allowance for the known model differences (README.md): 0.01 (plain glass),
-0.03 (waveguide).
+    position) of the row profile (sum over all columns) agree one to one within 1 px (not for
+    mesh-waveguide: a textured scene has no isolated replica lines).
+delta is the allowance for the known model differences (README.md): 0.01 (plain glass and
+mesh-plain-glass), 0.03 (waveguide and mesh-waveguide).
 """
 import argparse
 import json
@@ -21,7 +22,11 @@ import sys
 
 import numpy as np
 
-DELTA = {"plain-glass": 0.01, "waveguide": 0.03}
+# The mesh scenes keep the delta of their display-only twin: the extra model differences of the
+# user side (RGB upsampling tables and the order of texture interpolation and upsampling, about
+# 0.15 % through plain glass and 0.4-0.8 % in the narrow Bragg bands of the waveguide; README.md)
+# are well inside it.
+DELTA = {"plain-glass": 0.01, "waveguide": 0.03, "mesh-plain-glass": 0.01, "mesh-waveguide": 0.03}
 NOISE_FACTOR = 2.0
 PEAK_FRACTION = 0.10
 PEAK_TOLERANCE_PX = 1.0

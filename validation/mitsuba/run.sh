@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Mitsuba 3 cross-check of stscam (README.md in this folder).
-#   validation/mitsuba/run.sh                      re-render both scenes with Mitsuba (moderate
-#                                                  spp), render them with stscam, compare
+#   validation/mitsuba/run.sh                      re-render the four scenes with Mitsuba
+#                                                  (moderate spp), render them with stscam,
+#                                                  compare
 #   validation/mitsuba/run.sh --update-references  re-render the committed references (high spp)
 # Creates out/mitsuba-venv (mitsuba 3.9.1, numpy 2.2.6) if missing. Variant: llvm_ad_spectral if
 # libLLVM 19 works (probed in a subprocess: old LLVM aborts the process), else scalar_spectral.
@@ -43,29 +44,40 @@ if [[ "$variant" == llvm_ad_spectral ]] && [[ -e /usr/lib/x86_64-linux-gnu/libLL
 fi
 echo "mitsuba: variant $variant"
 
-stscam=target/release/stscam
+stscam=${CARGO_TARGET_DIR:-target}/release/stscam
 info="$work/info.json"
 "$stscam" info "$here/waveguide.toml" --json > "$info"
 focus=$("$py" -c "import json; print(json.load(open('$info'))['focus_distance_mm'])")
 d0=$("$py" -c "import json; print(json.load(open('$info'))['sensor_distance_mm'])")
 
-# Sample counts. scalar_spectral (2 cores): plain glass ~0.14 s/spp, waveguide ~1 s/spp.
+# Sample counts (Mitsuba spp and passes per scene). scalar_spectral (2 cores): plain glass
+# ~0.14 s/spp, waveguide ~1 s/spp, mesh-plain-glass ~0.11 s/spp, mesh-waveguide ~1.2 s/spp;
+# llvm_ad_spectral: mesh-plain-glass ~0.01 s/spp, mesh-waveguide ~0.04 s/spp.
+declare -A spp passes
 if [[ "$mode" == update ]]; then
-    spp_plain=4096; spp_wg=8192; passes_plain=16; passes_wg=32; dest="$here/reference"
+    spp=([plain-glass]=4096 [waveguide]=8192 [mesh-plain-glass]=4096 [mesh-waveguide]=8192)
+    passes=([plain-glass]=16 [waveguide]=32 [mesh-plain-glass]=16 [mesh-waveguide]=32)
+    dest="$here/reference"
 elif [[ "$variant" == llvm_ad_spectral ]]; then
-    spp_plain=1024; spp_wg=2048; passes_plain=4; passes_wg=8; dest="$work"
+    spp=([plain-glass]=1024 [waveguide]=2048 [mesh-plain-glass]=1024 [mesh-waveguide]=1024)
+    passes=([plain-glass]=4 [waveguide]=8 [mesh-plain-glass]=4 [mesh-waveguide]=4)
+    dest="$work"
 else
-    spp_plain=256; spp_wg=160; passes_plain=2; passes_wg=2; dest="$work"
+    spp=([plain-glass]=256 [waveguide]=160 [mesh-plain-glass]=128 [mesh-waveguide]=64)
+    passes=([plain-glass]=2 [waveguide]=2 [mesh-plain-glass]=2 [mesh-waveguide]=2)
+    dest="$work"
 fi
+# MITSUBA_SCENES="mesh-plain-glass mesh-waveguide" checks a subset.
+scenes=${MITSUBA_SCENES:-plain-glass waveguide mesh-plain-glass mesh-waveguide}
 
 status=0
-for scene in plain-glass waveguide; do
-    if [[ $scene == plain-glass ]]; then spp=$spp_plain; passes=$passes_plain; else spp=$spp_wg; passes=$passes_wg; fi
+for scene in $scenes; do
     t0=$(date +%s)
-    "$py" "$here/scenes.py" --scene "$scene" --spp "$spp" --passes "$passes" --seed 7 \
+    if [[ "$mode" == check ]]; then rm -f "$dest/$scene.npy"; fi
+    "$py" "$here/scenes.py" --scene "$scene" --spp "${spp[$scene]}" --passes "${passes[$scene]}" --seed 7 \
         --variant "$variant" --focus-mm "$focus" --sensor-mm "$d0" --out "$dest/$scene.npy" 2>&1 | grep -v 'terrible performance' || true
     test -s "$dest/$scene.npy"
-    echo "mitsuba: $scene rendered in $(( $(date +%s) - t0 )) s ($variant, $spp spp)"
+    echo "mitsuba: $scene rendered in $(( $(date +%s) - t0 )) s ($variant, ${spp[$scene]} spp)"
     for seed in 1 2; do
         "$stscam" render "$here/$scene.toml" --out "$work/stscam-$scene-$seed" --spp 128 --seed "$seed" >/dev/null
     done

@@ -1,8 +1,8 @@
-"""Mitsuba 3 (3.9.1) versions of the two stscam scenes in this folder, an independent vHOE BSDF
+"""Mitsuba 3 (3.9.1) versions of the four stscam scenes in this folder, an independent vHOE BSDF
 and a hero-wavelength integrator.  Usage:
 
-    python scenes.py --scene plain-glass|waveguide --spp N --seed S --out IMG.npy
-                     [--variant V] [--focus-mm F] [--sensor-mm D0]
+    python scenes.py --scene plain-glass|waveguide|mesh-plain-glass|mesh-waveguide --spp N
+                     --seed S --out IMG.npy [--variant V] [--focus-mm F] [--sensor-mm D0]
 
 writes a 128x128 float32 image in stscam's unit (1 = a white display pixel seen on axis through
 lossless optics with a vanishing aperture, flat spectrum and response), cos^4 falloff included.
@@ -39,6 +39,9 @@ Model (written from reference/physics.md, not from the Rust code):
   uniform part with a window of +-15 nm around the Bragg wavelength of the camera ray's own
   direction in the glass (physics.md 3.2: lam_B = lam0 (s_z - s_y tan(theta_R/2))), and returns
   the unpolarised mean of the TE and TM estimates divided by the density.
+* Mesh scenes (mesh-*.toml, display off): the plate and camera as above; the user side is the
+  file's [[object]] (OBJ meshes, textured two-sided Lambertian) and [[light]] (rect, flat
+  spectrum) entries, see `user_side`; Mitsuba's own `path` integrator (NEE + MIS) traces it.
 * Radiance: the display is a rectangle area emitter with a 1-channel raw float bitmap (flat
   spectrum); `specfilm` with one box channel over the band gives the integral over lambda, which
   is divided by the band width; the thin-lens camera measures radiance, so the image is multiplied
@@ -81,7 +84,13 @@ IS_UNIFORM_FRACTION = 0.25
 SCENES = {
     "plain-glass": dict(n1=0.0, covered=False, target="target-glyph.png", display_center=(0.0, 40.0)),
     "waveguide": dict(n1=N1, covered=True, target="target-lines.png", display_center=(0.0, 0.0)),
+    # 3-D scenes (display off): the [[object]] and [[light]] entries of the .toml file
+    "mesh-plain-glass": dict(n1=0.0, covered=False, toml="mesh-plain-glass.toml"),
+    "mesh-waveguide": dict(n1=N1, covered=True, toml="mesh-waveguide.toml"),
 }
+WAVEGUIDE_SCENES = ("waveguide", "mesh-waveguide")
+# Central crop whose noise estimates the JSON also records (the Rust test renders only it).
+CROP = 64
 
 
 def default_focus_mm():
@@ -448,6 +457,81 @@ def side(mi, center, axis_from, scale, black):
     return {"type": "rectangle", "to_world": tf, "bsdf": black}
 
 
+def user_side(mi, toml_path, black):
+    """The [[object]] and [[light]] entries of an stscam scene file as Mitsuba shapes, written
+    from stscam's documented scene semantics (README.md, "Mesh scenes"), not from its code:
+    * object: an OBJ file (millimetres) placed by to_world = translate(position_mm) . Rz . Ry .
+      Rx . scale (rotation_deg about x, then y, then z, extrinsic, right-handed), with a
+      two-sided Lambertian BSDF whose reflectance is the MTL's map_Kd texture (8-bit sRGB PNG:
+      Mitsuba decodes the sRGB curve and upsamples each texel with its Jakob-Hanika table;
+      bilinear filtering, repeat wrap); Mitsuba's OBJ loader flips v (OBJ v up, image row 0 at
+      the top), as stscam's does;
+    * light, kind "rect": a one-sided area emitter on a rectangle centred at position_mm, width
+      along the direction perpendicular to the normal closest to +x, height along normal x
+      width; spectrum "flat" (stscam normalises it to mean 1 over 380-780 nm, i.e. 1 at every
+      wavelength), so the radiance is `scale` in stscam's unit (display white = 1)."""
+    import tomllib
+    base = os.path.dirname(toml_path)
+    with open(toml_path, "rb") as f:
+        desc = tomllib.load(f)
+    T = mi.ScalarTransform4f
+    out = {}
+    allowed_obj = {"mesh", "position_mm", "rotation_deg", "scale"}
+    for i, o in enumerate(desc.get("object", [])):
+        extra = set(o) - allowed_obj
+        if extra or not o["mesh"].endswith(".obj"):
+            raise ValueError(f"object {i}: only OBJ meshes with {sorted(allowed_obj)} are modelled, got {sorted(o)}")
+        sc = o.get("scale", 1.0)
+        sc = [float(sc)] * 3 if isinstance(sc, (int, float)) else [float(v) for v in sc]
+        rx, ry, rz = (float(v) for v in o.get("rotation_deg", [0.0, 0.0, 0.0]))
+        tf = (T().translate([float(v) for v in o.get("position_mm", [0.0, 0.0, 0.0])])
+              @ T().rotate([0, 0, 1], rz) @ T().rotate([0, 1, 0], ry) @ T().rotate([1, 0, 0], rx)
+              @ T().scale(sc))
+        obj = os.path.join(base, o["mesh"])
+        tex = obj_texture(obj)
+        out[f"object_{i}"] = {
+            "type": "obj", "filename": obj, "to_world": tf,
+            "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
+                "type": "bitmap", "filename": tex, "filter_type": "bilinear", "wrap_mode": "repeat"}}},
+        }
+    allowed_light = {"kind", "position_mm", "size_mm", "normal", "spectrum", "scale"}
+    for i, l in enumerate(desc.get("light", [])):
+        extra = set(l) - allowed_light
+        if extra or l["kind"] != "rect" or l.get("spectrum", "d65") != "flat":
+            raise ValueError(f"light {i}: only rect lights with a flat spectrum are modelled, got {l}")
+        n = np.array(l.get("normal", [0.0, 0.0, 1.0]), dtype=float)
+        n /= np.linalg.norm(n)
+        ex = np.array([1.0, 0.0, 0.0]) - n * n[0]
+        if ex @ ex < 1e-12:
+            ex = np.array([0.0, 1.0, 0.0]) - n * n[1]
+        ex /= np.linalg.norm(ex)
+        ey = np.cross(n, ex)
+        w, h = (float(v) for v in l["size_mm"])
+        c = np.array(l["position_mm"], dtype=float)
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = ex * 0.5 * w, ey * 0.5 * h, n, c
+        out[f"light_{i}"] = {
+            "type": "rectangle", "to_world": T(m.tolist()), "bsdf": black,
+            "emitter": {"type": "area", "radiance": {"type": "uniform", "value": float(l.get("scale", 1.0))}},
+        }
+    return out
+
+
+def obj_texture(obj_path):
+    """The map_Kd texture of an OBJ file's material library (one library, one material, Kd 1)."""
+    base = os.path.dirname(obj_path)
+    lib = next(line.split(None, 1)[1].strip() for line in open(obj_path) if line.startswith("mtllib"))
+    tex, kd = None, None
+    for line in open(os.path.join(base, lib)):
+        parts = line.split()
+        if parts and parts[0] == "map_Kd":
+            tex = os.path.join(base, parts[-1])
+        elif parts and parts[0] == "Kd":
+            kd = [float(v) for v in parts[1:4]]
+    assert tex and kd == [1.0, 1.0, 1.0], f"{lib}: expected Kd 1 1 1 and a map_Kd texture"
+    return tex
+
+
 def build_scene(mi, name, focus_mm, sensor_mm, max_depth):
     cfg = SCENES[name]
     T = mi.ScalarTransform4f
@@ -469,19 +553,22 @@ def build_scene(mi, name, focus_mm, sensor_mm, max_depth):
     scene["side_ymax"] = side(mi, [0, y1, zc], T().rotate([1, 0, 0], -90), [0.5 * (x1 - x0), 0.5 * W_MM, 1], black)
     scene["side_xmin"] = side(mi, [x0, 0.5 * (y0 + y1), zc], T().rotate([0, 1, 0], -90), [0.5 * W_MM, 0.5 * (y1 - y0), 1], black)
     scene["side_xmax"] = side(mi, [x1, 0.5 * (y0 + y1), zc], T().rotate([0, 1, 0], 90), [0.5 * W_MM, 0.5 * (y1 - y0), 1], black)
-    # display: a 64 x 64 target of 2.7 mm pixels, emitting toward +z; rectangle uv has v = 0 at
-    # -y while bitmap row 0 is at v = 0, so flip the rows (target row 0 is the top, +y)
-    img = load_png_gray(os.path.join(HERE, cfg["target"]))
-    half = 0.5 * img.shape[1] * DISPLAY_PX_MM
-    cx, cy = cfg["display_center"]
-    scene["display"] = {
-        "type": "rectangle",
-        "to_world": T().translate([cx, cy, DISPLAY_Z]) @ T().scale([half, half, 1.0]),
-        "bsdf": black,
-        "emitter": {"type": "area", "radiance": {
-            "type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(np.flipud(img))[:, :, None]),
-            "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}},
-    }
+    if "toml" in cfg:
+        scene.update(user_side(mi, os.path.join(HERE, cfg["toml"]), black))
+    else:
+        # display: a 64 x 64 target of 2.7 mm pixels, emitting toward +z; rectangle uv has v = 0
+        # at -y while bitmap row 0 is at v = 0, so flip the rows (target row 0 is the top, +y)
+        img = load_png_gray(os.path.join(HERE, cfg["target"]))
+        half = 0.5 * img.shape[1] * DISPLAY_PX_MM
+        cx, cy = cfg["display_center"]
+        scene["display"] = {
+            "type": "rectangle",
+            "to_world": T().translate([cx, cy, DISPLAY_Z]) @ T().scale([half, half, 1.0]),
+            "bsdf": black,
+            "emitter": {"type": "area", "radiance": {
+                "type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(np.flipud(img))[:, :, None]),
+                "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}},
+        }
     fov = 2.0 * math.degrees(math.atan(0.5 * RES * PITCH_MM / sensor_mm))
     lo, hi = BAND
     scene["sensor"] = {
@@ -496,12 +583,12 @@ def build_scene(mi, name, focus_mm, sensor_mm, max_depth):
                  "band": {"type": "regular", "wavelength_min": lo, "wavelength_max": hi, "values": "1, 1"}},
         "sampler": {"type": "independent"},
     }
-    scene["integrator"] = {"type": "hero", "window": name == "waveguide",
+    scene["integrator"] = {"type": "hero", "window": name in WAVEGUIDE_SCENES,
                            "nested": {"type": "path", "max_depth": max_depth, "rr_depth": max_depth + 1}}
     return mi.load_dict(scene)
 
 
-def render(name, spp, seed, variant, focus_mm, sensor_mm, max_depth=64, passes=2):
+def render(name, spp, seed, variant, focus_mm, sensor_mm, max_depth=64, passes=2, return_halves=False):
     """Renders `passes` independent passes (seeds seed*1000 + i) of spp/passes samples and
     returns (mean image, noise estimate, seconds).  Noise estimate: with A and B the means of
     the even and odd passes, eps = ||A - B|| / (2 ||(A + B)/2||) estimates the relative RMS
@@ -523,7 +610,20 @@ def render(name, spp, seed, variant, focus_mm, sensor_mm, max_depth=64, passes=2
     eps = float(np.linalg.norm(a - b) / (2.0 * np.linalg.norm(mean)))
     binned = [x.reshape(RES // 4, 4, RES // 4, 4).mean(axis=(1, 3)) for x in (a, b)]
     eps_b = float(np.linalg.norm(binned[0] - binned[1]) / np.linalg.norm(binned[0] + binned[1]))
+    if return_halves:
+        return mean.astype(np.float32), (eps, eps_b), t, per * passes, (a, b)
     return mean.astype(np.float32), (eps, eps_b), t, per * passes
+
+
+def crop_noise(a, b, crop=CROP):
+    """Noise estimates (full, 4x4-binned) of the central crop x crop pixels of halves a, b: what
+    a centred stscam crop of that size is compared with."""
+    c0 = (RES - crop) // 2
+    ca, cb = (x[c0:c0 + crop, c0:c0 + crop] for x in (a, b))
+    eps_c = float(np.linalg.norm(ca - cb) / np.linalg.norm(ca + cb))
+    cbin = [x.reshape(crop // 4, 4, crop // 4, 4).mean(axis=(1, 3)) for x in (ca, cb)]
+    eps_cb = float(np.linalg.norm(cbin[0] - cbin[1]) / np.linalg.norm(cbin[0] + cbin[1]))
+    return eps_c, eps_cb
 
 
 def main():
@@ -545,11 +645,15 @@ def main():
             os.environ["DRJIT_LIBLLVM_PATH"] = libllvm
     focus = a.focus_mm or default_focus_mm()
     d0 = a.sensor_mm or FOCAL_MM * focus / (focus - FOCAL_MM)
-    img, eps, t, spp = render(a.scene, a.spp, a.seed, variant, focus, d0, a.max_depth, a.passes)
+    img, eps, t, spp, (ha, hb) = render(a.scene, a.spp, a.seed, variant, focus, d0, a.max_depth,
+                                        a.passes, return_halves=True)
+    eps = eps + crop_noise(ha, hb)
     np.save(a.out, img)
     import mitsuba as mi
     meta = {"scene": a.scene, "variant": variant, "spp": spp, "passes": max(2, a.passes),
             "seed": a.seed, "noise_rel_rms": round(eps[0], 5), "noise_rel_rms_binned4": round(eps[1], 5),
+            f"noise_rel_rms_center{CROP}": round(eps[2], 5),
+            f"noise_rel_rms_binned4_center{CROP}": round(eps[3], 5),
             "render_s": round(t, 2), "mitsuba": mi.__version__, "focus_mm": focus, "sensor_mm": d0,
             "band_nm": list(BAND), "max_depth": a.max_depth}
     with open(os.path.splitext(a.out)[0] + ".json", "w") as f:
