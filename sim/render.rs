@@ -141,9 +141,9 @@ pub(crate) struct CameraSample {
     pub(crate) ray: crate::camera::CameraRay,
     pub(crate) lambda_nm: f64,
     pub(crate) factor: f64,
-    /// cos⁴θ/p(λ): the factor without the display spectrum (3-D scenes, whose emitters carry
-    /// their own spectra).
-    pub(crate) geometric: f64,
+    /// The wavelength density p(λ) (3-D scenes use cos⁴θ/p(λ): their emitters carry their own
+    /// spectra).
+    pub(crate) pdf: f64,
 }
 
 /// Sample `i` of pixel (col, row), or `None` when its wavelength falls outside the band.
@@ -190,12 +190,11 @@ fn camera_sample_with(
     if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
         return None;
     }
-    let geometric = ray.cos4 / pdf;
     Some(CameraSample {
         ray,
         lambda_nm: lambda,
-        factor: geometric * sys.display.spectrum.eval(lambda),
-        geometric,
+        factor: ray.cos4 * sys.display.spectrum.eval(lambda) / pdf,
+        pdf,
     })
 }
 
@@ -259,7 +258,9 @@ pub const BRANCH_ROULETTE_FRACTION: f64 = 0.25;
 /// point, the camera ray's direction) traced on the user side with its own random stream,
 /// weighted by the branch's TE/TM weights (the display's polarisation for the display seen
 /// directly, unpolarised for the rest). Weak branches go through Russian roulette
-/// ([`BRANCH_ROULETTE_FRACTION`]).
+/// ([`BRANCH_ROULETTE_FRACTION`]). Kept out of line so the display-only loop stays as tight as
+/// it was.
+#[inline(never)]
 fn world_sample(
     sys: &System,
     world: &crate::world::World,
@@ -375,13 +376,45 @@ fn render_row(
     rule: Option<LatticeRule>,
     row: usize,
 ) -> RowResult {
+    let disp = &sys.display;
+    // One monomorphised loop per kind of sample value: the display-only loop is the tight one
+    // it always was.
+    match (sys.world.as_deref(), estimator) {
+        (Some(world), _) => render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
+            s.ray.cos4 * world_sample(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
+        }),
+        (None, Estimator::Bragg) => render_row_with(sys, set, estimator, rule, row, |s, _, _, stats| {
+            let mut radiance = 0.0;
+            trace_sample(sys, s, stats, |wt, x| {
+                radiance += wt * disp.radiance_at(x);
+            });
+            s.factor * radiance
+        }),
+        (None, Estimator::UniformAnalog) => {
+            render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
+                s.factor * trace_analog(sys, s, set.seed, pixel, i, stats)
+            })
+        }
+    }
+}
+
+/// The pixel loop of one row; `value(sample, pixel, index, stats)` gives a sample's value
+/// before the sensor response.
+#[inline(always)]
+fn render_row_with(
+    sys: &System,
+    set: &RenderSettings,
+    estimator: Estimator,
+    rule: Option<LatticeRule>,
+    row: usize,
+    mut value: impl FnMut(&CameraSample, u64, u64, &mut RenderStats) -> f64,
+) -> RowResult {
     let w = sys.camera.width_px;
     let nch = sys.response.curves.len();
     let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let mut values = vec![0.0; w * nch];
     let mut spectral = vec![0.0; w * nbins];
     let mut stats = RenderStats::default();
-    let disp = &sys.display;
     for col in 0..w {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
@@ -390,22 +423,7 @@ fn render_row(
             let Some(s) = camera_sample_with(sys, &sampler, col, row, i, estimator) else {
                 continue;
             };
-            let mut radiance = 0.0;
-            let base = match (&sys.world, estimator) {
-                (Some(world), _) => {
-                    s.geometric * world_sample(sys, world, &s, [set.seed, pixel, i], &mut stats)
-                }
-                (None, Estimator::Bragg) => {
-                    trace_sample(sys, &s, &mut stats, |wt, x| {
-                        radiance += wt * disp.radiance_at(x);
-                    });
-                    s.factor * radiance
-                }
-                (None, Estimator::UniformAnalog) => {
-                    radiance = trace_analog(sys, &s, set.seed, pixel, i, &mut stats);
-                    s.factor * radiance
-                }
-            };
+            let base = value(&s, pixel, i, &mut stats);
             if !base.is_finite() {
                 stats.nonfinite_samples += 1;
                 continue;

@@ -223,7 +223,9 @@ pub struct DisplayDesc {
     pub gamma: f64,
     /// Black level as a fraction of white.
     pub black_level: f64,
-    /// Whether the LCD is there (it emits and lights 3-D scenes).
+    /// Whether the LCD is there (it emits and lights 3-D scenes). Left out of serialised
+    /// scenes when true, so display-only outputs keep their bytes.
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub enabled: bool,
 }
 
@@ -241,7 +243,9 @@ pub struct SamplingDesc {
     pub min_guided_weight: f64,
     /// Hard limit on plate contacts per path.
     pub max_contacts: u32,
-    /// 3-D scenes: surface interactions per user-side path (1 = direct light only).
+    /// 3-D scenes: surface interactions per user-side path (1 = direct light only). Left
+    /// out of serialised scenes at its default, so display-only outputs keep their bytes.
+    #[serde(default = "default_max_depth", skip_serializing_if = "is_default_max_depth")]
     pub max_depth: u32,
 }
 
@@ -286,11 +290,30 @@ pub struct Scene {
     /// Sensor noise.
     pub noise: NoiseDesc,
     /// Objects of the user side (`[[object]]`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub object: Vec<crate::world::desc::ObjectDesc>,
     /// Lights of the user side (`[[light]]`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub light: Vec<crate::world::desc::LightDesc>,
+}
+
+/// Default of `sampling.max_depth`.
+pub const DEFAULT_MAX_DEPTH: u32 = 5;
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(v: &bool) -> bool {
+    *v
+}
+
+fn default_max_depth() -> u32 {
+    DEFAULT_MAX_DEPTH
+}
+
+fn is_default_max_depth(v: &u32) -> bool {
+    *v == DEFAULT_MAX_DEPTH
 }
 
 /// Top-level arrays of tables that a scene file adds (the embedded scene has none).
@@ -845,6 +868,14 @@ mod tests {
         assert_eq!(s.bottom_hoe.height_mm, 50.0);
         assert_eq!(s.sensor.crop_px.size(), (440, 440));
         assert_eq!(s.display.distance_mm, 550.0);
+        assert!(s.display.enabled);
+        assert_eq!(s.sampling.max_depth, DEFAULT_MAX_DEPTH);
+        // Display-only scenes serialise without the 3-D keys (their outputs keep their bytes)
+        // and read back equal.
+        let json = serde_json::to_string(s).unwrap();
+        assert!(!json.contains("enabled") && !json.contains("max_depth") && !json.contains("object"));
+        let back: Scene = serde_json::from_str(&json).unwrap();
+        assert_eq!(&back, s);
     }
 
     #[test]
