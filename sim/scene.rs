@@ -555,9 +555,14 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
     Ok(loaded)
 }
 
-/// `object[0].mesh` → `object.0.mesh` (the form `--set` takes).
+/// `object[0].mesh` → `object.0.mesh`: keys inside `[[object]]` and `[[light]]` are named as
+/// `--set` takes them (other array elements keep serde's `key[i]` form).
 fn dotted_path(path: &str) -> String {
-    path.replace("].", ".").replace('[', ".").replace(']', "")
+    if LIST_SECTIONS.iter().any(|l| path.starts_with(&format!("{l}["))) {
+        path.replace("].", ".").replace('[', ".").replace(']', "")
+    } else {
+        path.to_string()
+    }
 }
 
 fn placeholder_free_deserialize(
