@@ -306,6 +306,42 @@ fn world_sample(
     total
 }
 
+/// The plain path tracer's version of [`world_sample`]: one polarisation state (TE or TM,
+/// even odds) and one branch (or none) chosen with their probabilities, as [`trace_analog`]
+/// does, and only that branch traced on the user side. Unpolarised light then has the right
+/// expectation; the display seen directly is weighted by 2·f_state for its polarisation.
+#[inline(never)]
+fn world_sample_analog(
+    sys: &System,
+    world: &crate::world::World,
+    s: &CameraSample,
+    key: [u64; 3],
+    stats: &mut RenderStats,
+) -> f64 {
+    use crate::world::integrator::{PathCounts, PathRng, exit_point};
+    let mut rng = PathRng::new(&[key[0], key[1], key[2], 0x00A4_A106]);
+    let (u_pol, u_branch) = (rng.next(), rng.next());
+    let pol = usize::from(u_pol >= 0.5);
+    let mut cum = 0.0;
+    let mut chosen = None;
+    trace_counted(sys, s, stats, |b| {
+        cum += b.weight[pol];
+        if u_branch < cum {
+            chosen = Some(b.exit_point_mm);
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    let Some(exit) = chosen else {
+        return 0.0;
+    };
+    let mut counts = PathCounts::default();
+    let l = world.radiance(&sys.display, exit_point(exit), s.ray.dir, s.lambda_nm, &mut rng, &mut counts);
+    stats.scene_rays += counts.rays;
+    2.0 * sys.display.polarization_weights[pol] * l.display + l.other
+}
+
 /// One analog outcome of a sample: the polarisation and the branch (or none: the path dies)
 /// drawn with their probabilities; returns the display radiance the path reaches (weight 1).
 fn trace_analog(
@@ -380,9 +416,16 @@ fn render_row(
     // One monomorphised loop per kind of sample value: the display-only loop is the tight one
     // it always was.
     match (sys.world.as_deref(), estimator) {
-        (Some(world), _) => render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
-            s.ray.cos4 * world_sample(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
-        }),
+        (Some(world), Estimator::Bragg) => {
+            render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
+                s.ray.cos4 * world_sample(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
+            })
+        }
+        (Some(world), Estimator::UniformAnalog) => {
+            render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
+                s.ray.cos4 * world_sample_analog(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
+            })
+        }
         (None, Estimator::Bragg) => render_row_with(sys, set, estimator, rule, row, |s, _, _, stats| {
             let mut radiance = 0.0;
             trace_sample(sys, s, stats, |wt, x| {
