@@ -40,7 +40,8 @@ def main():
             break
         spp *= 2
     import mitsuba as mi
-    out = {"name": f"Mitsuba {mi.__version__} ({variant}, Python vHOE BSDF)", "variant": variant,
+    what = "Python vHOE BSDF" if "waveguide" in a.scene else "plain glass"
+    out = {"name": f"Mitsuba {mi.__version__} ({variant}, {what})", "variant": variant,
            "error": "halves", "points": points}
     with open(a.out, "w") as f:
         json.dump(out, f, indent=1)
