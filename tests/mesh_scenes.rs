@@ -932,3 +932,49 @@ fn shipped_3d_scenes_are_identical_for_one_and_two_threads() {
         assert!((0..48 * 48).all(|i| (mask[i] == 1) == z[i].is_finite()), "{name}: mask vs depth");
     }
 }
+
+/// A FIFO given as a mesh or as a texture is refused at once (it would block a whole-file
+/// read forever): exit 2, one line naming it, nothing written. The process is killed after
+/// 20 s if it hangs, which fails the test.
+#[test]
+fn fifo_as_mesh_or_texture_is_refused_quickly() {
+    let dir = tempfile::tempdir().unwrap();
+    let made = std::process::Command::new("mkfifo")
+        .arg(dir.path().join("pipe.obj"))
+        .arg(dir.path().join("pipe.png"))
+        .status();
+    if !matches!(made, Ok(s) if s.success()) {
+        eprintln!("mkfifo is not available; skipped");
+        return;
+    }
+    for (name, body) in [
+        ("mesh.toml", "[[object]]\nmesh = \"pipe.obj\"\n"),
+        ("tex.toml", "[[object]]\nmesh = \"quad\"\n[object.material]\nbase_color = \"pipe.png\"\n"),
+    ] {
+        let scene = dir.path().join(name);
+        std::fs::write(&scene, body).unwrap();
+        let out = dir.path().join(format!("out-{name}"));
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
+            .args(["render", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1"])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if start.elapsed().as_secs() > 20 {
+                child.kill().unwrap();
+                panic!("{name}: stscam hung on a FIFO");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert_eq!(status.code(), Some(2), "{name}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains("pipe.") && err.contains("not a regular file"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: wrote {:?}", files_in(&out));
+    }
+}

@@ -182,6 +182,12 @@ fn check_regular_file(path: &Path) -> Result<u64, LoadError> {
     if meta.is_dir() {
         return Err(LoadError::new(path, "is a directory, not a mesh file"));
     }
+    if !meta.is_file() {
+        return Err(LoadError::new(
+            path,
+            "is not a regular file (a device, FIFO or socket)",
+        ));
+    }
     if meta.len() > MAX_FILE_BYTES {
         return Err(LoadError::new(
             path,

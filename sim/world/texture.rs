@@ -13,6 +13,9 @@ use glam::DVec2;
 
 use crate::io::IoError;
 
+/// Largest texture file read.
+pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
+
 /// How coordinates outside [0, 1] are folded back (glTF sampler `wrapS`/`wrapT`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Wrap {
@@ -115,6 +118,17 @@ impl Texture {
 
     /// Loads a PNG, JPEG or EXR file as a colour texture (sRGB-decoded unless EXR).
     pub fn load(path: &Path) -> Result<Texture, IoError> {
+        // Type- and size-check before reading whole: a FIFO would block, a device never end.
+        let meta = std::fs::metadata(path).map_err(|e| IoError::io(path, e))?;
+        if !meta.is_file() {
+            return Err(IoError::format(path, "is not a regular file"));
+        }
+        if meta.len() > MAX_TEXTURE_BYTES {
+            return Err(IoError::format(
+                path,
+                format!("texture file is larger than {MAX_TEXTURE_BYTES} bytes"),
+            ));
+        }
         let img = crate::io::image_load::load_image_rgb(path)?;
         Ok(Texture::from_pixels(
             img.width,
