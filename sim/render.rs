@@ -288,7 +288,7 @@ fn world_sample(
         let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
         let w = weight[0] + weight[1];
         let keep = if w < threshold { w / threshold } else { 1.0 };
-        if keep < 1.0 && rng.next() >= keep {
+        if keep < 1.0 && rng.uniform() >= keep {
             continue;
         }
         let l = world.radiance(
@@ -320,7 +320,7 @@ fn world_sample_analog(
 ) -> f64 {
     use crate::world::integrator::{PathCounts, PathRng, exit_point};
     let mut rng = PathRng::new(&[key[0], key[1], key[2], 0x00A4_A106]);
-    let (u_pol, u_branch) = (rng.next(), rng.next());
+    let (u_pol, u_branch) = (rng.uniform(), rng.uniform());
     let pol = usize::from(u_pol >= 0.5);
     let mut cum = 0.0;
     let mut chosen = None;

@@ -402,7 +402,7 @@ fn leaky_f64(o: DVec3, d: DVec3, [a, b, c]: [DVec3; 3]) -> Option<f64> {
     let inv = 1.0 / det;
     let s = o - a;
     let u = s.dot(p) * inv;
-    if u < EPS || u > 1.0 - EPS {
+    if !(EPS..=1.0 - EPS).contains(&u) {
         return None;
     }
     let q = s.cross(e1);

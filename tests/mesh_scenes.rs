@@ -248,8 +248,8 @@ scale = 0.5
     )
 }
 
-/// The same quad as .gltf (external .bin + PNG), .glb (PNG in the BIN chunk) and .obj + .mtl
-/// + PNG (mm; 0.0625 m = 62.5 mm exactly) renders to identical files. The EXR headers carry
+/// The same quad as .gltf (external .bin + PNG), .glb (PNG in the BIN chunk) and
+/// .obj, .mtl and PNG (mm; 0.0625 m = 62.5 mm exactly) renders to identical files. The EXR headers carry
 /// the scene (with the mesh file name), so the mesh names have equal length and the EXR bytes
 /// must be identical once the name is masked; the PNGs (no metadata) must be identical as is.
 #[test]

@@ -24,6 +24,9 @@ use super::integrator::{PathCounts, PathRng};
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
 
+/// One rendered row: values (width × channels), depth, mask, rays traced.
+type FrontalRow = (Vec<f64>, Vec<f32>, Vec<u16>, u64);
+
 /// Mask value of the display.
 pub const MASK_DISPLAY: u16 = u16::MAX;
 
@@ -112,7 +115,7 @@ pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed:
     let origin = DVec3::ZERO;
     let table = ResponseTable::new(sys, lo, hi);
     let rule = LatticeRule::korobov(u64::from(spp));
-    let rows: Vec<(Vec<f64>, Vec<f32>, Vec<u16>, u64)> = (0..height)
+    let rows: Vec<FrontalRow> = (0..height)
         .into_par_iter()
         .map(|r| {
             let mut vals = vec![0.0; width * nch];
@@ -129,7 +132,7 @@ pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed:
                     let (ux, uy, ul) = (u[0], u[1], u[4]);
                     let d = direction(sys, width, height, c as f64 + ux, r as f64 + uy);
                     let (lambda, pdf) = table.sample(ul);
-                    if !(pdf > 0.0) {
+                    if pdf.is_nan() || pdf <= 0.0 {
                         continue;
                     }
                     let l = world.radiance(disp, origin, d, lambda, &mut rng, &mut counts);

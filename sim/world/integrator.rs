@@ -48,7 +48,7 @@ impl PathRng {
 
     /// The next uniform number in [0, 1).
     #[inline]
-    pub fn next(&mut self) -> f64 {
+    pub fn uniform(&mut self) -> f64 {
         self.n += 1;
         to_unit(mix64(self.key ^ mix64(self.n)))
     }
@@ -188,7 +188,7 @@ impl World {
         rng: &mut PathRng,
     ) -> Option<(DVec3, f64, f64, Option<f64>, Emitter)> {
         let sel = self.selection_probability();
-        let (u0, u1, u2) = (rng.next(), rng.next(), rng.next());
+        let (u0, u1, u2) = (rng.uniform(), rng.uniform(), rng.uniform());
         match e {
             Emitter::Light(i) => {
                 let s = self.lights[i].sample(p, [u0, u1], lambda_nm)?;
@@ -321,7 +321,7 @@ impl World {
             let picks = if n_em <= ALL_EMITTERS_MAX {
                 0..n_em
             } else {
-                let k = ((rng.next() * n_em as f64) as usize).min(n_em - 1);
+                let k = ((rng.uniform() * n_em as f64) as usize).min(n_em - 1);
                 k..k + 1
             };
             for k in picks {
@@ -330,7 +330,7 @@ impl World {
                 else {
                     continue;
                 };
-                if wi.dot(ng) <= 0.0 || !(li_over_pdf > 0.0) {
+                if wi.dot(ng) <= 0.0 || li_over_pdf.is_nan() || li_over_pdf <= 0.0 {
                     continue;
                 }
                 let wi_l = frame.to_local(wi);
@@ -350,11 +350,11 @@ impl World {
                 }
             }
             // BSDF sampling.
-            let Some(s) = bsdf.sample(wo_l, [rng.next(), rng.next(), rng.next()]) else {
+            let Some(s) = bsdf.sample(wo_l, [rng.uniform(), rng.uniform(), rng.uniform()]) else {
                 break;
             };
             let wi = frame.to_world(s.wi);
-            if wi.dot(ng) <= 0.0 || !(s.weight > 0.0) || !s.weight.is_finite() {
+            if wi.dot(ng) <= 0.0 || !s.weight.is_finite() || s.weight <= 0.0 {
                 break;
             }
             beta *= s.weight;
@@ -365,7 +365,7 @@ impl World {
             skip = Some(tri);
             if depth > 3 && beta < 1.0 {
                 let q = (1.0 - beta).max(0.0);
-                if rng.next() < q {
+                if rng.uniform() < q {
                     break;
                 }
                 beta /= 1.0 - q;

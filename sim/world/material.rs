@@ -24,7 +24,7 @@ const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
 /// The RGB part of an emission: max(e)·ρ(e/max(e))(λ) (multiply by an illuminant).
 pub fn rgb_emission_factor(rgb: [f64; 3], lambda_nm: f64) -> f64 {
     let m = rgb[0].max(rgb[1]).max(rgb[2]);
-    if !(m > 0.0) {
+    if m.is_nan() || m <= 0.0 {
         return 0.0;
     }
     m * reflectance_from_rgb([rgb[0] / m, rgb[1] / m, rgb[2] / m]).eval(lambda_nm)
