@@ -29,8 +29,8 @@ pub mod system;
 pub mod targets;
 pub mod trace;
 pub mod waveguide;
-pub mod world;
 pub mod wavelength;
+pub mod world;
 
 /// The crate version, recorded in every output.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -562,7 +562,16 @@ fn cmd_render(
     }
     // A missing or unwritable output location is the user's to fix, but it is not bad input
     // to the simulator: exit 1.
-    write_capture_with(out, &cap, &scene_json, seed, spp, &sidecar, frontal.as_ref()).map_err(|e| Failure {
+    write_capture_with(
+        out,
+        &cap,
+        &scene_json,
+        seed,
+        spp,
+        &sidecar,
+        frontal.as_ref(),
+    )
+    .map_err(|e| Failure {
         code: 1,
         message: e.to_string(),
     })?;
@@ -599,7 +608,11 @@ fn cmd_render(
 
 /// `N` or `WxH` for `--frontal-px`.
 fn parse_frontal_px(spec: &str) -> Result<(usize, usize), Failure> {
-    let bad = || bad_input(format!("--frontal-px: expected N or WxH (1..=8192 each), got {spec:?}"));
+    let bad = || {
+        bad_input(format!(
+            "--frontal-px: expected N or WxH (1..=8192 each), got {spec:?}"
+        ))
+    };
     let (w, h) = match spec.split_once(['x', 'X']) {
         Some((a, b)) => (a.trim().parse::<usize>(), b.trim().parse::<usize>()),
         None => (spec.trim().parse::<usize>(), spec.trim().parse::<usize>()),
@@ -1317,7 +1330,10 @@ fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
 
 /// `stscam bench bvh`: prints the medians over seeds 1..=runs as JSON.
 fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64) -> Result<(), Failure> {
-    if !(1..=50_000_000).contains(&triangles) || !(1..=100_000_000).contains(&rays) || !(1..=99).contains(&runs) {
+    if !(1..=50_000_000).contains(&triangles)
+        || !(1..=100_000_000).contains(&rays)
+        || !(1..=99).contains(&runs)
+    {
         return Err(bad_input(
             "bench bvh: --triangles must be 1..=50000000, --rays 1..=100000000, --runs 1..=99",
         ));

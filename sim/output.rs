@@ -101,7 +101,8 @@ pub fn write_capture_with(
     sidecar: &serde_json::Value,
     frontal: Option<&crate::world::frontal::Frontal>,
 ) -> Result<(), IoError> {
-    let exr = encode_capture_exr(cap, scene_json, seed, spp).map_err(fmt_err(dir.join("capture.exr")))?;
+    let exr =
+        encode_capture_exr(cap, scene_json, seed, spp).map_err(fmt_err(dir.join("capture.exr")))?;
     let png = encode_capture_png(cap).map_err(fmt_err(dir.join("capture.png")))?;
     let json = serde_json::to_vec_pretty(sidecar).map_err(|e| IoError::Format {
         path: dir.join("capture.json"),
@@ -115,10 +116,16 @@ pub fn write_capture_with(
     if let Some(f) = frontal {
         let attrs = |units: &str| {
             vec![
-                ("stscam.version".to_string(), ExrAttr::Text(crate::VERSION.to_string())),
+                (
+                    "stscam.version".to_string(),
+                    ExrAttr::Text(crate::VERSION.to_string()),
+                ),
                 ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
                 ("stscam.units".to_string(), ExrAttr::Text(units.to_string())),
-                ("stscam.scene".to_string(), ExrAttr::Text(scene_json.to_string())),
+                (
+                    "stscam.scene".to_string(),
+                    ExrAttr::Text(scene_json.to_string()),
+                ),
             ]
         };
         let chans: Vec<ExrChannel> = f
@@ -145,7 +152,8 @@ pub fn write_capture_with(
             &attrs("distance from the plate's front face along -z, mm; +inf where nothing is hit"),
         )
         .map_err(fmt_err(dir.join("depth.exr")))?;
-        let mpng = encode_png16(f.width, f.height, 1, &f.mask).map_err(fmt_err(dir.join("mask.png")))?;
+        let mpng =
+            encode_png16(f.width, f.height, 1, &f.mask).map_err(fmt_err(dir.join("mask.png")))?;
         files.push(("frontal.exr", fexr));
         files.push(("frontal.png", fpng));
         files.push(("depth.exr", dexr));

@@ -277,10 +277,7 @@ fn world_sample(
         }
         ControlFlow::Continue(())
     });
-    let strongest = branches
-        .iter()
-        .map(|b| b.1[0] + b.1[1])
-        .fold(0.0, f64::max);
+    let strongest = branches.iter().map(|b| b.1[0] + b.1[1]).fold(0.0, f64::max);
     let threshold = BRANCH_ROULETTE_FRACTION * strongest;
     let mut counts = PathCounts::default();
     let mut total = 0.0;
@@ -337,7 +334,14 @@ fn world_sample_analog(
         return 0.0;
     };
     let mut counts = PathCounts::default();
-    let l = world.radiance(&sys.display, exit_point(exit), s.ray.dir, s.lambda_nm, &mut rng, &mut counts);
+    let l = world.radiance(
+        &sys.display,
+        exit_point(exit),
+        s.ray.dir,
+        s.lambda_nm,
+        &mut rng,
+        &mut counts,
+    );
     stats.scene_rays += counts.rays;
     2.0 * sys.display.polarization_weights[pol] * l.display + l.other
 }
@@ -426,13 +430,15 @@ fn render_row(
                 s.ray.cos4 * world_sample_analog(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
             })
         }
-        (None, Estimator::Bragg) => render_row_with(sys, set, estimator, rule, row, |s, _, _, stats| {
-            let mut radiance = 0.0;
-            trace_sample(sys, s, stats, |wt, x| {
-                radiance += wt * disp.radiance_at(x);
-            });
-            s.factor * radiance
-        }),
+        (None, Estimator::Bragg) => {
+            render_row_with(sys, set, estimator, rule, row, |s, _, _, stats| {
+                let mut radiance = 0.0;
+                trace_sample(sys, s, stats, |wt, x| {
+                    radiance += wt * disp.radiance_at(x);
+                });
+                s.factor * radiance
+            })
+        }
         (None, Estimator::UniformAnalog) => {
             render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
                 s.factor * trace_analog(sys, s, set.seed, pixel, i, stats)

@@ -245,7 +245,10 @@ pub struct SamplingDesc {
     pub max_contacts: u32,
     /// 3-D scenes: surface interactions per user-side path (1 = direct light only). Left
     /// out of serialised scenes at its default, so display-only outputs keep their bytes.
-    #[serde(default = "default_max_depth", skip_serializing_if = "is_default_max_depth")]
+    #[serde(
+        default = "default_max_depth",
+        skip_serializing_if = "is_default_max_depth"
+    )]
     pub max_depth: u32,
 }
 
@@ -492,9 +495,8 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
                     .parse()
                     .map_err(|_| fail(format!("{part:?} is not an element index")))?;
                 let n = a.len();
-                a.get_mut(i).ok_or_else(|| {
-                    fail(format!("index {i} is out of range ({n} elements)"))
-                })?
+                a.get_mut(i)
+                    .ok_or_else(|| fail(format!("index {i} is out of range ({n} elements)")))?
             }
             toml::Value::Table(t) => {
                 if !t.contains_key(*part) {
@@ -558,7 +560,10 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
 /// `object[0].mesh` → `object.0.mesh`: keys inside `[[object]]` and `[[light]]` are named as
 /// `--set` takes them (other array elements keep serde's `key[i]` form).
 fn dotted_path(path: &str) -> String {
-    if LIST_SECTIONS.iter().any(|l| path.starts_with(&format!("{l}["))) {
+    if LIST_SECTIONS
+        .iter()
+        .any(|l| path.starts_with(&format!("{l}[")))
+    {
         path.replace("].", ".").replace('[', ".").replace(']', "")
     } else {
         path.to_string()
@@ -853,9 +858,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
-    check(ls, (1..=64).contains(&sm.max_depth), "sampling.max_depth", || {
-        format!("must be in [1, 64], got {}", sm.max_depth)
-    })?;
+    check(
+        ls,
+        (1..=64).contains(&sm.max_depth),
+        "sampling.max_depth",
+        || format!("must be in [1, 64], got {}", sm.max_depth),
+    )?;
     crate::world::desc::validate_world(ls)?;
     Ok(())
 }
@@ -878,7 +886,9 @@ mod tests {
         // Display-only scenes serialise without the 3-D keys (their outputs keep their bytes)
         // and read back equal.
         let json = serde_json::to_string(s).unwrap();
-        assert!(!json.contains("enabled") && !json.contains("max_depth") && !json.contains("object"));
+        assert!(
+            !json.contains("enabled") && !json.contains("max_depth") && !json.contains("object")
+        );
         let back: Scene = serde_json::from_str(&json).unwrap();
         assert_eq!(&back, s);
     }

@@ -327,7 +327,9 @@ impl System {
         };
         let wavelengths = build_wavelength_sampler(s, &waveguide, &camera, &display, limits);
         let world = if s.has_world() {
-            Some(std::sync::Arc::new(crate::world::World::build(ls, &display)?))
+            Some(std::sync::Arc::new(crate::world::World::build(
+                ls, &display,
+            )?))
         } else {
             None
         };

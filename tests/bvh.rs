@@ -125,7 +125,10 @@ fn add_random_triangles(m: &mut Mesh, rng: &mut Rng, n: usize, c: DVec3, half: f
 /// A built-in shape scaled by `s`, rotated by `rot` and moved to `c`.
 fn placed(name: &str, s: f64, rot: DMat3, c: DVec3) -> Mesh {
     let mut m = builtin(name, &Pose::default()).unwrap().mesh;
-    m.transform(&DAffine3::from_mat3_translation(rot * DMat3::from_diagonal(DVec3::splat(s)), c));
+    m.transform(&DAffine3::from_mat3_translation(
+        rot * DMat3::from_diagonal(DVec3::splat(s)),
+        c,
+    ));
     m
 }
 
@@ -146,7 +149,11 @@ struct MtMesh {
 impl MtMesh {
     fn new(m: &Mesh) -> MtMesh {
         let n = m.triangles.len();
-        let (mut v0, mut e1, mut e2) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+        let (mut v0, mut e1, mut e2) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
         for i in 0..n {
             let [a, b, c] = tri(m, i);
             v0.push(a);
@@ -296,11 +303,17 @@ fn random_rays_match_independent_brute_force() {
                             // where two triangles cross) and the distances agree.
                             let p = o + d * t;
                             let scale = 1e-9 * p.length().max(t);
-                            let on_both = point_triangle_distance(p, tri(&mesh, g.triangle as usize)) <= scale
-                                && point_triangle_distance(p, tri(&mesh, tri_id as usize)) <= scale;
+                            let on_both =
+                                point_triangle_distance(p, tri(&mesh, g.triangle as usize))
+                                    <= scale
+                                    && point_triangle_distance(p, tri(&mesh, tri_id as usize))
+                                        <= scale;
                             if r <= 1e-9 && on_both {
                                 tl.ties += 1;
-                                eprintln!("ray {i}: tie between {} and {tri_id} at t = {t}", g.triangle);
+                                eprintln!(
+                                    "ray {i}: tie between {} and {tri_id} at t = {t}",
+                                    g.triangle
+                                );
                             } else {
                                 tl.triangle_mismatch += 1;
                                 eprintln!(
@@ -461,14 +474,22 @@ fn feature_targets(m: &Mesh, rng: &mut Rng, per_kind: usize) -> Vec<(DVec3, Vec<
     let mut out = Vec::new();
     for _ in 0..per_kind {
         let v = verts[rng.index(verts.len())];
-        out.push((vert_pos[&v], vert_faces[&v].iter().map(|&t| normal(t)).collect(), 0));
+        out.push((
+            vert_pos[&v],
+            vert_faces[&v].iter().map(|&t| normal(t)).collect(),
+            0,
+        ));
     }
     for kind in [1, 2] {
         for _ in 0..per_kind {
             let e = edges[rng.index(edges.len())];
             let (a, b) = edge_pos[&e];
             let f = if kind == 1 { 0.5 } else { rng.f64() };
-            out.push((a + (b - a) * f, edge_faces[&e].iter().map(|&t| normal(t)).collect(), kind));
+            out.push((
+                a + (b - a) * f,
+                edge_faces[&e].iter().map(|&t| normal(t)).collect(),
+                kind,
+            ));
         }
     }
     out
@@ -477,10 +498,14 @@ fn feature_targets(m: &Mesh, rng: &mut Rng, per_kind: usize) -> Vec<(DVec3, Vec<
 #[test]
 fn rays_through_vertices_and_edges_never_pass_through() {
     let mut rng = Rng::new(0xB2);
-    let rot = DMat3::from_rotation_z(0.3) * DMat3::from_rotation_y(0.7) * DMat3::from_rotation_x(-0.4);
+    let rot =
+        DMat3::from_rotation_z(0.3) * DMat3::from_rotation_y(0.7) * DMat3::from_rotation_x(-0.4);
     let meshes = [
         ("sphere", placed("sphere", 200.0, DMat3::IDENTITY, CENTRE)),
-        ("box (axis-aligned)", placed("box", 150.0, DMat3::IDENTITY, CENTRE)),
+        (
+            "box (axis-aligned)",
+            placed("box", 150.0, DMat3::IDENTITY, CENTRE),
+        ),
         ("box (rotated)", placed("box", 150.0, rot, CENTRE)),
         ("head", placed("head", 1.0, DMat3::IDENTITY, CENTRE)),
     ];
@@ -528,7 +553,8 @@ fn rays_through_vertices_and_edges_never_pass_through() {
                     }
                 }
             }
-            if !matches!(brute_force(&m.positions_mm, &m.triangles, o, d), Some(h) if h.t <= 1.0 + 1e-9) {
+            if !matches!(brute_force(&m.positions_mm, &m.triangles, o, d), Some(h) if h.t <= 1.0 + 1e-9)
+            {
                 leaks_brute += 1;
             }
             // Each routine must find a hit at or before the target (t = 1): a ray that passes
@@ -559,8 +585,16 @@ fn rays_through_vertices_and_edges_never_pass_through() {
     }
     assert!(total >= 10_000, "{total}");
     // The check has teeth: a non-watertight routine fails it on these very rays.
-    assert!(total_leaky > 0, "edge-excluding Möller–Trumbore did not leak");
-    assert_eq!(total_bvh_leaks, 0, "Accel::intersect let {total_bvh_leaks} of {total} rays through (first {} listed above)", failures.len());
+    assert!(
+        total_leaky > 0,
+        "edge-excluding Möller–Trumbore did not leak"
+    );
+    assert_eq!(
+        total_bvh_leaks,
+        0,
+        "Accel::intersect let {total_bvh_leaks} of {total} rays through (first {} listed above)",
+        failures.len()
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -576,7 +610,10 @@ fn builds_are_deterministic() {
         .collect();
     let hits = |a: &Accel| -> Vec<Option<(u32, u64)>> {
         rays.iter()
-            .map(|&(o, d)| a.intersect(o, d, 0.0, f64::INFINITY, None).map(|h| (h.triangle, h.t.to_bits())))
+            .map(|&(o, d)| {
+                a.intersect(o, d, 0.0, f64::INFINITY, None)
+                    .map(|h| (h.triangle, h.t.to_bits()))
+            })
             .collect()
     };
     let build_in = |threads: usize| {
@@ -617,4 +654,3 @@ fn bench_bvh_smoke() {
     assert!(b.hit_fraction > 0.999, "{b:?}");
     serde_json::to_string(&b).unwrap();
 }
-

@@ -62,7 +62,10 @@ fn analog_and_bragg_estimators_agree_on_a_3d_scene() {
     .unwrap();
     let ls = load_scene(
         Some(&p),
-        &["sensor.crop_px=[16,16]".to_string(), "sensor.pitch_um=132.0".to_string()],
+        &[
+            "sensor.crop_px=[16,16]".to_string(),
+            "sensor.pitch_um=132.0".to_string(),
+        ],
     )
     .unwrap();
     let sys = System::build(&ls).unwrap();
@@ -76,7 +79,10 @@ fn analog_and_bragg_estimators_agree_on_a_3d_scene() {
                     spectral_bins: None,
                     progress: false,
                 };
-                render_with(&sys, &set, e).channels[0].iter().map(|&v| f64::from(v)).sum::<f64>()
+                render_with(&sys, &set, e).channels[0]
+                    .iter()
+                    .map(|&v| f64::from(v))
+                    .sum::<f64>()
             })
             .collect();
         let m = sums.iter().sum::<f64>() / 8.0;

@@ -321,7 +321,11 @@ fn same_quad_from_gltf_glb_and_obj_renders_identically() {
                 b"#########",
             );
             assert_eq!(nx, nr, "{f} of {n}");
-            assert!(x == r, "{f} of {n} differs from {} beyond the mesh name", names[0]);
+            assert!(
+                x == r,
+                "{f} of {n} differs from {} beyond the mesh name",
+                names[0]
+            );
         }
     }
     for f in ["capture.png", "frontal.png", "mask.png"] {
@@ -352,17 +356,27 @@ fn same_quad_from_gltf_glb_and_obj_renders_identically() {
         .iter()
         .fold((f32::INFINITY, 0.0f32), |(a, b), v| (a.min(*v), b.max(*v)));
     eprintln!("frontal at the four texel centres: {quads:?}");
-    assert!(qmin > 0.0 && qmax > 3.0 * qmin, "texture not visible: {quads:?}");
+    assert!(
+        qmin > 0.0 && qmax > 3.0 * qmin,
+        "texture not visible: {quads:?}"
+    );
     // Green (top right, uv (0.75, 0.25)) is the brightest texel, brown (bottom right) the
     // dimmest: the texture is seen upright, as uv (0, 0) = top-left prescribes.
-    assert!(quads[1] == qmax && quads[3] == qmin, "texture orientation: {quads:?}");
+    assert!(
+        quads[1] == qmax && quads[3] == qmin,
+        "texture orientation: {quads:?}"
+    );
     let (mw, mh, mask) = read_mask(&outs[0].join("mask.png"));
     assert_eq!((mw, mh), (64, 64));
     assert_eq!(mask[32 * 64 + 32], 1);
     assert_eq!(mask[0], 0);
     let (_, _, dep) = exr(&outs[0].join("depth.exr"));
     let z = channel(&dep, "Z");
-    assert!((z[32 * 64 + 32] - 550.0).abs() < 1e-3, "depth {}", z[32 * 64 + 32]);
+    assert!(
+        (z[32 * 64 + 32] - 550.0).abs() < 1e-3,
+        "depth {}",
+        z[32 * 64 + 32]
+    );
     assert_eq!(z[0], f32::INFINITY);
 }
 
@@ -454,7 +468,12 @@ fn nested_gltf_emitter_lands_on_the_probed_replica_pixels() {
     // Local quad x ∈ ±2^-12 m, y ∈ ±2^-10 m; child S = (2, 0.5, 1) makes it 2^-11 × 2^-12...
     // ...rotated by the parent's 90° about z: x' = −0.5·y, y' = 2·x, both ±2^-11 m.
     let (ax, by) = (EMITTER_HALF_M / 2.0, EMITTER_HALF_M * 2.0);
-    let local = [[-ax, -by, 0.0], [ax, -by, 0.0], [ax, by, 0.0], [-ax, by, 0.0]];
+    let local = [
+        [-ax, -by, 0.0],
+        [ax, -by, 0.0],
+        [ax, by, 0.0],
+        [-ax, by, 0.0],
+    ];
     let (s, c) = (
         std::f32::consts::FRAC_PI_4.sin(),
         std::f32::consts::FRAC_PI_4.cos(),
@@ -468,7 +487,10 @@ fn nested_gltf_emitter_lands_on_the_probed_replica_pixels() {
     write(&d.join("nested.gltf"), emitter_gltf(&local, nested));
     let e = EMITTER_HALF_M;
     let flat = [[-e, -e, 0.0], [e, -e, 0.0], [e, e, 0.0], [-e, e, 0.0]];
-    write(&d.join("flat.gltf"), emitter_gltf(&flat, json!([{"mesh": 0}])));
+    write(
+        &d.join("flat.gltf"),
+        emitter_gltf(&flat, json!([{"mesh": 0}])),
+    );
     let sn = d.join("nested.toml");
     write(&sn, emitter_scene("nested.gltf", [0.0; 3]));
     let sf = d.join("flat.toml");
@@ -609,15 +631,26 @@ fn nested_gltf_emitter_lands_on_the_probed_replica_pixels() {
     );
     // Nothing is seen off the midline column (the emitter is 1 px wide, centred on it).
     for (i, v) in yn.iter().enumerate() {
-        assert!(i % w == 4 || *v == 0.0, "pixel ({}, {}) = {v}", i % w, i / w);
+        assert!(
+            i % w == 4 || *v == 0.0,
+            "pixel ({}, {}) = {v}",
+            i % w,
+            i / w
+        );
     }
     // Every pixel ≥ 10 % of the peak lies within one pixel of a predicted pixel. (Below that:
     // the dispersion haze of off-Bragg wavelengths between replicas, measured ≤ 7 %.)
     for &(c, r, v) in &bright {
-        assert!(near(c, r), "pixel ({c}, {r}) = {v} is bright but no chief ray predicts it");
+        assert!(
+            near(c, r),
+            "pixel ({c}, {r}) = {v} is bright but no chief ray predicts it"
+        );
     }
     // Most of the light lands on the predicted pixels.
-    assert!(inside > 0.7 * total, "{inside} of {total} on the predicted pixels");
+    assert!(
+        inside > 0.7 * total,
+        "{inside} of {total} on the predicted pixels"
+    );
     // Every predicted pixel whose chief-ray weight is ≥ 10 % of the heaviest is seen there.
     let wmax = predicted.iter().map(|p| p.2).fold(0.0, f64::max);
     let mut seen = 0;
@@ -628,7 +661,10 @@ fn nested_gltf_emitter_lands_on_the_probed_replica_pixels() {
         let lit = bright
             .iter()
             .any(|&(c, r, _)| c.abs_diff(pc) <= 1 && r.abs_diff(pr) <= 1);
-        assert!(lit, "predicted pixel ({pc}, {pr}) with weight {wgt} is dark");
+        assert!(
+            lit,
+            "predicted pixel ({pc}, {pr}) with weight {wgt} is dark"
+        );
         seen += 1;
     }
     assert!(seen >= 3, "{seen} replicas seen");
@@ -699,8 +735,15 @@ scale = 2.0
     let hi = vec3(&obj["bounds_mm"][1]);
     eprintln!("face bounds {lo:?} .. {hi:?}");
     // cm → mm and placement: z from −500 − 24.36 to −500 + 75.87 mm.
-    assert!((lo[2] + 524.36).abs() < 0.01 && (hi[2] + 424.13).abs() < 0.01, "{lo:?} {hi:?}");
-    assert!((140.0..=170.0).contains(&(hi[0] - lo[0])), "width {}", hi[0] - lo[0]);
+    assert!(
+        (lo[2] + 524.36).abs() < 0.01 && (hi[2] + 424.13).abs() < 0.01,
+        "{lo:?} {hi:?}"
+    );
+    assert!(
+        (140.0..=170.0).contains(&(hi[0] - lo[0])),
+        "width {}",
+        hi[0] - lo[0]
+    );
     assert_eq!(side["stats"]["nonfinite_samples"], 0);
     for f in ["capture.exr", "frontal.exr"] {
         let (w, h, ch) = exr(&out.join(f));
@@ -720,7 +763,11 @@ scale = 2.0
             middle += usize::from(mask[r * 64 + c] == 1);
         }
     }
-    assert_eq!(middle, 16 * 16, "object pixels in the middle 16×16: {middle}");
+    assert_eq!(
+        middle,
+        16 * 16,
+        "object pixels in the middle 16×16: {middle}"
+    );
     let object: Vec<f32> = (0..64 * 64)
         .filter(|&i| mask[i] == 1)
         .map(|i| z[i])
@@ -750,8 +797,17 @@ fn fails(args: &[&str], out: &Path) -> String {
     let o = stscam(&all);
     let err = String::from_utf8(o.stderr).unwrap();
     assert_eq!(o.status.code(), Some(2), "{all:?}: {err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{all:?}: not one line: {err}");
-    assert!(!out.exists(), "{all:?} created {} ({:?})", out.display(), files_in(out));
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{all:?}: not one line: {err}"
+    );
+    assert!(
+        !out.exists(),
+        "{all:?} created {} ({:?})",
+        out.display(),
+        files_in(out)
+    );
     err.trim_end().to_string()
 }
 
@@ -773,7 +829,10 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
     // (a) A missing mesh file.
     write(&scene, object("nope.obj", ""));
     let e = fails(&[s], &out);
-    assert!(e.starts_with(&prefix("object.0.mesh")) && e.contains("nope.obj"), "{e}");
+    assert!(
+        e.starts_with(&prefix("object.0.mesh")) && e.contains("nope.obj"),
+        "{e}"
+    );
 
     // (b) A glTF with points only: no triangles.
     let bin: Vec<u8> = [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
@@ -795,7 +854,9 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
     write(&scene, object("points.gltf", ""));
     let e = fails(&[s], &out);
     assert!(
-        e.starts_with(&prefix("object.0.mesh")) && e.contains("points.gltf") && e.contains("no triangles"),
+        e.starts_with(&prefix("object.0.mesh"))
+            && e.contains("points.gltf")
+            && e.contains("no triangles"),
         "{e}"
     );
 
@@ -808,7 +869,10 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
     );
     write(&scene, object("m.obj", ""));
     let e = fails(&[s], &out);
-    assert!(e.starts_with(&prefix("object.0.mesh")) && e.contains("gone.png"), "{e}");
+    assert!(
+        e.starts_with(&prefix("object.0.mesh")) && e.contains("gone.png"),
+        "{e}"
+    );
     let qbin = quad_bin(&QUAD_M);
     write(&d.join("quad.bin"), &qbin);
     let j = quad_json(
@@ -820,7 +884,9 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
     write(&scene, object("t.gltf", ""));
     let e = fails(&[s], &out);
     assert!(
-        e.starts_with(&prefix("object.0.mesh")) && e.contains("missing.png") && e.contains("t.gltf"),
+        e.starts_with(&prefix("object.0.mesh"))
+            && e.contains("missing.png")
+            && e.contains("t.gltf"),
         "{e}"
     );
     write(
@@ -838,7 +904,9 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
     write(&scene, object("nan.obj", ""));
     let e = fails(&[s], &out);
     assert!(
-        e.starts_with(&prefix("object.0.mesh")) && e.contains("nan.obj") && e.contains("not finite"),
+        e.starts_with(&prefix("object.0.mesh"))
+            && e.contains("nan.obj")
+            && e.contains("not finite"),
         "{e}"
     );
 
@@ -848,14 +916,19 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
         "[[light]]\nkind = \"laser\"\nposition_mm = [0.0, 0.0, -100.0]\n",
     );
     let e = fails(&[s], &out);
-    assert!(e.starts_with(&prefix("light.0.kind")) && e.contains("laser"), "{e}");
+    assert!(
+        e.starts_with(&prefix("light.0.kind")) && e.contains("laser"),
+        "{e}"
+    );
 
     // (f) A mesh path that is a folder.
     std::fs::create_dir(d.join("folder.obj")).unwrap();
     write(&scene, object("folder.obj", ""));
     let e = fails(&[s], &out);
     assert!(
-        e.starts_with(&prefix("object.0.mesh")) && e.contains("folder.obj") && e.contains("directory"),
+        e.starts_with(&prefix("object.0.mesh"))
+            && e.contains("folder.obj")
+            && e.contains("directory"),
         "{e}"
     );
 
@@ -878,7 +951,10 @@ fn bad_mesh_and_light_input_is_one_line_naming_file_and_key() {
         "{e}"
     );
     let e = fails(&[s, "--set", "light.0.kind=\"rect\""], &out);
-    assert!(e.starts_with("error: --set light.0.kind: light.0.kind: "), "{e}");
+    assert!(
+        e.starts_with("error: --set light.0.kind: light.0.kind: "),
+        "{e}"
+    );
 }
 
 // ------------------------------------------------------------------------------------------
@@ -902,7 +978,14 @@ fn shipped_3d_scenes_are_identical_for_one_and_two_threads() {
             assert_eq!(side["stats"]["nonfinite_samples"], 0, "{name}");
             outs.push(out);
         }
-        for f in ["capture.exr", "frontal.exr", "depth.exr", "mask.png", "capture.png", "frontal.png"] {
+        for f in [
+            "capture.exr",
+            "frontal.exr",
+            "depth.exr",
+            "mask.png",
+            "capture.png",
+            "frontal.png",
+        ] {
             let a = std::fs::read(outs[0].join(f)).unwrap();
             let b = std::fs::read(outs[1].join(f)).unwrap();
             assert!(a == b, "{name}: {f} differs between 1 and 2 threads");
@@ -929,7 +1012,10 @@ fn shipped_3d_scenes_are_identical_for_one_and_two_threads() {
         let object = mask.iter().filter(|m| **m == 1).count();
         eprintln!("{name}: {object} object pixels");
         assert!(object > 48 * 48 / 10, "{name}: {object} object pixels");
-        assert!((0..48 * 48).all(|i| (mask[i] == 1) == z[i].is_finite()), "{name}: mask vs depth");
+        assert!(
+            (0..48 * 48).all(|i| (mask[i] == 1) == z[i].is_finite()),
+            "{name}: mask vs depth"
+        );
     }
 }
 
@@ -949,13 +1035,23 @@ fn fifo_as_mesh_or_texture_is_refused_quickly() {
     }
     for (name, body) in [
         ("mesh.toml", "[[object]]\nmesh = \"pipe.obj\"\n"),
-        ("tex.toml", "[[object]]\nmesh = \"quad\"\n[object.material]\nbase_color = \"pipe.png\"\n"),
+        (
+            "tex.toml",
+            "[[object]]\nmesh = \"quad\"\n[object.material]\nbase_color = \"pipe.png\"\n",
+        ),
     ] {
         let scene = dir.path().join(name);
         std::fs::write(&scene, body).unwrap();
         let out = dir.path().join(format!("out-{name}"));
         let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
-            .args(["render", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1"])
+            .args([
+                "render",
+                scene.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--spp",
+                "1",
+            ])
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();
@@ -974,7 +1070,10 @@ fn fifo_as_mesh_or_texture_is_refused_quickly() {
         std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
         assert_eq!(status.code(), Some(2), "{name}: {err}");
         assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
-        assert!(err.contains("pipe.") && err.contains("not a regular file"), "{name}: {err}");
+        assert!(
+            err.contains("pipe.") && err.contains("not a regular file"),
+            "{name}: {err}"
+        );
         assert!(!out.exists(), "{name}: wrote {:?}", files_in(&out));
     }
 }

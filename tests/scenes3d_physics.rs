@@ -70,11 +70,17 @@ fn white_furnace_renders_the_environment() {
     };
     let (m, s, n) = check("white.csv");
     assert!(n > 300, "the head covers {n} frontal pixels");
-    assert!((m - 1.0).abs() < 4.0 * s + 1e-12, "furnace frontal mean {m} ± {s}");
+    assert!(
+        (m - 1.0).abs() < 4.0 * s + 1e-12,
+        "furnace frontal mean {m} ± {s}"
+    );
     assert!(s < 0.01, "standard error {s}");
     // Background pixels see the environment directly: exactly 1 up to the spectral estimate.
     let (m9, s9, _) = check("grey.csv");
-    assert!((m9 - 1.0).abs() > 10.0 * s9, "a 0.9 albedo must fail: {m9} ± {s9}");
+    assert!(
+        (m9 - 1.0).abs() > 10.0 * s9,
+        "a 0.9 albedo must fail: {m9} ± {s9}"
+    );
     assert!(m9 < 0.99);
 
     // Through the waveguide: capture of the furnace = capture of the empty environment.
@@ -94,8 +100,14 @@ fn white_furnace_renders_the_environment() {
         .collect();
     let (md, sd) = mean_sem(&diffs);
     let mean_b = b.channels[0].iter().map(|v| f64::from(*v)).sum::<f64>() / diffs.len() as f64;
-    assert!(mean_b > 1e-3, "the environment is seen through the waveguide: {mean_b}");
-    assert!(md.abs() < 4.0 * sd + 1e-9 * mean_b, "furnace vs empty: {md} ± {sd} (mean {mean_b})");
+    assert!(
+        mean_b > 1e-3,
+        "the environment is seen through the waveguide: {mean_b}"
+    );
+    assert!(
+        md.abs() < 4.0 * sd + 1e-9 * mean_b,
+        "furnace vs empty: {md} ± {sd} (mean {mean_b})"
+    );
     assert!(sd < 0.01 * mean_b, "noise {sd} vs level {mean_b}");
 }
 
@@ -110,12 +122,21 @@ fn emissive_quad_matches_the_display() {
     let dir = tempfile::tempdir().unwrap();
     // The target as a PNG: the built-in letter F (binary, so sRGB and gamma 2.2 agree).
     let t = stscam::targets::builtin_target("letter:F").unwrap();
-    let codes: Vec<u16> = t.values.iter().map(|v| (v * 65535.0).round() as u16).collect();
+    let codes: Vec<u16> = t
+        .values
+        .iter()
+        .map(|v| (v * 65535.0).round() as u16)
+        .collect();
     assert!(t.values.iter().all(|v| *v == 0.0 || *v == 1.0));
     let png = stscam::io::encode_png16(t.width, t.height, 1, &codes).unwrap();
     std::fs::write(dir.path().join("target.png"), png).unwrap();
     let size = t.width as f64 * 0.27 * 10.0;
-    let sets = [SMALL[0], SMALL[1], "display.black_level=0", "display.image=\"letter:F\""];
+    let sets = [
+        SMALL[0],
+        SMALL[1],
+        "display.black_level=0",
+        "display.image=\"letter:F\"",
+    ];
     let display = system(dir.path(), "", &sets);
     let quad = |s: f64, emission: f64| {
         format!(
@@ -145,17 +166,26 @@ texture_filter = "nearest"
             .collect();
         let level = a.channels[0].iter().map(|v| f64::from(*v)).sum::<f64>() / d.len() as f64;
         let (m, sem) = mean_sem(&d);
-        let rmse = stscam::render::relative_rmse(&[(b.channels[0].as_slice(), a.channels[0].as_slice())]);
+        let rmse =
+            stscam::render::relative_rmse(&[(b.channels[0].as_slice(), a.channels[0].as_slice())]);
         (m / level, sem / level, rmse)
     };
     let (m, sem, rmse) = compare(size, 1.0);
-    eprintln!("quad vs display: mean difference {m:.2e} ± {sem:.2e} of the level, relative RMSE {rmse:.3}");
+    eprintln!(
+        "quad vs display: mean difference {m:.2e} ± {sem:.2e} of the level, relative RMSE {rmse:.3}"
+    );
     assert!(m.abs() < 4.0 * sem, "quad vs display: {m} ± {sem}");
     assert!(rmse < 0.1, "relative RMSE {rmse}");
     let (m, sem, _) = compare(size, 0.97);
-    assert!(m.abs() > 4.0 * sem, "3 % weaker emission must fail: {m} ± {sem}");
+    assert!(
+        m.abs() > 4.0 * sem,
+        "3 % weaker emission must fail: {m} ± {sem}"
+    );
     let (m, sem, _) = compare(size * 0.95, 1.0);
-    assert!(m.abs() > 4.0 * sem, "a 5 % smaller quad must fail: {m} ± {sem}");
+    assert!(
+        m.abs() > 4.0 * sem,
+        "a 5 % smaller quad must fail: {m} ± {sem}"
+    );
 }
 
 /// The display as a light: an all-white LCD lights a sphere just in front of it exactly as a
@@ -180,7 +210,9 @@ fn display_lights_the_scene_like_an_equal_rect_light() {
         render_frontal(&sys, 40, 40, 64, 9).unwrap()
     };
     let a = frontal(&lcd);
-    let on_sphere = |f: &stscam::world::frontal::Frontal, g: &stscam::world::frontal::Frontal| -> (f64, f64, f64) {
+    let on_sphere = |f: &stscam::world::frontal::Frontal,
+                     g: &stscam::world::frontal::Frontal|
+     -> (f64, f64, f64) {
         let d: Vec<f64> = (0..f.mask.len())
             .filter(|&i| f.mask[i] == 1)
             .map(|i| f64::from(f.channels[0][i]) - f64::from(g.channels[0][i]))
@@ -194,11 +226,15 @@ fn display_lights_the_scene_like_an_equal_rect_light() {
         (m, s, mean_a)
     };
     let b = frontal(&rect(1.0));
-    let sphere_px = |f: &stscam::world::frontal::Frontal| f.mask.iter().map(|m| *m == 1).collect::<Vec<_>>();
+    let sphere_px =
+        |f: &stscam::world::frontal::Frontal| f.mask.iter().map(|m| *m == 1).collect::<Vec<_>>();
     assert_eq!(sphere_px(&a), sphere_px(&b));
     let (m, s, level) = on_sphere(&b, &a);
     assert!(level > 1e-3, "the sphere is lit: {level}");
-    assert!(m.abs() < 4.0 * s, "rect - display on the sphere: {m} ± {s} (level {level})");
+    assert!(
+        m.abs() < 4.0 * s,
+        "rect - display on the sphere: {m} ± {s} (level {level})"
+    );
     // The emitters seen directly agree exactly in expectation too (background pixels).
     let c = frontal(&rect(1.1));
     let (m2, s2, _) = on_sphere(&c, &a);

@@ -136,7 +136,9 @@ pub fn bench_bvh(triangles_min: usize, rays: usize, seed: u64) -> BvhBench {
                 .par_chunks(4096)
                 .map(|c| {
                     c.iter()
-                        .filter(|&&(o, d)| accel.intersect(o, d, 0.0, f64::INFINITY, None).is_some())
+                        .filter(|&&(o, d)| {
+                            accel.intersect(o, d, 0.0, f64::INFINITY, None).is_some()
+                        })
                         .count()
                 })
                 .sum()

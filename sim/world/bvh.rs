@@ -18,9 +18,9 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3, Vec3A};
 use obvhs::BvhBuildParams;
+use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
-use obvhs::aabb::Aabb;
 
 /// A ray in f64 with the shear constants of the watertight test precomputed.
 #[derive(Clone, Copy, Debug)]
@@ -153,10 +153,7 @@ impl Accel {
             .iter()
             .map(|t| {
                 let [a, b, c] = t.map(|i| positions[i as usize]);
-                Aabb::new(
-                    to_f32(a.min(b).min(c) - pad),
-                    to_f32(a.max(b).max(c) + pad),
-                )
+                Aabb::new(to_f32(a.min(b).min(c) - pad), to_f32(a.max(b).max(c) + pad))
             })
             .collect();
         let bvh = obvhs::cwbvh::builder::build_cwbvh(
@@ -186,11 +183,26 @@ impl Accel {
     }
 
     fn f32_ray(o: DVec3, d: DVec3, tmax: f64) -> Ray {
-        Ray::new(to_f32(o), to_f32(d), 0.0, if tmax.is_finite() { tmax as f32 * 1.000_01 + 1e-3 } else { f32::INFINITY })
+        Ray::new(
+            to_f32(o),
+            to_f32(d),
+            0.0,
+            if tmax.is_finite() {
+                tmax as f32 * 1.000_01 + 1e-3
+            } else {
+                f32::INFINITY
+            },
+        )
     }
 
     #[inline]
-    fn test(&self, wr: &WatertightRay, slot: usize, tmin: f64, tmax: f64) -> Option<(f64, [f64; 3])> {
+    fn test(
+        &self,
+        wr: &WatertightRay,
+        slot: usize,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<(f64, [f64; 3])> {
         let t = self.tris[slot];
         wr.intersect(
             self.positions[t[0] as usize],

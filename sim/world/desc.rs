@@ -51,7 +51,10 @@ pub enum RgbOr {
 
 /// A number for all five fingers or one per finger (thumb first).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged, expecting = "a number or five numbers (thumb to little finger)")]
+#[serde(
+    untagged,
+    expecting = "a number or five numbers (thumb to little finger)"
+)]
 pub enum BendSpec {
     /// Same bend for every finger.
     All(f64),
@@ -186,7 +189,10 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
     for (i, o) in s.object.iter().enumerate() {
         let k = |name: &str| format!("object.{i}.{name}");
         if o.mesh.trim().is_empty() {
-            return err(k("mesh"), "must name a mesh file or a built-in shape".into());
+            return err(
+                k("mesh"),
+                "must name a mesh file or a built-in shape".into(),
+            );
         }
         if !finite_all(&o.position_mm) {
             return err(k("position_mm"), "must be finite".into());
@@ -196,25 +202,37 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         }
         let sc = o.scale.axes();
         if !sc.iter().all(|v| v.is_finite() && *v > 0.0 && *v < 1e9) {
-            return err(k("scale"), format!("must be positive and finite, got {sc:?}"));
+            return err(
+                k("scale"),
+                format!("must be positive and finite, got {sc:?}"),
+            );
         }
         if unit_mm(o.units.as_deref()).is_none() {
             let names: Vec<_> = UNITS.iter().map(|u| u.0).collect();
             return err(
                 k("units"),
-                format!("unknown unit {:?}; expected one of {names:?}", o.units.as_deref().unwrap_or("")),
+                format!(
+                    "unknown unit {:?}; expected one of {names:?}",
+                    o.units.as_deref().unwrap_or("")
+                ),
             );
         }
         if let Some(m) = &o.material {
             if let Some(RgbOr::Rgb(c)) = &m.base_color
                 && !c.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v))
             {
-                return err(k("material.base_color"), format!("RGB components must be in [0, 1], got {c:?}"));
+                return err(
+                    k("material.base_color"),
+                    format!("RGB components must be in [0, 1], got {c:?}"),
+                );
             }
             if let Some(RgbOr::Rgb(c)) = &m.emission
                 && !c.iter().all(|v| v.is_finite() && *v >= 0.0 && *v < 1e12)
             {
-                return err(k("material.emission"), format!("RGB components must be finite and >= 0, got {c:?}"));
+                return err(
+                    k("material.emission"),
+                    format!("RGB components must be finite and >= 0, got {c:?}"),
+                );
             }
             for (name, v, lo, hi) in [
                 ("material.emission_scale", m.emission_scale, 0.0, 1e12),
@@ -231,7 +249,10 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
                 && f != "linear"
                 && f != "nearest"
             {
-                return err(k("material.texture_filter"), format!("expected \"linear\" or \"nearest\", got {f:?}"));
+                return err(
+                    k("material.texture_filter"),
+                    format!("expected \"linear\" or \"nearest\", got {f:?}"),
+                );
             }
         }
         if let Some(p) = &o.pose {
@@ -240,26 +261,44 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
                 Some(BendSpec::Each(b)) => b.to_vec(),
                 None => vec![],
             };
-            if !bends.iter().all(|b| b.is_finite() && (-30.0..=120.0).contains(b)) {
-                return err(k("pose.bend_deg"), format!("must be in [-30, 120] degrees, got {bends:?}"));
+            if !bends
+                .iter()
+                .all(|b| b.is_finite() && (-30.0..=120.0).contains(b))
+            {
+                return err(
+                    k("pose.bend_deg"),
+                    format!("must be in [-30, 120] degrees, got {bends:?}"),
+                );
             }
             if let Some(sp) = p.spread_deg
                 && !(sp.is_finite() && (-20.0..=30.0).contains(&sp))
             {
-                return err(k("pose.spread_deg"), format!("must be in [-20, 30] degrees, got {sp}"));
+                return err(
+                    k("pose.spread_deg"),
+                    format!("must be in [-20, 30] degrees, got {sp}"),
+                );
             }
         }
     }
     for (i, l) in s.light.iter().enumerate() {
         let k = |name: &str| format!("light.{i}.{name}");
         if !LIGHT_KINDS.contains(&l.kind.as_str()) {
-            return err(k("kind"), format!("unknown light kind {:?}; expected one of {LIGHT_KINDS:?}", l.kind));
+            return err(
+                k("kind"),
+                format!(
+                    "unknown light kind {:?}; expected one of {LIGHT_KINDS:?}",
+                    l.kind
+                ),
+            );
         }
         let needs_pos = l.kind != "environment";
         match l.position_mm {
             Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
             None if needs_pos => {
-                return err(k("position_mm"), format!("a {} light needs a position", l.kind));
+                return err(
+                    k("position_mm"),
+                    format!("a {} light needs a position", l.kind),
+                );
             }
             _ => {}
         }
@@ -281,8 +320,18 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         match l.kind.as_str() {
             "rect" => match l.size_mm {
                 Some([w, h]) if w.is_finite() && h.is_finite() && w > 0.0 && h > 0.0 => {}
-                Some(s) => return err(k("size_mm"), format!("must be two positive sizes, got {s:?}")),
-                None => return err(k("size_mm"), "a rect light needs size_mm = [width, height]".into()),
+                Some(s) => {
+                    return err(
+                        k("size_mm"),
+                        format!("must be two positive sizes, got {s:?}"),
+                    );
+                }
+                None => {
+                    return err(
+                        k("size_mm"),
+                        "a rect light needs size_mm = [width, height]".into(),
+                    );
+                }
             },
             "sphere" => match l.radius_mm {
                 Some(r) if r.is_finite() && r > 0.0 => {}
@@ -297,7 +346,10 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
                 if let Some(f) = l.falloff_deg
                     && !(f.is_finite() && f >= 0.0 && f <= cone)
                 {
-                    return err(k("falloff_deg"), format!("must be in [0, cone_deg], got {f}"));
+                    return err(
+                        k("falloff_deg"),
+                        format!("must be in [0, cone_deg], got {f}"),
+                    );
                 }
             }
             _ => {}

@@ -64,17 +64,23 @@ impl ResponseTable {
         let w: Vec<f64> = (0..n)
             .map(|i| {
                 let l = lo + (i as f64 + 0.5) * step;
-                crate::render::channel_weights(sys, l).iter().sum::<f64>().max(0.0)
+                crate::render::channel_weights(sys, l)
+                    .iter()
+                    .sum::<f64>()
+                    .max(0.0)
             })
             .collect();
         let total: f64 = w.iter().sum::<f64>() * step;
         let (pdf, cdf) = if total > 0.0 {
             let pdf: Vec<f64> = w.iter().map(|v| v / total).collect();
             let mut acc = 0.0;
-            let cdf = pdf.iter().map(|p| {
-                acc += p * step;
-                acc
-            }).collect();
+            let cdf = pdf
+                .iter()
+                .map(|p| {
+                    acc += p * step;
+                    acc
+                })
+                .collect();
             (pdf, cdf)
         } else {
             let pdf = vec![1.0 / (hi - lo); n];
@@ -88,10 +94,17 @@ impl ResponseTable {
     fn sample(&self, u: f64) -> (f64, f64) {
         let last = *self.cdf.last().unwrap_or(&1.0);
         let v = u * last;
-        let k = self.cdf.partition_point(|c| *c <= v).min(self.cdf.len() - 1);
+        let k = self
+            .cdf
+            .partition_point(|c| *c <= v)
+            .min(self.cdf.len() - 1);
         let before = if k == 0 { 0.0 } else { self.cdf[k - 1] };
         let p = self.pdf[k];
-        let frac = if p > 0.0 { ((v - before) / (p * self.step)).clamp(0.0, 1.0) } else { 0.5 };
+        let frac = if p > 0.0 {
+            ((v - before) / (p * self.step)).clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
         (self.lo + (k as f64 + frac) * self.step, p / last)
     }
 }
@@ -107,11 +120,20 @@ fn direction(sys: &System, w: usize, h: usize, x: f64, y: f64) -> DVec3 {
 }
 
 /// Renders the frontal image, depth and mask at `width`×`height` with `spp` samples per pixel.
-pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed: u64) -> Option<Frontal> {
+pub fn render_frontal(
+    sys: &System,
+    width: usize,
+    height: usize,
+    spp: u32,
+    seed: u64,
+) -> Option<Frontal> {
     let world = sys.world.as_deref()?;
     let disp = &sys.display;
     let nch = sys.response.curves.len();
-    let (lo, hi) = (sys.scene.sampling.lambda_min_nm, sys.scene.sampling.lambda_max_nm);
+    let (lo, hi) = (
+        sys.scene.sampling.lambda_min_nm,
+        sys.scene.sampling.lambda_max_nm,
+    );
     let origin = DVec3::ZERO;
     let table = ResponseTable::new(sys, lo, hi);
     let rule = LatticeRule::korobov(u64::from(spp));
@@ -186,12 +208,20 @@ pub fn render_frontal(sys: &System, width: usize, height: usize, spp: u32, seed:
 impl super::World {
     /// First surface a ray meets for the depth and mask: (t, mask value), where mask is the
     /// object index + 1, [`MASK_DISPLAY`] for the LCD, 0 for a light shape.
-    pub fn first_hit(&self, disp: &crate::display::Display, o: DVec3, d: DVec3) -> Option<(f64, u16)> {
+    pub fn first_hit(
+        &self,
+        disp: &crate::display::Display,
+        o: DVec3,
+        d: DVec3,
+    ) -> Option<(f64, u16)> {
         let mut best: Option<(f64, u16)> = None;
         if let Some(acc) = &self.accel
             && let Some(h) = acc.intersect(o, d, 0.0, f64::INFINITY, None)
         {
-            best = Some((h.t, self.objects[self.tri_object[h.triangle as usize] as usize].mask_value));
+            best = Some((
+                h.t,
+                self.objects[self.tri_object[h.triangle as usize] as usize].mask_value,
+            ));
         }
         let tmax = best.map_or(f64::INFINITY, |b| b.0);
         for l in &self.lights {

@@ -89,7 +89,14 @@ fn offset_eps(p: DVec3) -> f64 {
 }
 
 impl World {
-    fn closest(&self, disp: &Display, o: DVec3, d: DVec3, skip: Option<u32>, lambda_nm: f64) -> Hit {
+    fn closest(
+        &self,
+        disp: &Display,
+        o: DVec3,
+        d: DVec3,
+        skip: Option<u32>,
+        lambda_nm: f64,
+    ) -> Hit {
         let mut best = Hit::Escape;
         let mut tmax = f64::INFINITY;
         if let Some(acc) = &self.accel
@@ -127,7 +134,15 @@ impl World {
 
     /// True if nothing blocks the segment from `o` along unit `d` up to `dist` (the target
     /// emitter itself excluded).
-    fn visible(&self, disp: &Display, o: DVec3, d: DVec3, dist: f64, skip: Option<u32>, target: Emitter) -> bool {
+    fn visible(
+        &self,
+        disp: &Display,
+        o: DVec3,
+        d: DVec3,
+        dist: f64,
+        skip: Option<u32>,
+        target: Emitter,
+    ) -> bool {
         let tmax = dist * (1.0 - 1e-9);
         for (i, l) in self.lights.iter().enumerate() {
             if target != Emitter::Light(i) && l.hit(o, d, tmax, 550.0).is_some() {
@@ -159,7 +174,11 @@ impl World {
                 Some(dl) => {
                     let q = p + d * t;
                     let cos_l = (-d.z).max(0.0);
-                    if cos_l <= 0.0 { 0.0 } else { dl.pdf_area(disp, q.truncate()) * t * t / cos_l }
+                    if cos_l <= 0.0 {
+                        0.0
+                    } else {
+                        dl.pdf_area(disp, q.truncate()) * t * t / cos_l
+                    }
                 }
                 None => 0.0,
             },
@@ -222,7 +241,15 @@ impl World {
                 let local = DVec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u0).max(0.0).sqrt());
                 let wi = Frame::from_normal(normal).to_world(local).normalize();
                 let pdf = sel * wi.dot(normal).max(0.0) / std::f64::consts::PI;
-                (pdf > 0.0).then(|| (wi, f64::INFINITY, env.radiance(wi, lambda_nm) / pdf, Some(pdf), e))
+                (pdf > 0.0).then(|| {
+                    (
+                        wi,
+                        f64::INFINITY,
+                        env.radiance(wi, lambda_nm) / pdf,
+                        Some(pdf),
+                        e,
+                    )
+                })
             }
         }
     }
@@ -259,7 +286,9 @@ impl World {
             let (t, tri, bary) = match hit {
                 Hit::Escape => {
                     if let Some(env) = &self.environment {
-                        out.other += beta * env.radiance(d, lambda_nm) * mis(Emitter::Environment, f64::INFINITY);
+                        out.other += beta
+                            * env.radiance(d, lambda_nm)
+                            * mis(Emitter::Environment, f64::INFINITY);
                     }
                     break;
                 }

@@ -89,7 +89,9 @@ impl Environment {
         let s = self.spectrum.eval(lambda_nm);
         match &self.map {
             None => s,
-            Some(m) => s * super::material::rgb_emission_factor(m.lookup(equirect_uv(d)), lambda_nm),
+            Some(m) => {
+                s * super::material::rgb_emission_factor(m.lookup(equirect_uv(d)), lambda_nm)
+            }
         }
     }
 }
@@ -124,7 +126,11 @@ pub fn ray_sphere(o: DVec3, d: DVec3, c: DVec3, r: f64, tmin: f64) -> Option<f64
     let q = if b > 0.0 { -(b + sq) } else { -(b - sq) };
     let (t0, t1) = {
         let x = q / a;
-        let y = if q != 0.0 { (oc.length_squared() - r * r) / q } else { x };
+        let y = if q != 0.0 {
+            (oc.length_squared() - r * r) / q
+        } else {
+            x
+        };
         if x < y { (x, y) } else { (y, x) }
     };
     if t0 > tmin {
@@ -229,7 +235,8 @@ impl SphRect {
     /// A direction (unit) uniformly distributed over the spherical rectangle, and the distance
     /// to the rectangle along it.
     fn sample(&self, u: [f64; 2]) -> (DVec3, f64) {
-        let au = u[0] * (self.g0g1 - 2.0 * std::f64::consts::PI) + (u[0] - 1.0) * (2.0 * std::f64::consts::PI - self.k);
+        let au = u[0] * (self.g0g1 - 2.0 * std::f64::consts::PI)
+            + (u[0] - 1.0) * (2.0 * std::f64::consts::PI - self.k);
         let fu = (au.cos() * self.b0 - self.b1) / au.sin();
         let mut cu = (1.0 / (fu * fu + self.b0 * self.b0).sqrt()).copysign(fu);
         cu = cu.clamp(-1.0 + 1e-16, 1.0 - 1e-16);
@@ -280,7 +287,10 @@ impl Light {
                     return None;
                 }
                 let p = o + d * t - *center;
-                let (a, b) = (p.dot(*ex) / ex.length_squared(), p.dot(*ey) / ey.length_squared());
+                let (a, b) = (
+                    p.dot(*ex) / ex.length_squared(),
+                    p.dot(*ey) / ey.length_squared(),
+                );
                 (a.abs() <= 1.0 && b.abs() <= 1.0).then(|| (t, spectrum.eval(lambda_nm)))
             }
             Light::Sphere {
@@ -416,7 +426,8 @@ impl Light {
                 let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
                 let phi = 2.0 * std::f64::consts::PI * u[1];
                 let (a, b) = orthonormal(w);
-                let wi = (a * (sin_t * phi.cos()) + b * (sin_t * phi.sin()) + w * cos_t).normalize();
+                let wi =
+                    (a * (sin_t * phi.cos()) + b * (sin_t * phi.sin()) + w * cos_t).normalize();
                 let dist = ray_sphere(p, wi, *center, *radius, 0.0).unwrap_or(dc - radius);
                 Some(LightSample {
                     wi,
@@ -505,7 +516,11 @@ impl DisplayLight {
             .collect();
         let total = acc;
         DisplayLight {
-            cdf: if total > 0.0 { cdf.iter().map(|c| c / total).collect() } else { cdf },
+            cdf: if total > 0.0 {
+                cdf.iter().map(|c| c / total).collect()
+            } else {
+                cdf
+            },
             total,
             lcd_area: 4.0 * d.half_extent_mm.x * d.half_extent_mm.y,
             pixel_area: d.image_pixel_mm * d.image_pixel_mm,
@@ -513,7 +528,11 @@ impl DisplayLight {
     }
 
     fn uniform_share(&self) -> f64 {
-        if self.total > 0.0 { DISPLAY_UNIFORM } else { 1.0 }
+        if self.total > 0.0 {
+            DISPLAY_UNIFORM
+        } else {
+            1.0
+        }
     }
 
     /// Area density (1/mm²) of a point `q` on the display plane.
@@ -543,7 +562,10 @@ impl DisplayLight {
                 )
         } else {
             let v = (u[0] - fu) / (1.0 - fu);
-            let k = self.cdf.partition_point(|c| *c <= v).min(self.cdf.len() - 1);
+            let k = self
+                .cdf
+                .partition_point(|c| *c <= v)
+                .min(self.cdf.len() - 1);
             let (c, r) = (k % d.width_px, k / d.width_px);
             let x0 = d.center_mm.x + (c as f64 - 0.5 * d.width_px as f64) * d.image_pixel_mm;
             let y0 = d.center_mm.y + (0.5 * d.height_px as f64 - r as f64) * d.image_pixel_mm;
@@ -562,14 +584,29 @@ mod tests {
         let t = ray_sphere(DVec3::new(0.0, 0.0, 10.0), -DVec3::Z, DVec3::ZERO, 1.0, 0.0).unwrap();
         assert!((t - 9.0).abs() < 1e-12);
         // The cone density integrates to 1 over the subtended cone: p·Ω = 1.
-        let l = Light::Sphere { center: DVec3::new(0.0, 0.0, -100.0), radius: 5.0, spectrum: Spectrum::on_grid(|_| 1.0) };
+        let l = Light::Sphere {
+            center: DVec3::new(0.0, 0.0, -100.0),
+            radius: 5.0,
+            spectrum: Spectrum::on_grid(|_| 1.0),
+        };
         let pdf = l.pdf(DVec3::ZERO, -DVec3::Z, 95.0);
         let omega = 2.0 * std::f64::consts::PI * (1.0 - (1.0 - 25.0 / 10000.0f64).sqrt());
         assert!((pdf * omega - 1.0).abs() < 1e-9);
         // Every sampled direction hits the sphere.
         for i in 0..100 {
-            let s = l.sample(DVec3::ZERO, [(i as f64 + 0.5) / 100.0, 0.37], 550.0).unwrap();
-            assert!(ray_sphere(DVec3::ZERO, s.wi, DVec3::new(0.0, 0.0, -100.0), 5.0 + 1e-9, 0.0).is_some());
+            let s = l
+                .sample(DVec3::ZERO, [(i as f64 + 0.5) / 100.0, 0.37], 550.0)
+                .unwrap();
+            assert!(
+                ray_sphere(
+                    DVec3::ZERO,
+                    s.wi,
+                    DVec3::new(0.0, 0.0, -100.0),
+                    5.0 + 1e-9,
+                    0.0
+                )
+                .is_some()
+            );
             assert!((s.pdf - pdf).abs() < 1e-9 * pdf);
         }
     }
@@ -583,14 +620,25 @@ mod tests {
         let c = DVec3::new(0.0, 0.0, -60.0);
         let (ex, ey) = rect_axes(DVec3::Z, [518.0, 324.0]);
         let p = DVec3::ZERO - DVec3::new(0.0, 0.0, 0.0);
-        let light = Light::Rect { center: c, ex, ey, normal: DVec3::Z, area: 518.0 * 324.0, spectrum: Spectrum::on_grid(|_| 1.0) };
+        let light = Light::Rect {
+            center: c,
+            ex,
+            ey,
+            normal: DVec3::Z,
+            area: 518.0 * 324.0,
+            spectrum: Spectrum::on_grid(|_| 1.0),
+        };
         let q = DVec3::new(10.0, -20.0, -120.0);
         let r = SphRect::new(q, c, ex, ey).unwrap();
         // Square on axis: closed form.
         let (sx, sy) = rect_axes(DVec3::Z, [20.0, 20.0]);
         let sq = SphRect::new(DVec3::new(0.0, 0.0, 30.0), DVec3::ZERO, sx, sy).unwrap();
         let exact = 4.0 * (100.0f64 / (100.0 + 900.0)).asin();
-        assert!((sq.solid_angle - exact).abs() < 1e-12, "{} vs {exact}", sq.solid_angle);
+        assert!(
+            (sq.solid_angle - exact).abs() < 1e-12,
+            "{} vs {exact}",
+            sq.solid_angle
+        );
         // Irradiance from the big rect at q (cosine about +z... q is below the rect: the rect
         // at z = -60 faces +z and q at z = -120 is behind it): no sample.
         assert!(light.sample(q, [0.3, 0.6], 550.0).is_none());
@@ -602,10 +650,18 @@ mod tests {
         let mut sph = Vec::with_capacity(n);
         let mut area = Vec::with_capacity(n);
         for i in 0..n {
-            let u = [crate::sampler::to_unit(crate::sampler::hash(&[1, i as u64])), crate::sampler::to_unit(crate::sampler::hash(&[2, i as u64]))];
+            let u = [
+                crate::sampler::to_unit(crate::sampler::hash(&[1, i as u64])),
+                crate::sampler::to_unit(crate::sampler::hash(&[2, i as u64])),
+            ];
             let (wi, dist) = r2.sample(u);
             let hitp = q + wi * dist;
-            assert!((hitp.z - c.z).abs() < 1e-6 && (hitp.x - c.x).abs() <= 259.0 + 1e-6 && (hitp.y - c.y).abs() <= 162.0 + 1e-6, "{hitp}");
+            assert!(
+                (hitp.z - c.z).abs() < 1e-6
+                    && (hitp.x - c.x).abs() <= 259.0 + 1e-6
+                    && (hitp.y - c.y).abs() <= 162.0 + 1e-6,
+                "{hitp}"
+            );
             sph.push((-wi.z).max(0.0) * r2.solid_angle);
             let pt = c + ex * (2.0 * u[0] - 1.0) + ey * (2.0 * u[1] - 1.0);
             let v = pt - q;
@@ -620,7 +676,10 @@ mod tests {
         };
         let (ms, ss) = stats(&sph);
         let (ma, sa) = stats(&area);
-        assert!((ms - ma).abs() < 3.0 * (ss * ss + sa * sa).sqrt(), "{ms}±{ss} vs {ma}±{sa}");
+        assert!(
+            (ms - ma).abs() < 3.0 * (ss * ss + sa * sa).sqrt(),
+            "{ms}±{ss} vs {ma}±{sa}"
+        );
         // The spherical estimate is far less noisy.
         assert!(ss < 0.5 * sa, "{ss} vs {sa}");
         assert!(r.solid_angle > 0.0);

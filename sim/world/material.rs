@@ -82,7 +82,11 @@ pub struct Material {
 }
 
 fn lookup(t: &Texture, uv: DVec2, nearest: bool) -> [f64; 3] {
-    if nearest { t.lookup_nearest(uv) } else { t.lookup(uv) }
+    if nearest {
+        t.lookup_nearest(uv)
+    } else {
+        t.lookup(uv)
+    }
 }
 
 impl Material {

@@ -100,8 +100,7 @@ impl Mesh {
             // Mixed: give the vertices without coordinates (0, 0).
             self.uvs.resize(base as usize, DVec2::ZERO);
             if other.uvs.is_empty() {
-                self.uvs
-                    .resize(self.positions_mm.len(), DVec2::ZERO);
+                self.uvs.resize(self.positions_mm.len(), DVec2::ZERO);
             } else {
                 self.uvs.extend_from_slice(&other.uvs);
             }

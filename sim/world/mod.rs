@@ -98,7 +98,11 @@ pub struct World {
 
 fn resolve(base: &Path, p: &str) -> PathBuf {
     let q = Path::new(p);
-    if q.is_absolute() { q.to_path_buf() } else { base.join(q) }
+    if q.is_absolute() {
+        q.to_path_buf()
+    } else {
+        base.join(q)
+    }
 }
 
 /// The object-to-world transform: scale, then rotations about x, y, z (extrinsic), then the
@@ -155,7 +159,10 @@ fn load_object(ls: &LoadedScene, i: usize, o: &ObjectDesc) -> Result<mesh::Asset
 fn load_texture(ls: &LoadedScene, key: &str, p: &str) -> Result<Arc<Texture>, SceneError> {
     let path = resolve(&ls.base_dir, p);
     if path.is_dir() {
-        return Err(ls.key_error(key, format!("{}: is a folder, not an image", path.display())));
+        return Err(ls.key_error(
+            key,
+            format!("{}: is a folder, not an image", path.display()),
+        ));
     }
     Texture::load(&path)
         .map(Arc::new)
@@ -354,8 +361,8 @@ impl World {
                 (None, None) => {}
             }
         }
-        let accel = (!mesh.triangles.is_empty())
-            .then(|| Accel::build(&mesh.positions_mm, &mesh.triangles));
+        let accel =
+            (!mesh.triangles.is_empty()).then(|| Accel::build(&mesh.positions_mm, &mesh.triangles));
         let display_light = s.display.enabled.then(|| DisplayLight::new(display));
         let mut emitters: Vec<Emitter> = (0..lights.len()).map(Emitter::Light).collect();
         if display_light.is_some() {

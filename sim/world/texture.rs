@@ -146,7 +146,10 @@ impl Texture {
 
     /// Linear RGB of the texel containing texture coordinate `uv` (no filtering).
     pub fn lookup_nearest(&self, uv: DVec2) -> [f64; 3] {
-        let (x, y) = ((uv.x * self.width as f64).floor(), (uv.y * self.height as f64).floor());
+        let (x, y) = (
+            (uv.x * self.width as f64).floor(),
+            (uv.y * self.height as f64).floor(),
+        );
         if !(x.is_finite() && y.is_finite()) {
             return [0.0; 3];
         }
