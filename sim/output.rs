@@ -17,6 +17,34 @@ use crate::render::Capture;
 /// What one pixel value means (recorded in the EXR header and the JSON sidecar).
 pub const CAPTURE_UNITS: &str = "relative irradiance: 1 = a white display pixel seen by an on-axis pixel through lossless optics with a vanishing aperture (flat spectrum and response); the finite aperture and the field angle add the cos^4 falloff";
 
+/// EXR channels from names and data (cloned).
+fn named_channels(names: &[&str], data: &[Vec<f32>]) -> Vec<ExrChannel> {
+    names
+        .iter()
+        .zip(data)
+        .map(|(n, d)| ExrChannel {
+            name: (*n).to_string(),
+            data: d.clone(),
+        })
+        .collect()
+}
+
+/// The header attributes every stscam EXR carries: version, seed, units and the scene.
+fn header_attrs(seed: u64, units: &str, scene_json: &str) -> Vec<(String, ExrAttr)> {
+    vec![
+        (
+            "stscam.version".to_string(),
+            ExrAttr::Text(crate::VERSION.to_string()),
+        ),
+        ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
+        ("stscam.units".to_string(), ExrAttr::Text(units.to_string())),
+        (
+            "stscam.scene".to_string(),
+            ExrAttr::Text(scene_json.to_string()),
+        ),
+    ]
+}
+
 /// Encodes the capture as an EXR file in memory.
 pub fn encode_capture_exr(
     cap: &Capture,
@@ -24,40 +52,21 @@ pub fn encode_capture_exr(
     seed: u64,
     spp: u32,
 ) -> Result<Vec<u8>, String> {
-    let mut channels: Vec<ExrChannel> = cap
-        .channel_names
-        .iter()
-        .zip(&cap.channels)
-        .map(|(n, d)| ExrChannel {
-            name: (*n).to_string(),
-            data: d.clone(),
-        })
-        .collect();
+    let mut channels = named_channels(&cap.channel_names, &cap.channels);
     for (lambda, data) in &cap.spectral {
         channels.push(ExrChannel {
             name: spectral_channel_name(*lambda),
             data: data.clone(),
         });
     }
-    let attrs = vec![
-        (
-            "stscam.version".to_string(),
-            ExrAttr::Text(crate::VERSION.to_string()),
-        ),
-        ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
+    let mut attrs = header_attrs(seed, CAPTURE_UNITS, scene_json);
+    attrs.insert(
+        2,
         (
             "stscam.spp".to_string(),
             ExrAttr::I32(i32::try_from(spp).unwrap_or(i32::MAX)),
         ),
-        (
-            "stscam.units".to_string(),
-            ExrAttr::Text(CAPTURE_UNITS.to_string()),
-        ),
-        (
-            "stscam.scene".to_string(),
-            ExrAttr::Text(scene_json.to_string()),
-        ),
-    ];
+    );
     encode_exr(cap.width, cap.height, channels, &attrs)
 }
 
@@ -114,29 +123,8 @@ pub fn write_capture_with(
         ("capture.json", json),
     ];
     if let Some(f) = frontal {
-        let attrs = |units: &str| {
-            vec![
-                (
-                    "stscam.version".to_string(),
-                    ExrAttr::Text(crate::VERSION.to_string()),
-                ),
-                ("stscam.seed".to_string(), ExrAttr::Text(seed.to_string())),
-                ("stscam.units".to_string(), ExrAttr::Text(units.to_string())),
-                (
-                    "stscam.scene".to_string(),
-                    ExrAttr::Text(scene_json.to_string()),
-                ),
-            ]
-        };
-        let chans: Vec<ExrChannel> = f
-            .channel_names
-            .iter()
-            .zip(&f.channels)
-            .map(|(n, d)| ExrChannel {
-                name: (*n).to_string(),
-                data: d.clone(),
-            })
-            .collect();
+        let attrs = |units: &str| header_attrs(seed, units, scene_json);
+        let chans = named_channels(&f.channel_names, &f.channels);
         let fexr = encode_exr(f.width, f.height, chans, &attrs(FRONTAL_UNITS))
             .map_err(fmt_err(dir.join("frontal.exr")))?;
         let refs: Vec<&[f32]> = f.channels.iter().map(|c| c.as_slice()).collect();

@@ -254,6 +254,54 @@ pub(crate) fn trace_sample(
 /// roulette over branches: unbiased, and most of a path's weak replicas cost nothing).
 pub const BRANCH_ROULETTE_FRACTION: f64 = 0.25;
 
+/// Traces one branch's exit ray (front-face exit point, the camera ray's direction) on the
+/// user side and counts its rays.
+fn trace_exit(
+    sys: &System,
+    world: &crate::world::World,
+    s: &CameraSample,
+    exit: glam::DVec2,
+    rng: &mut crate::world::integrator::PathRng,
+    stats: &mut RenderStats,
+) -> crate::world::integrator::Radiance {
+    let mut counts = crate::world::integrator::PathCounts::default();
+    let l = world.radiance(
+        &sys.display,
+        crate::world::integrator::exit_point(exit),
+        s.ray.dir,
+        s.lambda_nm,
+        rng,
+        &mut counts,
+    );
+    stats.scene_rays += counts.rays;
+    l
+}
+
+/// The analog choice of a path's outcome: the branch whose cumulative weight in polarisation
+/// state `pol` first exceeds `u` (the branch weights are outcome probabilities, summing to
+/// ≤ 1), or none (the path dies). The path stops at the chosen branch.
+fn choose_branch(
+    sys: &System,
+    s: &CameraSample,
+    pol: usize,
+    u: f64,
+    stats: &mut RenderStats,
+) -> Option<crate::trace::Branch> {
+    let mut cum = 0.0;
+    let mut chosen = None;
+    trace_counted(sys, s, stats, |b| {
+        cum += b.weight[pol];
+        debug_assert!(cum <= 1.0 + 1e-9, "branch weights sum to {cum}");
+        if u < cum {
+            chosen = Some(*b);
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    chosen
+}
+
 /// Radiance a sample collects from a 3-D scene: every branch's exit ray (front-face exit
 /// point, the camera ray's direction) traced on the user side with its own random stream,
 /// weighted by the branch's TE/TM weights (the display's polarisation for the display seen
@@ -268,7 +316,7 @@ fn world_sample(
     key: [u64; 3],
     stats: &mut RenderStats,
 ) -> f64 {
-    use crate::world::integrator::{PathCounts, PathRng, branch_weights, exit_point};
+    use crate::world::integrator::{PathRng, branch_weights};
     let pol = sys.display.polarization_weights;
     let mut branches: Vec<(glam::DVec2, [f64; 2], u32)> = Vec::with_capacity(16);
     trace_counted(sys, s, stats, |b| {
@@ -279,7 +327,6 @@ fn world_sample(
     });
     let strongest = branches.iter().map(|b| b.1[0] + b.1[1]).fold(0.0, f64::max);
     let threshold = BRANCH_ROULETTE_FRACTION * strongest;
-    let mut counts = PathCounts::default();
     let mut total = 0.0;
     for (exit, weight, contact) in branches {
         let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
@@ -288,18 +335,10 @@ fn world_sample(
         if keep < 1.0 && rng.uniform() >= keep {
             continue;
         }
-        let l = world.radiance(
-            &sys.display,
-            exit_point(exit),
-            s.ray.dir,
-            s.lambda_nm,
-            &mut rng,
-            &mut counts,
-        );
+        let l = trace_exit(sys, world, s, exit, &mut rng, stats);
         let (wd, wo) = branch_weights(weight, pol);
         total += (wd * l.display + wo * l.other) / keep;
     }
-    stats.scene_rays += counts.rays;
     total
 }
 
@@ -315,34 +354,13 @@ fn world_sample_analog(
     key: [u64; 3],
     stats: &mut RenderStats,
 ) -> f64 {
-    use crate::world::integrator::{PathCounts, PathRng, exit_point};
-    let mut rng = PathRng::new(&[key[0], key[1], key[2], 0x00A4_A106]);
+    let mut rng = crate::world::integrator::PathRng::new(&[key[0], key[1], key[2], 0x00A4_A106]);
     let (u_pol, u_branch) = (rng.uniform(), rng.uniform());
     let pol = usize::from(u_pol >= 0.5);
-    let mut cum = 0.0;
-    let mut chosen = None;
-    trace_counted(sys, s, stats, |b| {
-        cum += b.weight[pol];
-        if u_branch < cum {
-            chosen = Some(b.exit_point_mm);
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    });
-    let Some(exit) = chosen else {
+    let Some(b) = choose_branch(sys, s, pol, u_branch, stats) else {
         return 0.0;
     };
-    let mut counts = PathCounts::default();
-    let l = world.radiance(
-        &sys.display,
-        exit_point(exit),
-        s.ray.dir,
-        s.lambda_nm,
-        &mut rng,
-        &mut counts,
-    );
-    stats.scene_rays += counts.rays;
+    let l = trace_exit(sys, world, s, b.exit_point_mm, &mut rng, stats);
     2.0 * sys.display.polarization_weights[pol] * l.display + l.other
 }
 
@@ -362,20 +380,8 @@ fn trace_analog(
         crate::sampler::to_unit(crate::sampler::mix64(h)),
     );
     let pol = usize::from(u_pol >= sys.display.polarization_weights[0]);
-    let mut cum = 0.0;
-    let mut out = 0.0;
-    trace_counted(sys, s, stats, |b| {
-        cum += b.weight[pol];
-        // The branch weights of a path are its outcome probabilities: they sum to ≤ 1.
-        debug_assert!(cum <= 1.0 + 1e-9, "branch weights sum to {cum}");
-        if u_branch < cum {
-            out = sys.display.radiance_at(b.object_point_mm);
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    });
-    out
+    choose_branch(sys, s, pol, u_branch, stats)
+        .map_or(0.0, |b| sys.display.radiance_at(b.object_point_mm))
 }
 
 /// Per-channel spectral weights R_c(λ)/∫R_c of the sensor response.

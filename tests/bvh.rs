@@ -1,7 +1,7 @@
 //! The triangle BVH (`stscam::world::bvh`) against independent references, with numbers:
 //!
 //! (a) nearest hits of `Accel::intersect` on 10⁵ random rays against a ≈ 1.05·10⁵-triangle
-//!     mesh (a bumpy closed sphere ≈ 200 mm across at z = −500 mm plus random triangles) equal
+//!     mesh (the benchmark's displaced closed sphere ≈ 200 mm across at z = −500 mm plus random triangles) equal
 //!     an independent f64 Möller–Trumbore brute force written here (not the module's
 //!     watertight routine): same triangle and t to 1e-9 relative, same hit/miss verdict;
 //!     `unoccluded` agrees with `intersect` on a subset;
@@ -19,6 +19,7 @@ use std::collections::HashMap;
 
 use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
+use stscam::world::bench_bvh::displaced_sphere;
 use stscam::world::bvh::{Accel, brute_force};
 use stscam::world::mesh::Mesh;
 use stscam::world::shapes::{Pose, builtin};
@@ -68,46 +69,6 @@ impl Rng {
 // Meshes.
 
 const CENTRE: DVec3 = DVec3::new(0.0, 0.0, -500.0);
-
-/// Closed bumpy sphere (mean radius `r` mm) around `c`: poles plus `nv − 1` rings of `nu`
-/// vertices, 2·nu·(nv − 1) triangles, wound outward.
-fn bumpy_sphere(c: DVec3, r: f64, nu: usize, nv: usize) -> Mesh {
-    let radius = |d: DVec3| {
-        r * (1.0
-            + 0.06 * (7.0 * d.x).sin() * (5.0 * d.y).sin() * (6.0 * d.z + 1.0).sin()
-            + 0.02 * (23.0 * d.x + 17.0 * d.z).sin())
-    };
-    let dir = |k: usize, j: usize| {
-        let th = std::f64::consts::PI * k as f64 / nv as f64;
-        let ph = std::f64::consts::TAU * j as f64 / nu as f64;
-        DVec3::new(th.sin() * ph.sin(), th.cos(), th.sin() * ph.cos())
-    };
-    let mut m = Mesh::default();
-    m.positions_mm.push(c + DVec3::Y * radius(DVec3::Y));
-    for k in 1..nv {
-        for j in 0..nu {
-            let d = dir(k, j);
-            m.positions_mm.push(c + d * radius(d));
-        }
-    }
-    let bottom = m.positions_mm.len() as u32;
-    m.positions_mm.push(c - DVec3::Y * radius(-DVec3::Y));
-    let id = |k: usize, j: usize| (1 + k * nu + j % nu) as u32;
-    for j in 0..nu {
-        m.triangles.push([0, id(0, j), id(0, j + 1)]);
-    }
-    for k in 0..nv - 2 {
-        for j in 0..nu {
-            let (a, b, cc, d) = (id(k, j), id(k + 1, j), id(k + 1, j + 1), id(k, j + 1));
-            m.triangles.push([a, b, cc]);
-            m.triangles.push([a, cc, d]);
-        }
-    }
-    for j in 0..nu {
-        m.triangles.push([id(nv - 2, j), bottom, id(nv - 2, j + 1)]);
-    }
-    m
-}
 
 /// Appends `n` random triangles (edges up to ≈ 30 mm) inside the cube `c ± half`.
 fn add_random_triangles(m: &mut Mesh, rng: &mut Rng, n: usize, c: DVec3, half: f64) {
@@ -248,7 +209,7 @@ struct Tally {
 #[test]
 fn random_rays_match_independent_brute_force() {
     let mut rng = Rng::new(0xB1);
-    let mut mesh = bumpy_sphere(CENTRE, 100.0, 320, 160);
+    let mut mesh = displaced_sphere(100_000);
     add_random_triangles(&mut mesh, &mut rng, 3000, CENTRE, 130.0);
     let n_tri = mesh.triangles.len();
     assert!(n_tri >= 100_000, "{n_tri}");
@@ -603,7 +564,7 @@ fn rays_through_vertices_and_edges_never_pass_through() {
 #[test]
 fn builds_are_deterministic() {
     let mut rng = Rng::new(0xB3);
-    let mut mesh = bumpy_sphere(CENTRE, 100.0, 160, 80);
+    let mut mesh = displaced_sphere(25_000);
     add_random_triangles(&mut mesh, &mut rng, 2000, CENTRE, 130.0);
     let rays: Vec<(DVec3, DVec3)> = (0..20_000)
         .map(|_| (rng.in_cube(CENTRE, 150.0), rng.unit()))

@@ -6,6 +6,28 @@ use stscam::sampler::SamplerKind;
 use stscam::scene::load_scene;
 use stscam::system::System;
 
+/// Mean image total over 8 independent renders (seeds seed..seed+8) and its standard error.
+fn total(sys: &System, e: Estimator, spp: u32, seed: u64) -> (f64, f64) {
+    let sums: Vec<f64> = (0..8)
+        .map(|k| {
+            let set = RenderSettings {
+                spp,
+                seed: seed + k,
+                sampler: SamplerKind::Independent,
+                spectral_bins: None,
+                progress: false,
+            };
+            render_with(sys, &set, e).channels[0]
+                .iter()
+                .map(|&v| f64::from(v))
+                .sum::<f64>()
+        })
+        .collect();
+    let m = sums.iter().sum::<f64>() / 8.0;
+    let var = sums.iter().map(|s| (s - m).powi(2)).sum::<f64>() / 7.0;
+    (m, (var / 8.0).sqrt())
+}
+
 #[test]
 fn analog_and_bragg_estimators_agree_on_the_total() {
     // 16×16 crop with the paper's field of view, a white target.
@@ -19,29 +41,8 @@ fn analog_and_bragg_estimators_agree_on_the_total() {
     )
     .unwrap();
     let sys = System::build(&ls).unwrap();
-    let set = |spp, seed| RenderSettings {
-        spp,
-        seed,
-        sampler: SamplerKind::Independent,
-        spectral_bins: None,
-        progress: false,
-    };
-    let total = |e: Estimator, spp: u32, seed: u64| -> (f64, f64) {
-        // Mean over the image and its standard error from 8 independent renders.
-        let sums: Vec<f64> = (0..8)
-            .map(|k| {
-                render_with(&sys, &set(spp, seed + k), e).channels[0]
-                    .iter()
-                    .map(|&v| f64::from(v))
-                    .sum::<f64>()
-            })
-            .collect();
-        let m = sums.iter().sum::<f64>() / 8.0;
-        let var = sums.iter().map(|s| (s - m).powi(2)).sum::<f64>() / 7.0;
-        (m, (var / 8.0).sqrt())
-    };
-    let (a, sa) = total(Estimator::UniformAnalog, 1024, 100);
-    let (b, sb) = total(Estimator::Bragg, 64, 200);
+    let (a, sa) = total(&sys, Estimator::UniformAnalog, 1024, 100);
+    let (b, sb) = total(&sys, Estimator::Bragg, 64, 200);
     let z = (a - b).abs() / (sa * sa + sb * sb).sqrt();
     assert!(z < 4.0, "analog {a} ± {sa}, bragg {b} ± {sb}: z = {z}");
     // The analog estimator is far noisier per path: that is what the benchmark measures.
@@ -69,28 +70,8 @@ fn analog_and_bragg_estimators_agree_on_a_3d_scene() {
     )
     .unwrap();
     let sys = System::build(&ls).unwrap();
-    let total = |e: Estimator, spp: u32, seed: u64| -> (f64, f64) {
-        let sums: Vec<f64> = (0..8)
-            .map(|k| {
-                let set = RenderSettings {
-                    spp,
-                    seed: seed + k,
-                    sampler: SamplerKind::Independent,
-                    spectral_bins: None,
-                    progress: false,
-                };
-                render_with(&sys, &set, e).channels[0]
-                    .iter()
-                    .map(|&v| f64::from(v))
-                    .sum::<f64>()
-            })
-            .collect();
-        let m = sums.iter().sum::<f64>() / 8.0;
-        let var = sums.iter().map(|s| (s - m).powi(2)).sum::<f64>() / 7.0;
-        (m, (var / 8.0).sqrt())
-    };
-    let (a, sa) = total(Estimator::UniformAnalog, 512, 100);
-    let (b, sb) = total(Estimator::Bragg, 32, 200);
+    let (a, sa) = total(&sys, Estimator::UniformAnalog, 512, 100);
+    let (b, sb) = total(&sys, Estimator::Bragg, 32, 200);
     let z = (a - b).abs() / (sa * sa + sb * sb).sqrt();
     eprintln!("3-D: analog {a} ± {sa}, bragg {b} ± {sb}: z = {z}");
     assert!(z < 4.0, "analog {a} ± {sa}, bragg {b} ± {sb}: z = {z}");

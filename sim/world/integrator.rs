@@ -323,7 +323,7 @@ impl World {
             let uv = self.uv_at(tri, bary);
             let mat = &self.materials[self.mesh.material_ids[tri as usize] as usize];
             if front && mat.emits() {
-                out.other += beta * mat.emitted(uv, lambda_nm, &self.d65);
+                out.other += beta * mat.emitted(uv, lambda_nm);
             }
             if depth >= self.max_depth {
                 break;

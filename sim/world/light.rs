@@ -25,6 +25,7 @@ use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 
+use super::bsdf::Frame;
 use super::texture::Texture;
 use crate::display::Display;
 use crate::spectra::Spectrum;
@@ -90,7 +91,7 @@ impl Environment {
         match &self.map {
             None => s,
             Some(m) => {
-                s * super::material::rgb_emission_factor(m.lookup(equirect_uv(d)), lambda_nm)
+                s * super::spectra3d::rgb_emission_factor(m.lookup(equirect_uv(d)), lambda_nm)
             }
         }
     }
@@ -140,16 +141,6 @@ pub fn ray_sphere(o: DVec3, d: DVec3, c: DVec3, r: f64, tmin: f64) -> Option<f64
     } else {
         None
     }
-}
-
-fn orthonormal(n: DVec3) -> (DVec3, DVec3) {
-    let sign = 1f64.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        DVec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
 }
 
 /// Solid-angle range in which a rect is sampled as a spherical rectangle (pbrt-v4's bounds).
@@ -329,12 +320,9 @@ impl Light {
                 let d2 = (*center - p).length_squared();
                 let r2 = radius * radius;
                 if d2 <= r2 {
-                    let q = p + wi * t;
-                    let cos_l = (q - *center).normalize().dot(-wi).abs().max(1e-12);
-                    t * t / (cos_l * 4.0 * std::f64::consts::PI * r2)
+                    sphere_area_pdf(p, wi, t, *center, *radius)
                 } else {
-                    let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
-                    1.0 / (2.0 * std::f64::consts::PI * (1.0 - cos_max)).max(1e-300)
+                    1.0 / (2.0 * std::f64::consts::PI * sphere_cone_one_minus_cos(r2, d2))
                 }
             }
             Light::Point { .. } => 0.0,
@@ -403,31 +391,22 @@ impl Light {
                     let v = q - p;
                     let dist = v.length();
                     let wi = v / dist;
-                    let cos_l = n.dot(-wi).abs().max(1e-12);
                     return Some(LightSample {
                         wi,
                         dist,
                         li,
-                        pdf: dist * dist / (cos_l * 4.0 * std::f64::consts::PI * r2),
+                        pdf: sphere_area_pdf(p, wi, dist, *center, *radius),
                         delta: false,
                     });
                 }
                 let dc = d2.sqrt();
                 let w = to_c / dc;
-                let sin2_max = r2 / d2;
-                let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
-                let one_minus = if sin2_max < 1e-4 {
-                    // 1 − cos θmax ≈ sin²/2 + sin⁴/8 for tiny spheres (no cancellation).
-                    0.5 * sin2_max + 0.125 * sin2_max * sin2_max
-                } else {
-                    1.0 - cos_max
-                };
+                let one_minus = sphere_cone_one_minus_cos(r2, d2);
                 let cos_t = 1.0 - u[0] * one_minus;
                 let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
                 let phi = 2.0 * std::f64::consts::PI * u[1];
-                let (a, b) = orthonormal(w);
-                let wi =
-                    (a * (sin_t * phi.cos()) + b * (sin_t * phi.sin()) + w * cos_t).normalize();
+                let local = DVec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t);
+                let wi = Frame::from_normal(w).to_world(local).normalize();
                 let dist = ray_sphere(p, wi, *center, *radius, 0.0).unwrap_or(dc - radius);
                 Some(LightSample {
                     wi,
@@ -473,6 +452,24 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
     }
     let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
+}
+
+/// Solid-angle density of uniform area sampling of a sphere of radius `r` about `c`, for the
+/// point `p + wi·t` seen from `p` (used when `p` is inside the sphere).
+fn sphere_area_pdf(p: DVec3, wi: DVec3, t: f64, c: DVec3, r: f64) -> f64 {
+    let cos_l = ((p + wi * t) - c).normalize().dot(-wi).abs().max(1e-12);
+    t * t / (cos_l * 4.0 * std::f64::consts::PI * r * r)
+}
+
+/// 1 − cos θmax of the cone a sphere subtends from outside, with sin²θmax = r²/d²; for tiny
+/// spheres the series sin²/2 + sin⁴/8 avoids the cancellation.
+fn sphere_cone_one_minus_cos(r2: f64, d2: f64) -> f64 {
+    let sin2 = r2 / d2;
+    if sin2 < 1e-4 {
+        0.5 * sin2 + 0.125 * sin2 * sin2
+    } else {
+        1.0 - (1.0 - sin2).max(0.0).sqrt()
+    }
 }
 
 /// Builds the rect light's half-extent vectors: width along the direction perpendicular to

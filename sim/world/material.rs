@@ -14,21 +14,12 @@ use glam::DVec2;
 
 use super::bsdf::Bsdf;
 use super::mesh::SurfaceModel;
-use super::spectra3d::{RgbSpectrum, reflectance_from_rgb};
+use super::spectra3d::{RgbSpectrum, emission_from_rgb, reflectance_from_rgb};
 use super::texture::Texture;
 use crate::spectra::Spectrum;
 
 /// Rec. 709 luminance weights.
 const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
-
-/// The RGB part of an emission: max(e)·ρ(e/max(e))(λ) (multiply by an illuminant).
-pub fn rgb_emission_factor(rgb: [f64; 3], lambda_nm: f64) -> f64 {
-    let m = rgb[0].max(rgb[1]).max(rgb[2]);
-    if m.is_nan() || m <= 0.0 {
-        return 0.0;
-    }
-    m * reflectance_from_rgb([rgb[0] / m, rgb[1] / m, rgb[2] / m]).eval(lambda_nm)
-}
 
 /// Where a surface's reflectance comes from.
 #[derive(Clone, Debug)]
@@ -107,9 +98,8 @@ impl Material {
         !matches!(self.emission, Emission::None)
     }
 
-    /// Emitted spectral radiance (front side) at `uv`, wavelength `lambda_nm`, given the
-    /// normalised D65 spectrum for RGB emission.
-    pub fn emitted(&self, uv: DVec2, lambda_nm: f64, d65: &Spectrum) -> f64 {
+    /// Emitted spectral radiance (front side) at `uv`, wavelength `lambda_nm`.
+    pub fn emitted(&self, uv: DVec2, lambda_nm: f64) -> f64 {
         match &self.emission {
             Emission::None => 0.0,
             Emission::Rgb { rgb, texture } => {
@@ -120,7 +110,7 @@ impl Material {
                     }
                     None => *rgb,
                 };
-                rgb_emission_factor(c, lambda_nm) * d65.eval(lambda_nm)
+                emission_from_rgb(c, lambda_nm)
             }
             Emission::Spectral { spectrum, texture } => {
                 let y = match texture {

@@ -90,8 +90,6 @@ pub struct World {
     pub display: Option<DisplayLight>,
     /// Emitters for next-event estimation (picked uniformly).
     pub emitters: Vec<Emitter>,
-    /// CIE D65 normalised to mean 1 over 380–780 nm (for RGB emission).
-    pub d65: Spectrum,
     /// `sampling.max_depth`.
     pub max_depth: u32,
 }
@@ -371,8 +369,6 @@ impl World {
         if environment.is_some() {
             emitters.push(Emitter::Environment);
         }
-        let d65 = spectra3d::emission_spectrum("d65", Path::new("."))
-            .map_err(|e| ls.key_error("light", e))?;
         Ok(World {
             objects,
             mesh,
@@ -383,7 +379,6 @@ impl World {
             environment,
             display: display_light,
             emitters,
-            d65,
             max_depth: s.sampling.max_depth,
         })
     }

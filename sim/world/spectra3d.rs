@@ -354,12 +354,18 @@ pub fn reflectance_from_rgb(rgb: [f64; 3]) -> RgbSpectrum {
 /// (Mitsuba 3's RGB × illuminant rule). 0 if m ≤ 0 or not finite; negative components count
 /// as 0.
 pub fn emission_from_rgb(rgb: [f64; 3], lambda_nm: f64) -> f64 {
+    rgb_emission_factor(rgb, lambda_nm) * d65_normalised().eval(lambda_nm)
+}
+
+/// The RGB part of [`emission_from_rgb`], m·ρ_{rgb/m}(λ), to multiply by an illuminant
+/// (an environment map's RGB × the light's spectrum uses it with another illuminant).
+pub fn rgb_emission_factor(rgb: [f64; 3], lambda_nm: f64) -> f64 {
     let rgb = rgb.map(|v| if v > 0.0 { v } else { 0.0 });
     let m = rgb[0].max(rgb[1]).max(rgb[2]);
     if !(m > 0.0 && m.is_finite()) {
         return 0.0;
     }
-    m * reflectance_from_rgb(rgb.map(|v| v / m)).eval(lambda_nm) * d65_normalised().eval(lambda_nm)
+    m * reflectance_from_rgb(rgb.map(|v| v / m)).eval(lambda_nm)
 }
 
 #[cfg(test)]
