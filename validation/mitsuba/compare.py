@@ -7,7 +7,7 @@ The stscam image is the mean of the two captures (two seeds); its noise estimate
 eps_s = ||A - B|| / (2 ||(A + B)/2||) (the relative RMS Monte Carlo error of the mean); the
 Mitsuba noise estimate eps_m comes from its JSON (same formula over even/odd passes).
 
-Checks (all must pass; the same rules are in tests/mitsuba_reference.rs):
+Checks (all must pass; the same rules are in tests/it/mitsuba_reference.rs):
  1. relative RMSE r = ||s - m|| / ||m|| at full resolution <= 2 sqrt(eps_s^2 + eps_m^2) + delta;
  2. the same on 4x4-binned images (32x32), with the noise estimates of the binned images;
  3. waveguide only, replica positions: the peaks (local maxima above 10 % of the maximum, parabolic sub-pixel

@@ -11,7 +11,7 @@ meshes sharing one material library and one small sRGB PNG texture.
                      and no symmetry, so a flip or a rotation of the texture changes the image
 
 Both renderers decode the PNG with the sRGB curve and filter it bilinearly. Two deliberately
-wrong versions of the texture feed the failure tests of tests/mitsuba_reference.rs:
+wrong versions of the texture feed the failure tests of tests/it/mitsuba_reference.rs:
 
   mesh-texture-undecoded.png  decodes to the original's code values / 255: what a renderer
                               that forgot the sRGB decoding would use (colours too light)

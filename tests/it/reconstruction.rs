@@ -1,6 +1,6 @@
 //! CGM and ADMM-TV on a synthetic replica-blur problem, and `reconstruct` on bad input.
 
-mod common;
+
 
 use stscam::noise::NoiseRng;
 use stscam::recon::Problem;
@@ -136,7 +136,7 @@ fn reconstruct_rejects_bad_input_with_one_line() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let hdir = d.join("h");
-    common::stscam_ok(&[
+    crate::common::stscam_ok(&[
         "matrix",
         "--out",
         hdir.to_str().unwrap(),
@@ -150,7 +150,7 @@ fn reconstruct_rejects_bad_input_with_one_line() {
     let h = hdir.join("H.npz");
     // A capture of the wrong size (render of a 40×40 crop against a 32×32 H).
     let cdir = d.join("c");
-    common::stscam_ok(&[
+    crate::common::stscam_ok(&[
         "render",
         "--out",
         cdir.to_str().unwrap(),
@@ -162,7 +162,7 @@ fn reconstruct_rejects_bad_input_with_one_line() {
     let out = d.join("r");
     let check = |args: &[String], needle: &str| {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let o = common::stscam(&args);
+        let o = crate::common::stscam(&args);
         let err = String::from_utf8_lossy(&o.stderr).to_string();
         assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{err}");

@@ -2,8 +2,8 @@
 //! object-side directions equal to the camera ray (periscope), and the Bragg colour of
 //! physics.md §3.2–3.3 along the vertical midline.
 
-mod common;
-use common::{stscam_json, vec3};
+
+use crate::common::{stscam_json, vec3};
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]

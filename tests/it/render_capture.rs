@@ -1,8 +1,8 @@
 //! End-to-end renders: determinism across thread counts, finite and bounded values, the
 //! output files, and the replicas of a single bright target pixel against `info`.
 
-mod common;
-use common::{stscam, stscam_json};
+
+use crate::common::{stscam, stscam_json};
 use stscam::io::read_exr;
 
 fn render(out: &std::path::Path, extra: &[&str]) {

@@ -1,8 +1,8 @@
 //! Bad input gives one line naming the file (or `--set`) and the key, exit code 2, and nothing
 //! written to `--out`.
 
-mod common;
-use common::{files_in, stscam};
+
+use crate::common::{files_in, stscam};
 
 /// Runs a render expected to fail; returns its single stderr line.
 fn fails(extra: &[&str], out: &std::path::Path) -> String {

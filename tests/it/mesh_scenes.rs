@@ -6,11 +6,11 @@
 //!
 //! Every fixture is written into a temporary folder by the test itself.
 
-mod common;
+
 
 use std::path::{Path, PathBuf};
 
-use common::{files_in, stscam, stscam_json, vec3};
+use crate::common::{files_in, stscam, stscam_json, vec3};
 use serde_json::json;
 use stscam::io::{ExrChannel, read_exr};
 

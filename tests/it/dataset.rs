@@ -2,13 +2,13 @@
 //! an uninterrupted one, captures equal H·f + offset when noiseless, image folders (PNG, JPEG)
 //! are read, and bad recipes are refused with one line, exit code 2 and nothing written.
 
-mod common;
+
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use common::stscam;
+use crate::common::stscam;
 
 /// A small scene: 48×48 crop with the paper's field of view, so runs take a fraction of a
 /// second.
@@ -228,7 +228,7 @@ fn sigkill_and_resume_give_the_uninterrupted_files() {
     // Wait until some samples are finished, then SIGKILL.
     let t0 = std::time::Instant::now();
     loop {
-        let n = common::files_in(&killed.join("train")).len();
+        let n = crate::common::files_in(&killed.join("train")).len();
         if n >= 12 || t0.elapsed().as_secs() > 120 {
             break;
         }
@@ -239,7 +239,7 @@ fn sigkill_and_resume_give_the_uninterrupted_files() {
     assert!(!status.success(), "the run finished before it was killed");
     assert!(killed.join(".stscam-run.json").is_file());
     assert!(!killed.join("dataset.json").exists());
-    let n_before = common::files_in(&killed.join("train")).len();
+    let n_before = crate::common::files_in(&killed.join("train")).len();
     assert!((12..4 * 24).contains(&n_before), "{n_before} files");
     // Without --resume the folder is refused.
     let out = stscam(&[

@@ -1,6 +1,6 @@
 //! Extreme scenes finish in bounded time, stay finite and physical, and say what they dropped.
 
-mod common;
+
 
 fn render(dir: &std::path::Path, sets: &[&str]) -> (serde_json::Value, String) {
     let mut args = vec![
@@ -16,7 +16,7 @@ fn render(dir: &std::path::Path, sets: &[&str]) -> (serde_json::Value, String) {
         args.push("--set");
         args.push(s);
     }
-    let out = common::stscam(&args);
+    let out = crate::common::stscam(&args);
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(out.status.success(), "{args:?}: {stderr}");
     let json: serde_json::Value =

@@ -1,0 +1,19 @@
+//! All integration tests in one crate: one binary to build and link instead of one per file.
+
+mod analytic_field;
+mod bvh;
+mod cli_errors;
+mod common;
+mod dataset;
+mod estimators;
+mod invariants;
+mod matrix_calibration;
+mod mesh_scenes;
+mod mitsuba_reference;
+mod npz_independent;
+mod probe_geometry;
+mod reconstruction;
+mod render_capture;
+mod scenes3d_physics;
+mod stress;
+mod sweep;
