@@ -99,7 +99,7 @@ pub(crate) fn intensity_of_spec(
 /// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
 /// `m` (physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
-pub(crate) fn exposure_and_dark(
+pub fn exposure_and_dark(
     sys: &System,
     m: &SystemMatrix,
     seed: u64,
@@ -140,20 +140,43 @@ pub(crate) fn measured_capture(
         &s,
         &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
     );
-    let noisy: Vec<f64> = cap
-        .channels
-        .iter()
-        .flat_map(|c| c.iter().map(|&v| f64::from(v)))
-        .enumerate()
-        .map(|(i, v)| {
-            noise.measure(
-                v,
-                &mut NoiseRng::new(&[set.seed, 0x4341_5054, index, i as u64]),
-            )
-        })
-        .collect();
+    let noisy = measure_frame(
+        cap.channels
+            .iter()
+            .flat_map(|c| c.iter().map(|&v| f64::from(v))),
+        noise,
+        set.seed,
+        index,
+    );
     let g: Vec<f64> = noisy.iter().zip(dark).map(|(a, d)| a - d).collect();
     (noisy, g)
+}
+
+/// The measured capture of the linear object `truth` computed from a matrix instead of the
+/// tracer: `noise` applied to H·f + offset of `m` (an H of a different seed than the one that
+/// reconstructs avoids the inverse crime) from the noise stream (`seed`, `index`).
+pub fn noisy_capture_of(
+    m: &SystemMatrix,
+    truth: &[f64],
+    noise: &SensorNoise,
+    seed: u64,
+    index: u64,
+) -> Vec<f64> {
+    measure_frame(m.capture_of(truth).iter().flatten().copied(), noise, seed, index)
+}
+
+/// `noise` applied to each value of a clean frame, value i from the stream
+/// (`seed`, "CAPT", `index`, i).
+fn measure_frame(
+    clean: impl Iterator<Item = f64>,
+    noise: &SensorNoise,
+    seed: u64,
+    index: u64,
+) -> Vec<f64> {
+    clean
+        .enumerate()
+        .map(|(i, v)| noise.measure(v, &mut NoiseRng::new(&[seed, 0x4341_5054, index, i as u64])))
+        .collect()
 }
 
 /// Runs the demo on `sys` (its display target fixes the object size, which must be square).

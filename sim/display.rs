@@ -117,8 +117,14 @@ impl Display {
     /// True if `p` lies on the lit LCD (the target or the black surround around it).
     #[inline]
     pub fn on_lcd(&self, p: DVec2) -> bool {
+        self.within_extent(p) || self.pixel_at(p).is_some()
+    }
+
+    /// True if `p` lies within the LCD's extent (the target may reach beyond it).
+    #[inline]
+    pub fn within_extent(&self, p: DVec2) -> bool {
         let d = (p - self.center_mm).abs();
-        (d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y) || self.pixel_at(p).is_some()
+        d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y
     }
 
     /// Relative radiance (white = 1) at point `p` on the display plane.

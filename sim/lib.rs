@@ -24,6 +24,7 @@ pub mod sampler;
 pub mod scene;
 pub mod sparse;
 pub mod spectra;
+pub mod stack;
 pub mod sweep;
 pub mod system;
 pub mod targets;

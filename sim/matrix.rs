@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use crate::render::{
     RenderSettings, RenderStats, camera_sample, channel_weights, lattice_rule, row_progress,
-    trace_sample,
+    trace_branches,
 };
 use crate::sampler::PixelSampler;
 use crate::sparse::CsrMatrix;
@@ -63,6 +63,9 @@ struct ColumnTable {
 
 const EMPTY: u32 = u32::MAX;
 
+/// Branches per sample whose last entry is remembered (later ones share the last slot).
+const RECENT: usize = 16;
+
 impl ColumnTable {
     fn new() -> Self {
         ColumnTable {
@@ -85,20 +88,20 @@ impl ColumnTable {
         }
     }
 
+    /// The index of `key`'s entry in `keys`/`sums` (created if new; stable until `clear`).
     #[inline]
-    fn entry(&mut self, key: u32) -> &mut [f64; 4] {
+    fn index(&mut self, key: u32) -> usize {
         let s = self.slot_of(key);
         if self.slots[s] == EMPTY {
             if 2 * (self.keys.len() + 1) > self.slots.len() {
                 self.grow();
-                return self.entry(key);
+                return self.index(key);
             }
             self.slots[s] = self.keys.len() as u32;
             self.keys.push(key);
             self.sums.push([0.0; 4]);
         }
-        let e = self.slots[s] as usize;
-        &mut self.sums[e]
+        self.slots[s] as usize
     }
 
     fn grow(&mut self) {
@@ -121,7 +124,40 @@ impl ColumnTable {
     }
 }
 
-/// One sensor row of H: per channel, the entries of each pixel (sorted by column).
+/// `Display::pixel_at` with its constants computed once (the same arithmetic, so the same
+/// pixel for every point).
+struct PixelGrid {
+    center: glam::DVec2,
+    inv_pixel_mm: f64,
+    half: glam::DVec2,
+    size: glam::DVec2,
+}
+
+impl PixelGrid {
+    fn of(d: &crate::display::Display) -> PixelGrid {
+        let size = glam::DVec2::new(d.width_px as f64, d.height_px as f64);
+        PixelGrid {
+            center: d.center_mm,
+            inv_pixel_mm: d.image_pixel_mm.recip(),
+            half: 0.5 * size,
+            size,
+        }
+    }
+
+    #[inline(always)]
+    fn pixel_at(&self, p: glam::DVec2) -> Option<(usize, usize)> {
+        let fx = (p.x - self.center.x) * self.inv_pixel_mm + self.half.x;
+        let fy = (self.center.y - p.y) * self.inv_pixel_mm + self.half.y;
+        if fx >= 0.0 && fy >= 0.0 && fx < self.size.x && fy < self.size.y {
+            // fx, fy ∈ [0, size) ⊂ i32: the same truncation as `as usize`, cheaper.
+            Some((fx as i32 as usize, fy as i32 as usize))
+        } else {
+            None
+        }
+    }
+}
+
+/// One sensor row of H at one depth: per channel, the entries of each pixel (sorted by column).
 struct RowBlock {
     /// Per channel: entry count per pixel.
     counts: Vec<Vec<u32>>,
@@ -129,146 +165,222 @@ struct RowBlock {
     entries: Vec<(Vec<u32>, Vec<f32>)>,
     /// Per channel: offset per pixel.
     offset: Vec<Vec<f64>>,
-    stats: RenderStats,
 }
 
+/// One depth plane's per-pixel state while a row is traced.
+struct DepthAccumulator {
+    depth_mm: f64,
+    table: ColumnTable,
+    /// (column, entry index) last hit by the j-th branch of this pixel's samples.
+    recent: [(u32, usize); RECENT],
+    off: [f64; 4],
+    block: RowBlock,
+}
+
+/// One sensor row of every depth's H, in one pass: each branch's front-face exit ray (the
+/// camera ray's own direction: the periscope property) meets every depth plane. The object
+/// point at depth D is computed exactly as the tracer computes it for a display at z = −D, so
+/// each depth's row equals a single-depth pass at that depth bit for bit.
 fn matrix_row(
     sys: &System,
     set: &RenderSettings,
     rule: Option<crate::sampler::LatticeRule>,
+    depths_mm: &[f64],
     row: usize,
-) -> RowBlock {
+) -> (Vec<RowBlock>, RenderStats) {
+    use crate::optics::interface::lateral_shift;
     let w = sys.camera.width_px;
     let nch = sys.response.curves.len();
     let disp = &sys.display;
     let bl = disp.black_level;
     let inv_spp = 1.0 / f64::from(set.spp.max(1));
     let mut stats = RenderStats::default();
-    let mut table = ColumnTable::new();
-    let mut block = RowBlock {
-        counts: vec![Vec::with_capacity(w); nch],
-        entries: vec![(Vec::new(), Vec::new()); nch],
-        offset: vec![vec![0.0; w]; nch],
-        stats: RenderStats::default(),
-    };
-    let mut hits: Vec<(f64, Option<u32>)> = Vec::with_capacity(64);
+    let mut acc: Vec<DepthAccumulator> = depths_mm
+        .iter()
+        .map(|&depth_mm| DepthAccumulator {
+            depth_mm,
+            table: ColumnTable::new(),
+            recent: [(EMPTY, 0); RECENT],
+            off: [0.0; 4],
+            block: RowBlock {
+                counts: vec![Vec::with_capacity(w); nch],
+                entries: vec![(Vec::new(), Vec::new()); nch],
+                offset: vec![vec![0.0; w]; nch],
+            },
+        })
+        .collect();
     let mut order: Vec<usize> = Vec::new();
+    let mut branches: Vec<(f64, glam::DVec2)> = Vec::with_capacity(64);
+    let grid = PixelGrid::of(disp);
     for col in 0..w {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
-        let mut off = [0.0f64; 4];
+        for a in &mut acc {
+            a.off = [0.0; 4];
+        }
         for i in 0..u64::from(set.spp) {
             let Some(s) = camera_sample(sys, &sampler, col, row, i) else {
                 continue;
             };
-            hits.clear();
+            branches.clear();
             let mut total = 0.0;
-            trace_sample(sys, &s, &mut stats, |wt, x| {
-                if disp.on_lcd(x) {
-                    let k = disp
-                        .pixel_at(x)
-                        .map(|(c, r)| (r * disp.width_px + c) as u32);
-                    hits.push((wt, k));
-                    total += wt;
-                }
+            trace_branches(sys, &s, &mut stats, |wt, b| {
+                branches.push((wt, b.exit_point_mm));
+                total += wt;
             });
+            // A non-finite sample is dropped at every depth alike: the decision uses all of
+            // its branches, wherever they land (branch weights are finite and positive, so this
+            // drops exactly the samples whose factor is not finite).
             if !(s.factor * total).is_finite() {
                 stats.nonfinite_samples += 1;
                 continue;
             }
             let r = channel_weights(sys, s.lambda_nm);
-            for &(wt, k) in &hits {
-                let c = s.factor * wt;
-                for (o, rc) in off.iter_mut().zip(r).take(nch) {
-                    *o += c * rc * bl;
-                }
-                if let Some(k) = k {
-                    let e = table.entry(k);
-                    for ch in 0..nch {
-                        e[ch] += c * r[ch];
+            // Physical light travels along −dir (as in `trace`): every branch of the sample
+            // crosses the air gap to depth D with the same lateral shift.
+            let u = -s.ray.dir.truncate();
+            for a in &mut acc {
+                let shift = lateral_shift(u, 1.0, a.depth_mm);
+                for (j, &(wt, exit)) in branches.iter().enumerate() {
+                    let x = exit - shift;
+                    // `Display::on_lcd`, with the pixel lookup done once.
+                    let k = grid.pixel_at(x);
+                    if k.is_none() && !disp.within_extent(x) {
+                        continue;
+                    }
+                    let c = s.factor * wt;
+                    for (o, rc) in a.off.iter_mut().zip(r).take(nch) {
+                        *o += c * rc * bl;
+                    }
+                    if let Some((kc, kr)) = k {
+                        let key = (kr * disp.width_px + kc) as u32;
+                        // The j-th branch of a pixel's samples mostly lands on the object
+                        // pixel it landed on last time: remember its entry.
+                        let slot = j.min(RECENT - 1);
+                        let idx = if a.recent[slot].0 == key {
+                            a.recent[slot].1
+                        } else {
+                            let idx = a.table.index(key);
+                            a.recent[slot] = (key, idx);
+                            idx
+                        };
+                        let e = &mut a.table.sums[idx];
+                        for ch in 0..nch {
+                            e[ch] += c * r[ch];
+                        }
                     }
                 }
             }
         }
-        order.clear();
-        order.extend(0..table.keys.len());
-        order.sort_unstable_by_key(|&i| table.keys[i]);
-        for ch in 0..nch {
-            let (cols, vals) = &mut block.entries[ch];
-            let mut n = 0u32;
-            for &i in &order {
-                let v = (table.sums[i][ch] * (1.0 - bl) * inv_spp) as f32;
-                if v != 0.0 {
-                    cols.push(table.keys[i]);
-                    vals.push(v);
-                    n += 1;
+        for a in &mut acc {
+            let table = &mut a.table;
+            order.clear();
+            order.extend(0..table.keys.len());
+            order.sort_unstable_by_key(|&i| table.keys[i]);
+            for ch in 0..nch {
+                let (cols, vals) = &mut a.block.entries[ch];
+                let mut n = 0u32;
+                for &i in &order {
+                    let v = (table.sums[i][ch] * (1.0 - bl) * inv_spp) as f32;
+                    if v != 0.0 {
+                        cols.push(table.keys[i]);
+                        vals.push(v);
+                        n += 1;
+                    }
                 }
+                a.block.counts[ch].push(n);
             }
-            block.counts[ch].push(n);
+            for (o, &v) in a.block.offset.iter_mut().zip(&a.off) {
+                o[col] = v * inv_spp;
+            }
+            table.clear();
+            a.recent = [(EMPTY, 0); RECENT];
         }
-        for (o, &v) in block.offset.iter_mut().zip(&off) {
-            o[col] = v * inv_spp;
-        }
-        table.clear();
     }
-    block.stats = stats;
-    block
+    (acc.into_iter().map(|a| a.block).collect(), stats)
 }
 
 /// Computes H and the offset of `sys` for the object size of its display target.
 /// Deterministic for a given seed, whatever the thread count.
 pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
+    let mut stack = compute_matrix_stack(sys, set, &[-sys.display.z_mm]);
+    stack.swap_remove(0)
+}
+
+/// Computes one H (and offset) per object-plane depth (mm from the plate's front face) in one
+/// pass over the camera paths: every path is traced once and each of its branches meets every
+/// plane. The camera, the wavelength sampling and the display's extent and pixel grid are those
+/// of `sys`; only the plane moves, as `stscam matrix --depth-mm D` does. The H at depth D is
+/// bit-identical to `compute_matrix` of `sys` with `display.z_mm = −D` (same seed and spp).
+/// Each matrix's `stats` are the pass's counters. A sample whose value is not finite (its
+/// factor, times the sum of all its branch weights) is dropped at every depth.
+pub fn compute_matrix_stack(
+    sys: &System,
+    set: &RenderSettings,
+    depths_mm: &[f64],
+) -> Vec<SystemMatrix> {
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let nch = sys.response.curves.len();
     let cols = sys.display.width_px * sys.display.height_px;
-    let pb = row_progress(set.progress, h, "matrix rows");
+    let what = if depths_mm.len() == 1 {
+        "matrix rows".to_string()
+    } else {
+        format!("matrix rows ({} depths)", depths_mm.len())
+    };
+    let pb = row_progress(set.progress, h, &what);
     let rule = lattice_rule(set);
-    let blocks: Vec<RowBlock> = (0..h)
+    let rows: Vec<(Vec<RowBlock>, RenderStats)> = (0..h)
         .into_par_iter()
         .map(|row| {
-            let b = matrix_row(sys, set, rule, row);
+            let b = matrix_row(sys, set, rule, depths_mm, row);
             pb.inc(1);
             b
         })
         .collect();
     pb.finish_and_clear();
-    let nnz: usize = blocks
-        .iter()
-        .map(|b| b.entries.iter().map(|e| e.0.len()).sum::<usize>())
-        .sum();
-    let mut m = CsrMatrix {
-        rows: nch * w * h,
-        cols,
-        indptr: Vec::with_capacity(nch * w * h + 1),
-        indices: Vec::with_capacity(nnz),
-        data: Vec::with_capacity(nnz),
-    };
-    m.indptr.push(0);
-    let mut offset = Vec::with_capacity(nch * w * h);
     let mut stats = RenderStats::default();
-    for b in &blocks {
-        stats.merge(&b.stats);
+    for (_, s) in &rows {
+        stats.merge(s);
     }
-    for ch in 0..nch {
-        for b in &blocks {
-            let mut last = *m.indptr.last().unwrap_or(&0);
-            for &n in &b.counts[ch] {
-                last += u64::from(n);
-                m.indptr.push(last);
+    (0..depths_mm.len())
+        .map(|d| {
+            let blocks: Vec<&RowBlock> = rows.iter().map(|r| &r.0[d]).collect();
+            let nnz: usize = blocks
+                .iter()
+                .map(|b| b.entries.iter().map(|e| e.0.len()).sum::<usize>())
+                .sum();
+            let mut m = CsrMatrix {
+                rows: nch * w * h,
+                cols,
+                indptr: Vec::with_capacity(nch * w * h + 1),
+                indices: Vec::with_capacity(nnz),
+                data: Vec::with_capacity(nnz),
+            };
+            m.indptr.push(0);
+            let mut offset = Vec::with_capacity(nch * w * h);
+            let st = stats.clone();
+            for ch in 0..nch {
+                for b in &blocks {
+                    let mut last = *m.indptr.last().unwrap_or(&0);
+                    for &n in &b.counts[ch] {
+                        last += u64::from(n);
+                        m.indptr.push(last);
+                    }
+                    m.indices.extend_from_slice(&b.entries[ch].0);
+                    m.data.extend_from_slice(&b.entries[ch].1);
+                    offset.extend(b.offset[ch].iter().map(|&v| v as f32));
+                }
             }
-            m.indices.extend_from_slice(&b.entries[ch].0);
-            m.data.extend_from_slice(&b.entries[ch].1);
-            offset.extend(b.offset[ch].iter().map(|&v| v as f32));
-        }
-    }
-    SystemMatrix {
-        h: m,
-        offset,
-        crop: (w, h),
-        object: (sys.display.width_px, sys.display.height_px),
-        channels: sys.response.names.clone(),
-        stats,
-    }
+            SystemMatrix {
+                h: m,
+                offset,
+                crop: (w, h),
+                object: (sys.display.width_px, sys.display.height_px),
+                channels: sys.response.names.clone(),
+                stats: st,
+            }
+        })
+        .collect()
 }
 
 impl SystemMatrix {
@@ -305,15 +417,8 @@ pub fn default_offset_path(matrix: &std::path::Path) -> std::path::PathBuf {
     matrix.with_file_name(format!("offset{suffix}.npy"))
 }
 
-/// Reads H from a scipy CSR `.npz`. The object shape comes from `object` if given, else from
-/// the JSON sidecar (`object_px` in `<stem>.json`), else a square object is assumed if the
-/// column count is a perfect square. The offset is read from `offset` if given, else from
-/// [`default_offset_path`] if that file exists.
-pub fn load_matrix(
-    path: &std::path::Path,
-    object: Option<(usize, usize)>,
-    offset: Option<&std::path::Path>,
-) -> Result<LoadedMatrix, crate::io::IoError> {
+/// Reads a scipy CSR `.npz` and checks its structure and that every value is finite.
+pub fn read_checked_csr(path: &std::path::Path) -> Result<CsrMatrix, crate::io::IoError> {
     use crate::io::IoError;
     let parts = crate::io::npz::read_csr_npz(path)?;
     let h = CsrMatrix {
@@ -330,6 +435,20 @@ pub fn load_matrix(
             format!("data.npy: entry {i} is not a finite number"),
         ));
     }
+    Ok(h)
+}
+
+/// Reads H from a scipy CSR `.npz`. The object shape comes from `object` if given, else from
+/// the JSON sidecar (`object_px` in `<stem>.json`), else a square object is assumed if the
+/// column count is a perfect square. The offset is read from `offset` if given, else from
+/// [`default_offset_path`] if that file exists.
+pub fn load_matrix(
+    path: &std::path::Path,
+    object: Option<(usize, usize)>,
+    offset: Option<&std::path::Path>,
+) -> Result<LoadedMatrix, crate::io::IoError> {
+    use crate::io::IoError;
+    let h = read_checked_csr(path)?;
     let sidecar_shape = || -> Option<(usize, usize)> {
         let text = std::fs::read_to_string(path.with_extension("json")).ok()?;
         let v: serde_json::Value = serde_json::from_str(&text).ok()?;

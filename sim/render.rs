@@ -239,11 +239,23 @@ pub(crate) fn trace_sample(
     stats: &mut RenderStats,
     mut visit: impl FnMut(f64, glam::DVec2),
 ) {
+    trace_branches(sys, s, stats, |wt, b| visit(wt, b.object_point_mm));
+}
+
+/// As [`trace_sample`], but `visit(weight, branch)` gets the whole branch (its front-face exit
+/// point meets any other object plane along the camera ray's direction).
+#[inline]
+pub(crate) fn trace_branches(
+    sys: &System,
+    s: &CameraSample,
+    stats: &mut RenderStats,
+    mut visit: impl FnMut(f64, &crate::trace::Branch),
+) {
     let pol = sys.display.polarization_weights;
     trace_counted(sys, s, stats, |b| {
         let wt = pol[0] * b.weight[0] + pol[1] * b.weight[1];
         if wt > 0.0 {
-            visit(wt, b.object_point_mm);
+            visit(wt, b);
         }
         ControlFlow::Continue(())
     });

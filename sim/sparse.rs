@@ -159,6 +159,75 @@ impl CsrMatrix {
         )
     }
 
+    /// The block row [A₀ A₁ … A_{N−1}] of matrices with equal row counts: row r holds A₀'s
+    /// entries of row r, then A₁'s with columns shifted by A₀'s column count, and so on
+    /// (sorted columns stay sorted). `None` if the row counts differ or a column index would
+    /// not fit in 32 bits.
+    pub fn hstack(blocks: &[&CsrMatrix]) -> Option<CsrMatrix> {
+        let rows = blocks.first().map_or(0, |b| b.rows);
+        if blocks.iter().any(|b| b.rows != rows) {
+            return None;
+        }
+        let cols = blocks
+            .iter()
+            .try_fold(0usize, |a, b| a.checked_add(b.cols))
+            .filter(|&c| c <= u32::MAX as usize)?;
+        let nnz: usize = blocks.iter().map(|b| b.nnz()).sum();
+        let mut m = CsrMatrix {
+            rows,
+            cols,
+            indptr: Vec::with_capacity(rows + 1),
+            indices: Vec::with_capacity(nnz),
+            data: Vec::with_capacity(nnz),
+        };
+        m.indptr.push(0);
+        for r in 0..rows {
+            let mut shift = 0u32;
+            for b in blocks {
+                let range = b.row_range(r);
+                m.indices
+                    .extend(b.indices[range.clone()].iter().map(|&c| c + shift));
+                m.data.extend_from_slice(&b.data[range]);
+                shift += b.cols as u32;
+            }
+            m.indptr.push(m.indices.len() as u64);
+        }
+        Some(m)
+    }
+
+    /// Splits the columns into `n` equal blocks (the inverse of [`CsrMatrix::hstack`]);
+    /// `None` unless the column count is a multiple of `n` (n ≥ 1).
+    pub fn hsplit(&self, n: usize) -> Option<Vec<CsrMatrix>> {
+        if n == 0 || self.cols % n != 0 {
+            return None;
+        }
+        let k = self.cols / n;
+        let mut out: Vec<CsrMatrix> = (0..n)
+            .map(|_| CsrMatrix {
+                rows: self.rows,
+                cols: k,
+                indptr: Vec::with_capacity(self.rows + 1),
+                indices: Vec::new(),
+                data: Vec::new(),
+            })
+            .collect();
+        for b in &mut out {
+            b.indptr.push(0);
+        }
+        for r in 0..self.rows {
+            for e in self.row_range(r) {
+                let c = self.indices[e] as usize;
+                let b = &mut out[c / k];
+                b.indices.push((c % k) as u32);
+                b.data.push(self.data[e]);
+            }
+            for b in &mut out {
+                b.indptr.push(b.indices.len() as u64);
+            }
+        }
+        Some(out)
+    }
+
     /// Sum of squares of all entries (f64, in order).
     pub fn frobenius_sq(&self) -> f64 {
         self.data.iter().map(|&v| f64::from(v) * f64::from(v)).sum()
@@ -197,6 +266,27 @@ mod tests {
         a.row_dense_into(2, &mut row);
         assert_eq!(row, vec![0.0, 3.0, 4.0]);
         assert_eq!(a.frobenius_sq(), 30.0);
+    }
+
+    #[test]
+    fn hstack_and_hsplit_are_inverse() {
+        let a = small();
+        let mut b = small();
+        b.data = vec![5.0, 6.0, 7.0, 8.0];
+        let s = CsrMatrix::hstack(&[&a, &b]).unwrap();
+        s.check().unwrap();
+        assert_eq!((s.rows, s.cols), (3, 6));
+        // [A B] x = A x₁ + B x₂.
+        let x = [1.0, 10.0, 100.0, 2.0, 20.0, 200.0];
+        let (ya, yb) = (a.mul_vec(&x[..3]), b.mul_vec(&x[3..]));
+        let y = s.mul_vec(&x);
+        for i in 0..3 {
+            assert_eq!(y[i], ya[i] + yb[i]);
+        }
+        assert_eq!(s.hsplit(2).unwrap(), vec![a.clone(), b]);
+        assert!(s.hsplit(4).is_none());
+        let short = CsrMatrix::zeros(2, 3);
+        assert!(CsrMatrix::hstack(&[&a, &short]).is_none());
     }
 
     #[test]

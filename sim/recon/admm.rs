@@ -124,6 +124,41 @@ pub fn total_variation(f: &[f64], w: usize, h: usize, kind: TvKind) -> f64 {
         .sum()
 }
 
+/// The z-update of TV-ADMM for one image of n pixels (x differences in [..n], y differences in
+/// [n..]): z = soft(Df + u, κ) elementwise (anisotropic) or the 2-vector shrinkage per pixel
+/// (isotropic).
+pub(crate) fn tv_shrink(df: &[f64], u: &[f64], kappa: f64, kind: TvKind, z: &mut [f64]) {
+    let n = z.len() / 2;
+    match kind {
+        TvKind::Aniso => {
+            for i in 0..2 * n {
+                let v = df[i] + u[i];
+                z[i] = v.signum() * (v.abs() - kappa).max(0.0);
+            }
+        }
+        TvKind::Iso => {
+            for q in 0..n {
+                let (vx, vy) = (df[q] + u[q], df[n + q] + u[n + q]);
+                let norm = (vx * vx + vy * vy).sqrt();
+                let s = if norm > 0.0 {
+                    (norm - kappa).max(0.0) / norm
+                } else {
+                    0.0
+                };
+                z[q] = s * vx;
+                z[n + q] = s * vy;
+            }
+        }
+    }
+}
+
+/// Number of forward differences at pixel q of a w×h image that involve it (the diagonal of
+/// DᵀD).
+pub(crate) fn grad_degree(q: usize, w: usize, h: usize) -> usize {
+    let (r, c) = (q / w, q % w);
+    usize::from(c + 1 < w) + usize::from(c > 0) + usize::from(r + 1 < h) + usize::from(r > 0)
+}
+
 /// ½‖Hf − g‖² − ½‖g‖² + τTV(f) = ½fᵀGf − fᵀHᵀg + τTV(f).
 pub fn objective(p: &Problem, htg: &[f64], f: &[f64], tau: f64, kind: TvKind) -> f64 {
     let mut gf = vec![0.0; f.len()];
@@ -142,12 +177,7 @@ pub fn admm_tv(p: &Problem, htg: &[f64], set: &AdmmSettings) -> AdmmResult {
     // Jacobi preconditioner of G + ρDᵀD.
     let inv_diag: Vec<f64> = (0..n)
         .map(|q| {
-            let (r, c) = (q / w, q % w);
-            let deg = usize::from(c + 1 < w)
-                + usize::from(c > 0)
-                + usize::from(r + 1 < h)
-                + usize::from(r > 0);
-            let d = p.gram_diag[q] + rho * deg as f64;
+            let d = p.gram_diag[q] + rho * grad_degree(q, w, h) as f64;
             if d > 0.0 { 1.0 / d } else { 1.0 }
         })
         .collect();
@@ -191,27 +221,7 @@ pub fn admm_tv(p: &Problem, htg: &[f64], set: &AdmmSettings) -> AdmmResult {
         // z-update.
         grad(&f, w, h, &mut df);
         z_prev.copy_from_slice(&z);
-        match set.tv {
-            TvKind::Aniso => {
-                for i in 0..2 * n {
-                    let v = df[i] + u[i];
-                    z[i] = v.signum() * (v.abs() - kappa).max(0.0);
-                }
-            }
-            TvKind::Iso => {
-                for q in 0..n {
-                    let (vx, vy) = (df[q] + u[q], df[n + q] + u[n + q]);
-                    let norm = (vx * vx + vy * vy).sqrt();
-                    let s = if norm > 0.0 {
-                        (norm - kappa).max(0.0) / norm
-                    } else {
-                        0.0
-                    };
-                    z[q] = s * vx;
-                    z[n + q] = s * vy;
-                }
-            }
-        }
+        tv_shrink(&df, &u, kappa, set.tv, &mut z);
         // u-update and residuals.
         let mut rp = 0.0;
         for i in 0..2 * n {

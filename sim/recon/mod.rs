@@ -10,6 +10,8 @@
 
 pub mod admm;
 pub mod cg;
+pub mod depth;
+pub mod joint;
 pub mod metrics;
 
 use rayon::prelude::*;

@@ -5,6 +5,7 @@ mod bvh;
 mod cli_errors;
 mod common;
 mod dataset;
+mod depth;
 mod estimators;
 mod invariants;
 mod matrix_calibration;
