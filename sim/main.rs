@@ -672,6 +672,7 @@ fn cmd_matrix(
     if let Some(d) = depth_mm {
         sys.display.z_mm = -d;
     }
+    warn_coverage(&sys, "");
     let settings = RenderSettings {
         spp,
         seed,
@@ -1135,11 +1136,34 @@ fn cmd_reconstruct(
     Ok(())
 }
 
+/// Warns on stderr when part of the object has no strong replica inside the crop
+/// (`analysis::object_coverage`); `what` names the scene in the message.
+fn warn_coverage(sys: &System, what: &str) {
+    if !sys.scene.display.enabled {
+        return;
+    }
+    if let Some(w) = analysis::object_coverage(sys).warning() {
+        eprintln!("{what}{w}");
+    }
+}
+
 fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
-    let (_, sys) = pool.install(|| load(scene))?;
+    let (_, mut sys) = pool.install(|| load(scene))?;
+    // The paper's experiment saw the whole target: frame the crop on it when the scene's crop
+    // misses part of it (the embedded paper scene's centred crop loses the bottom rows).
+    if let Some(off) = analysis::framing_offset_px(&sys) {
+        let mut framed = scene.clone();
+        let set = format!("sensor.crop_offset_px=[{},{}]", off[0], off[1]);
+        eprintln!(
+            "demo: the scene's crop misses part of the object; framing it with --set {set} (the crop moved onto the strongest replica of the display centre)"
+        );
+        framed.set.push(set);
+        sys = pool.install(|| load(&framed))?.1;
+    }
+    warn_coverage(&sys, "");
     let set = stscam::demo::DemoSettings {
         spp,
         seed,
@@ -1225,6 +1249,9 @@ fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
         s.finish_s,
         pool.current_num_threads()
     );
+    for sc in &p.scenes {
+        warn_coverage(&sc.system, &format!("{}: ", sc.id));
+    }
     Ok(())
 }
 
@@ -1907,6 +1934,17 @@ fn cmd_info(scene: &SceneArgs, json: bool) -> Result<(), Failure> {
         "{}",
         fmt_fov("horizontal FOV, capture", &info.fov_horizontal_capture)
     );
+    let cov = &info.object_coverage;
+    match cov.warning() {
+        _ if !sys.scene.display.enabled => {}
+        None => println!(
+            "object ({}x{} px): every row and column seen through a replica with >= {} % of its strongest",
+            cov.object_px[0],
+            cov.object_px[1],
+            cov.strong_fraction * 100.0
+        ),
+        Some(w) => println!("{w}"),
+    }
     Ok(())
 }
 
