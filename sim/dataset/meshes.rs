@@ -13,9 +13,10 @@
 //!
 //! Scene of a sample: the recipe's scene plus one `[[object]]` (the drawn mesh, its material
 //! overridden by the drawn colour, roughness and metalness) and up to three `[[light]]`s: the
-//! key light, a 400 × 400 mm black-body rect panel at 0.6 × the mesh distance from the mesh
-//! origin in the drawn direction, facing it (so it stays on the user side, z < 0, and its back,
-//! which emits nothing and is not seen, faces the camera); the screen's glow (a 518 × 324 mm
+//! key light, a 400 × 400 mm black-body rect panel facing the mesh origin from the drawn
+//! direction t, at 0.6·(−o·t) from the origin o (so it stays on the user side and the camera
+//! sees its back, which emits nothing and is invisible; if the mesh is so far off axis that
+//! −o·t < 0.1·distance, at 0.06·distance); the screen's glow (a 518 × 324 mm
 //! white-LED rect at z = −1 mm emitting toward the user, transparent from behind, like
 //! `scenes/eye-contact.toml`); a uniform D65 environment. Lights of scale 0 are left out.
 //! A mesh whose placed bounds would come closer than 5 mm to the plate is moved back along −z
@@ -131,8 +132,11 @@ pub fn draw(src: &MeshSource, files: &[(PathBuf, String)], sample_seed: u64) -> 
     let screen_glow = uniform(&mut rng, src.screen_glow);
     let environment = uniform(&mut rng, src.environment);
     let toward = [az.sin() * el.cos(), el.sin(), az.cos() * el.cos()];
-    let reach = 0.6 * dist;
     let position_mm = [x, y, -dist];
+    // 0.6 of the way from the mesh origin to the panel's plane through the camera, so that the
+    // camera (origin) sees the panel's back: p·toward = 0.4·(origin·toward) < 0.
+    let ahead = -(x * toward[0] + y * toward[1] - dist * toward[2]);
+    let reach = 0.6 * ahead.max(0.1 * dist);
     MeshDraw {
         mesh,
         path,
@@ -371,9 +375,12 @@ mod tests {
             assert!(d.bend_deg.iter().all(|b| (0.0..=70.0).contains(b)));
             assert!(d.base_color.iter().all(|c| (0.1..=0.8).contains(c)));
             assert_eq!(d.environment, 0.0);
-            // The key light stays on the user side and faces the mesh origin.
+            // The key light stays on the user side, faces the mesh origin and turns its back
+            // (which emits nothing and is not seen) to the camera at the origin.
             let k = &d.key_light;
             assert!(k.position_mm[2] < 0.0);
+            let back: f64 = (0..3).map(|i| -k.position_mm[i] * k.normal[i]).sum();
+            assert!(back < 0.0, "{k:?}");
             let to: Vec<f64> = (0..3)
                 .map(|i| d.position_mm[i] - k.position_mm[i])
                 .collect();

@@ -220,23 +220,14 @@ fn mesh_files(
     m: &recipe::MeshSource,
     scene: &LoadedScene,
 ) -> Result<Vec<(PathBuf, String)>, DatasetError> {
-    let dir = base.join(folder);
     let key = format!("objects.sources[{i}].folder");
-    if !dir.is_dir() {
-        return Err(recipe_err(
-            recipe_path,
-            key,
-            format!("{} is not a folder", dir.display()),
-        ));
-    }
-    let files = meshes::list_meshes(&dir, folder).map_err(|e| recipe_err(recipe_path, &key, e))?;
-    if files.is_empty() {
-        return Err(recipe_err(
-            recipe_path,
-            key,
-            format!("no .gltf, .glb or .obj files in {}", dir.display()),
-        ));
-    }
+    let files = folder_files(
+        recipe_path,
+        &base.join(folder),
+        &key,
+        ".gltf, .glb or .obj",
+        |d| meshes::list_meshes(d, folder),
+    )?;
     files
         .par_iter()
         .try_for_each(|(p, name)| {
@@ -253,6 +244,33 @@ fn mesh_files(
             crate::world::placed_object(scene, 0, &o).map(|_| ())
         })
         .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
+    Ok(files)
+}
+
+/// The files `list` finds in the folder `dir` of recipe key `key`; an error if `dir` is not a
+/// folder or holds none (`what`: the kinds of file, for the message).
+fn folder_files(
+    recipe_path: &Path,
+    dir: &Path,
+    key: &str,
+    what: &str,
+    list: impl FnOnce(&Path) -> Result<Vec<(PathBuf, String)>, String>,
+) -> Result<Vec<(PathBuf, String)>, DatasetError> {
+    if !dir.is_dir() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("{} is not a folder", dir.display()),
+        ));
+    }
+    let files = list(dir).map_err(|m| recipe_err(recipe_path, key, m))?;
+    if files.is_empty() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("no {what} files in {}", dir.display()),
+        ));
+    }
     Ok(files)
 }
 
@@ -315,24 +333,14 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
             folder, recursive, ..
         } = src
         {
-            let dir = base.join(folder);
             let key = format!("objects.sources[{i}].folder");
-            if !dir.is_dir() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("{} is not a folder", dir.display()),
-                ));
-            }
-            let files = list_images(&dir, folder, *recursive)
-                .map_err(|m| recipe_err(recipe_path, &key, m))?;
-            if files.is_empty() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("no .png, .jpg or .jpeg files in {}", dir.display()),
-                ));
-            }
+            let files = folder_files(
+                recipe_path,
+                &base.join(folder),
+                &key,
+                ".png, .jpg or .jpeg",
+                |d| list_images(d, folder, *recursive),
+            )?;
             // Every header is read now, so that a file that is not an image stops the run
             // before anything is written (pixel data is decoded when a sample draws it).
             files
