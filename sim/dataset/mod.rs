@@ -29,9 +29,12 @@
 //! `shard.json` instead of `dataset.json`; [`merge`] joins shards, checking recipe, coverage and
 //! every checksum, and writes exactly what one unsharded run writes.
 
+pub mod depth;
+pub mod meshes;
 pub mod objects;
 pub mod recipe;
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -50,7 +53,9 @@ use crate::sparse::CsrMatrix;
 use crate::system::System;
 
 use objects::{ObjectDraw, draw, list_images};
-use recipe::{CaptureMode, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe};
+use recipe::{
+    CaptureMode, DEPTH_KEY, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe,
+};
 
 /// Format tag of the dataset card.
 pub const FORMAT: &str = "stscam-dataset/1";
@@ -62,6 +67,7 @@ const SCENE_TAG: u64 = 0x5343_454E;
 const VARY_TAG: u64 = 0x5641_5259;
 const NOISE_TAG: u64 = 0x4E4F_4953;
 const WHITE_TAG: u64 = 0x5748_4954;
+const DEPTH_TAG: u64 = 0x4445_5054;
 
 /// A dataset error. Every variant is the user's to fix (recipe, images, output folder,
 /// shards), so the CLI reports it on one line with exit code 2.
@@ -127,8 +133,10 @@ pub struct Plan {
     base_overrides: Vec<String>,
     /// Distinct discrete scenes (index 0 is the reference scene).
     pub scenes: Vec<PlannedScene>,
-    /// Image files per source.
+    /// Image files (mesh files for `meshes`) per source.
     images: Vec<Vec<(PathBuf, String)>>,
+    /// The `[depth]` grid in mm (empty without one).
+    pub depths_mm: Vec<f64>,
     /// True if every sample's scene is one of `scenes` (no ranged keys): H is written.
     pub has_matrix: bool,
     /// Samples per split.
@@ -152,6 +160,11 @@ pub struct SampleSpec {
     pub scene: usize,
     /// Values of every varied key.
     pub params: BTreeMap<String, f64>,
+}
+
+/// The recipe key of a sample's object source.
+fn source_key(s: &SampleSpec) -> String {
+    format!("objects.sources[{}]", s.object.source)
 }
 
 fn recipe_err(file: &Path, key: impl Into<String>, message: impl Into<String>) -> DatasetError {
@@ -181,6 +194,84 @@ fn load_system(
         .map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
     let sys = System::build(&ls).map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
     Ok((ls, sys))
+}
+
+/// The ground-truth files of a 3-D sample after its capture: `ID_frontal.npy`,
+/// `ID_frontal.png`, `ID_depth.npy`, `ID_mask.png`.
+pub const MESH_FILES: [&str; 4] = ["frontal.npy", "frontal.png", "depth.npy", "mask.png"];
+
+/// The depth index of the sample with seed `seed` among `n` depths: `rand`'s `Uniform` over a
+/// ChaCha12 generator seeded from `NoiseRng([seed, DEPTH_TAG])`.
+fn depth_index(seed: u64, n: usize) -> usize {
+    use rand::SeedableRng;
+    use rand::distr::{Distribution, Uniform};
+    let mut rng =
+        rand::rngs::ChaCha12Rng::seed_from_u64(NoiseRng::new(&[seed, DEPTH_TAG]).next_u64());
+    Uniform::new(0, n.max(1)).map_or(0, |d| d.sample(&mut rng))
+}
+
+/// The mesh files of a `meshes` source's folder, each loaded once so that a broken file stops
+/// the run before anything is written.
+fn mesh_files(
+    recipe_path: &Path,
+    base: &Path,
+    i: usize,
+    folder: &str,
+    m: &recipe::MeshSource,
+    scene: &LoadedScene,
+) -> Result<Vec<(PathBuf, String)>, DatasetError> {
+    let key = format!("objects.sources[{i}].folder");
+    let files = folder_files(
+        recipe_path,
+        &base.join(folder),
+        &key,
+        ".gltf, .glb or .obj",
+        |d| meshes::list_meshes(d, folder),
+    )?;
+    files
+        .par_iter()
+        .try_for_each(|(p, name)| {
+            let o = crate::world::desc::ObjectDesc {
+                mesh: p.display().to_string(),
+                name: Some(name.clone()),
+                position_mm: [0.0; 3],
+                rotation_deg: [0.0; 3],
+                scale: crate::world::desc::ScaleSpec::Uniform(1.0),
+                units: m.units.clone(),
+                material: None,
+                pose: None,
+            };
+            crate::world::placed_object(scene, 0, &o).map(|_| ())
+        })
+        .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
+    Ok(files)
+}
+
+/// The files `list` finds in the folder `dir` of recipe key `key`; an error if `dir` is not a
+/// folder or holds none (`what`: the kinds of file, for the message).
+fn folder_files(
+    recipe_path: &Path,
+    dir: &Path,
+    key: &str,
+    what: &str,
+    list: impl FnOnce(&Path) -> Result<Vec<(PathBuf, String)>, String>,
+) -> Result<Vec<(PathBuf, String)>, DatasetError> {
+    if !dir.is_dir() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("{} is not a folder", dir.display()),
+        ));
+    }
+    let files = list(dir).map_err(|m| recipe_err(recipe_path, key, m))?;
+    if files.is_empty() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("no {what} files in {}", dir.display()),
+        ));
+    }
+    Ok(files)
 }
 
 /// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
@@ -213,7 +304,10 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
     let mut scenes = Vec::new();
     for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
         let key = if params.is_empty() { "scene" } else { "vary" };
-        let (loaded, system) = load(&overrides, key)?;
+        let (loaded, mut system) = load(&overrides, key)?;
+        if let Some(&d) = params.get(DEPTH_KEY) {
+            system = depth::at_depth(&system, d);
+        }
         scenes.push(PlannedScene {
             id: format!("scene_{k:03}"),
             overrides,
@@ -239,24 +333,14 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
             folder, recursive, ..
         } = src
         {
-            let dir = base.join(folder);
             let key = format!("objects.sources[{i}].folder");
-            if !dir.is_dir() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("{} is not a folder", dir.display()),
-                ));
-            }
-            let files = list_images(&dir, folder, *recursive)
-                .map_err(|m| recipe_err(recipe_path, &key, m))?;
-            if files.is_empty() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("no .png, .jpg or .jpeg files in {}", dir.display()),
-                ));
-            }
+            let files = folder_files(
+                recipe_path,
+                &base.join(folder),
+                &key,
+                ".png, .jpg or .jpeg",
+                |d| list_images(d, folder, *recursive),
+            )?;
             // Every header is read now, so that a file that is not an image stops the run
             // before anything is written (pixel data is decoded when a sample draws it).
             files
@@ -264,13 +348,26 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
                 .try_for_each(|(p, _)| crate::io::image_load::probe_image(p).map(|_| ()))
                 .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
             images.push(files);
+        } else if let Source::Meshes(m) = src {
+            let files = match &m.folder {
+                Some(folder) => mesh_files(recipe_path, &base, i, folder, m, &scenes[0].loaded)?,
+                None => Vec::new(),
+            };
+            images.push(files);
         } else {
             images.push(Vec::new());
         }
     }
-    let has_matrix = recipe.vary.iter().all(|v| v.values.is_some());
+    // 3-D datasets have no H (the display's H says nothing of a mesh).
+    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
     let counts = recipe.split_counts();
     let id_width = (recipe.samples - 1).to_string().len().max(6);
+    let depths_mm = match &recipe.depth {
+        Some(d) => d
+            .depths_mm()
+            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
+        None => Vec::new(),
+    };
     Ok(Plan {
         recipe,
         recipe_path: recipe_path.to_path_buf(),
@@ -279,6 +376,7 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
         base_overrides,
         scenes,
         images,
+        depths_mm,
         has_matrix,
         counts,
         id_width,
@@ -313,6 +411,11 @@ impl Plan {
                 params.insert(v.key.clone(), lo + (hi - lo) * rng.uniform());
             }
         }
+        if !self.depths_mm.is_empty() {
+            let k = depth_index(seed, self.depths_mm.len());
+            scene = scene * self.depths_mm.len() + k;
+            params.insert(DEPTH_KEY.to_string(), self.depths_mm[k]);
+        }
         SampleSpec {
             id,
             split,
@@ -328,15 +431,46 @@ impl Plan {
         format!("{id:0width$}", width = self.id_width)
     }
 
-    /// The four files of a sample, relative to the dataset root.
-    pub fn sample_files(&self, s: &SampleSpec) -> [String; 4] {
+    /// The files of a sample, relative to the dataset root: object `.npy` and `.png`, capture
+    /// `.npy` and `.png`; for `meshes` capture `.npy` and `.png`, then [`MESH_FILES`].
+    pub fn sample_files(&self, s: &SampleSpec) -> Vec<String> {
         let (d, stem) = (SPLITS[s.split], self.stem(s.id));
-        [
-            format!("{d}/{stem}_object.npy"),
-            format!("{d}/{stem}_object.png"),
-            format!("{d}/{stem}_capture.npy"),
-            format!("{d}/{stem}_capture.png"),
-        ]
+        let kinds: &[&str] = if self.recipe.is_meshes() {
+            &[
+                "capture.npy",
+                "capture.png",
+                MESH_FILES[0],
+                MESH_FILES[1],
+                MESH_FILES[2],
+                MESH_FILES[3],
+            ]
+        } else {
+            &["object.npy", "object.png", "capture.npy", "capture.png"]
+        };
+        kinds.iter().map(|k| format!("{d}/{stem}_{k}")).collect()
+    }
+
+    /// The 3-D draw of a sample, settled on the user side, and the mesh's world bounds.
+    fn mesh_draw(
+        &self,
+        s: &SampleSpec,
+        src: &recipe::MeshSource,
+        files: &[(PathBuf, String)],
+        ls: &LoadedScene,
+    ) -> Result<(meshes::MeshDraw, [[f64; 3]; 2]), DatasetError> {
+        let mut d = meshes::draw(src, files, s.seed);
+        let b = d
+            .settle(ls, src.units.as_deref())
+            .map_err(|e| recipe_err(&self.recipe_path, source_key(s), e.to_string()))?;
+        Ok((d, b))
+    }
+
+    /// The `meshes` source of a 3-D sample and its mesh files.
+    fn mesh_source(&self, s: &SampleSpec) -> Option<(&recipe::MeshSource, &[(PathBuf, String)])> {
+        match &self.recipe.objects.sources[s.object.source] {
+            Source::Meshes(m) => Some((m, &self.images[s.object.source])),
+            _ => None,
+        }
     }
 
     fn resize_of(&self, source: usize) -> Resize {
@@ -346,7 +480,10 @@ impl Plan {
         }
     }
 
+    /// The seed of H of distinct scene `k`; the depths of one scene share it (their H see the
+    /// same camera rays, as in a one-pass depth stack).
     fn scene_seed(&self, k: usize) -> u64 {
+        let k = k / self.depths_mm.len().max(1);
         NoiseRng::new(&[self.recipe.seed, SCENE_TAG, k as u64]).next_u64() >> 11
     }
 
@@ -363,23 +500,28 @@ impl Plan {
     }
 
     /// The scene of a sample: its discrete scene, or with ranged keys one built for it.
-    fn sample_scene(&self, s: &SampleSpec) -> Result<std::borrow::Cow<'_, System>, DatasetError> {
-        if self.has_matrix {
-            return Ok(std::borrow::Cow::Borrowed(&self.scenes[s.scene].system));
+    #[allow(clippy::type_complexity)]
+    fn sample_scene(
+        &self,
+        s: &SampleSpec,
+    ) -> Result<(Cow<'_, LoadedScene>, Cow<'_, System>), DatasetError> {
+        if self.recipe.vary.iter().all(|v| v.values.is_some()) {
+            let ps = &self.scenes[s.scene];
+            return Ok((Cow::Borrowed(&ps.loaded), Cow::Borrowed(&ps.system)));
         }
         let extra: Vec<String> = s
             .params
             .iter()
             .map(|(k, v)| format!("{k}={}", fmt_value(*v)))
             .collect();
-        let (_, sys) = load_system(
+        let (ls, sys) = load_system(
             self.scene_file.as_deref(),
             &self.base_overrides,
             &extra,
             &self.recipe_path,
             "vary",
         )?;
-        Ok(std::borrow::Cow::Owned(sys))
+        Ok((Cow::Owned(ls), Cow::Owned(sys)))
     }
 }
 
@@ -677,6 +819,56 @@ struct Exposure {
     noise: Option<SensorNoise>,
 }
 
+impl Exposure {
+    /// The stored capture of a clean one: measured by the sensor model (pixel i with
+    /// `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, or as it is.
+    fn measure(&self, clean: &[f64], seed: u64) -> Vec<f32> {
+        match &self.noise {
+            Some(n) => {
+                let dark = n.dark_offset_units();
+                clean
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        (n.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark)
+                            as f32
+                    })
+                    .collect()
+            }
+            None => clean.iter().map(|&v| v as f32).collect(),
+        }
+    }
+}
+
+/// H of the incomplete depth scenes among `used`, one [`depth::depth_matrices`] call per
+/// discrete scene (its depths share the seed); empty without `[depth]`.
+fn depth_stack(
+    plan: &Plan,
+    root: &Path,
+    used: &BTreeSet<usize>,
+    progress: bool,
+) -> BTreeMap<usize, SystemMatrix> {
+    let n = plan.depths_mm.len();
+    let mut out = BTreeMap::new();
+    if n == 0 || !plan.has_matrix {
+        return out;
+    }
+    let todo: Vec<usize> = used
+        .iter()
+        .copied()
+        .filter(|&k| !plan.scene_files(k).iter().all(|f| root.join(f).is_file()))
+        .collect();
+    let groups: BTreeSet<usize> = todo.iter().map(|k| k / n).collect();
+    for g in groups {
+        let ks: Vec<usize> = todo.iter().copied().filter(|k| k / n == g).collect();
+        let depths: Vec<f64> = ks.iter().map(|k| plan.depths_mm[k % n]).collect();
+        let settings = RenderSettings::lattice(plan.recipe.spp, plan.scene_seed(ks[0]), progress);
+        let ms = depth::depth_matrices(&plan.scenes[ks[0]].system, &depths, &settings);
+        out.extend(ks.into_iter().zip(ms));
+    }
+    out
+}
+
 /// Generates a dataset (or one shard of it) into `opts.out`.
 pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
     let recipe = &plan.recipe;
@@ -704,6 +896,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let object = (recipe.objects.size_px, recipe.objects.size_px);
     let mut crop = (0, 0);
     let mut channel_names: Vec<String> = Vec::new();
+    let mut stack = depth_stack(plan, root, &used, opts.progress);
     for &k in &used {
         let ps = &plan.scenes[k];
         let sys = &ps.system;
@@ -725,10 +918,12 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
                 .map_err(|e| out_err(&dir, e.to_string()))?;
             if plan.has_matrix {
-                let m: SystemMatrix = compute_matrix(
-                    sys,
-                    &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
-                );
+                let m: SystemMatrix = stack.remove(&k).unwrap_or_else(|| {
+                    compute_matrix(
+                        sys,
+                        &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
+                    )
+                });
                 let sidecar = serde_json::json!({
                     "object_px": [object.0, object.1],
                     "crop_px": [m.crop.0, m.crop.1],
@@ -738,6 +933,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     "spp": recipe.spp,
                     "seed": plan.scene_seed(k),
                     "overrides": ps.overrides,
+                    "depth_mm": ps.params.get(DEPTH_KEY),
                     "units": crate::matrix::MATRIX_UNITS,
                     "stscam_version": crate::VERSION,
                 });
@@ -770,7 +966,12 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     } else {
         let white = vec![1.0; object.0 * object.1];
         let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
-        render_object(ref_sys, &white, recipe.spp, seed)
+        // 3-D datasets: display white on the scene's display plane, without the scene's objects.
+        let mut flat = ref_sys.clone();
+        if recipe.is_meshes() {
+            flat.world = None;
+        }
+        render_object(&flat, &white, recipe.spp, seed)
             .into_iter()
             .fold(0.0f64, f64::max)
     };
@@ -795,13 +996,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 gamma,
                 plan.resize_of(s.object.source),
             )
-            .map_err(|m| {
-                recipe_err(
-                    &plan.recipe_path,
-                    format!("objects.sources[{}]", s.object.source),
-                    m,
-                )
-            })?;
+            .map_err(|m| recipe_err(&plan.recipe_path, source_key(s), m))?;
         let clean: Vec<f64> = match recipe.mode {
             CaptureMode::Matrix => {
                 let m = &matrices[&s.scene];
@@ -813,20 +1008,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             }
             CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
         };
-        let capture: Vec<f32> = match &exposure.noise {
-            Some(n) => {
-                let dark = n.dark_offset_units();
-                clean
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &v)| {
-                        (n.measure(v, &mut NoiseRng::new(&[s.seed, NOISE_TAG, i as u64])) - dark)
-                            as f32
-                    })
-                    .collect()
-            }
-            None => clean.iter().map(|&v| v as f32).collect(),
-        };
+        let capture = exposure.measure(&clean, s.seed);
         write_sample(
             plan,
             root,
@@ -847,9 +1029,26 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             todo.par_iter()
                 .try_for_each(|s| one(s, &plan.scenes[s.scene].system))?;
         }
+        CaptureMode::Render if recipe.is_meshes() => {
+            for s in &todo {
+                let (ls, sys) = plan.sample_scene(s)?;
+                let Some((src, files)) = plan.mesh_source(s) else {
+                    continue;
+                };
+                let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
+                let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
+                    .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
+                let (clean, frontal) =
+                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed);
+                let capture = exposure.measure(&clean, s.seed);
+                write_mesh_sample(plan, root, s, &capture, &frontal, crop, exposure.full_scale)?;
+                counter.fetch_add(1, Ordering::Relaxed);
+                bar.inc(1);
+            }
+        }
         CaptureMode::Render => {
             for s in &todo {
-                let sys = plan.sample_scene(s)?;
+                let (_, sys) = plan.sample_scene(s)?;
                 one(s, &sys)?;
             }
         }
@@ -878,7 +1077,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         }),
     };
     let metadata: Vec<(usize, String)> = specs
-        .iter()
+        .par_iter()
         .map(|s| Ok((s.split, metadata_line(plan, s)?)))
         .collect::<Result<_, DatasetError>>()?;
     let scene_ids: Vec<usize> = used.into_iter().collect();
@@ -956,7 +1155,19 @@ fn write_sample(
     full_scale: f64,
 ) -> Result<(), DatasetError> {
     let n = plan.recipe.objects.size_px;
-    let [on, op, cn, cp] = plan.sample_files(s);
+    let files = plan.sample_files(s);
+    let (on, op, cn, cp) = (&files[0], &files[1], &files[2], &files[3]);
+    split_dir(root, s)?;
+    let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
+    put(root, on, &npy(on, &[n, n], &f32s)?)?;
+    let png =
+        crate::output::encode_object_png(f, n, n, gamma).map_err(|m| out_err(&root.join(op), m))?;
+    put(root, op, &png)?;
+    put_image(root, [cn, cp], capture, crop, channels, full_scale)
+}
+
+/// Creates the split folder of a sample.
+fn split_dir(root: &Path, s: &SampleSpec) -> Result<(), DatasetError> {
     let dir = root.join(SPLITS[s.split]);
     if !dir.is_dir() {
         std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
@@ -964,42 +1175,96 @@ fn write_sample(
             source: e,
         })?;
     }
-    let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
-    put(root, &on, &npy(&on, &[n, n], &f32s)?)?;
-    let png = crate::output::encode_object_png(f, n, n, gamma)
-        .map_err(|m| out_err(&root.join(&op), m))?;
-    put(root, &op, &png)?;
+    Ok(())
+}
+
+/// Writes an image `v` (channel-major, `size` = (w, h)) as float32 `.npy` ([h, w], or
+/// [c, h, w] for several channels) and 16-bit linear PNG, round(65535·clamp(v / full_scale)).
+fn put_image(
+    root: &Path,
+    [rel_npy, rel_png]: [&str; 2],
+    v: &[f32],
+    size: (usize, usize),
+    channels: usize,
+    full_scale: f64,
+) -> Result<(), DatasetError> {
     let shape: Vec<usize> = if channels == 1 {
-        vec![crop.1, crop.0]
+        vec![size.1, size.0]
     } else {
-        vec![channels, crop.1, crop.0]
+        vec![channels, size.1, size.0]
     };
-    put(root, &cn, &npy(&cn, &shape, capture)?)?;
+    put(root, rel_npy, &npy(rel_npy, &shape, v)?)?;
     // PNG: pixel-major, channels interleaved.
-    let p = crop.0 * crop.1;
-    let q = |v: f32| ((f64::from(v) / full_scale).clamp(0.0, 1.0) * 65535.0).round() as u16;
+    let p = size.0 * size.1;
+    let q = |x: f32| ((f64::from(x) / full_scale).clamp(0.0, 1.0) * 65535.0).round() as u16;
     let samples: Vec<u16> = if channels == 1 {
-        capture.iter().map(|&v| q(v)).collect()
+        v.iter().map(|&x| q(x)).collect()
     } else {
         (0..p)
-            .flat_map(|i| (0..channels).map(move |c| q(capture[c * p + i])))
+            .flat_map(|i| (0..channels).map(move |c| q(v[c * p + i])))
             .collect()
     };
-    let png = crate::io::encode_png16(crop.0, crop.1, channels.min(3), &samples)
-        .map_err(|m| out_err(&root.join(&cp), m))?;
-    put(root, &cp, &png)?;
-    Ok(())
+    let png = crate::io::encode_png16(size.0, size.1, channels.min(3), &samples)
+        .map_err(|m| out_err(&root.join(rel_png), m))?;
+    put(root, rel_png, &png)
+}
+
+/// Writes the six files of a 3-D sample: capture (`.npy`, `.png` as for 2-D samples), frontal
+/// (`.npy` in capture units, `.png` with full scale [`meshes::FRONTAL_PNG_FULL_SCALE`]),
+/// depth (`.npy`, mm, +inf where nothing is hit) and mask (16-bit `.png`).
+fn write_mesh_sample(
+    plan: &Plan,
+    root: &Path,
+    s: &SampleSpec,
+    capture: &[f32],
+    frontal: &crate::world::frontal::Frontal,
+    crop: (usize, usize),
+    full_scale: f64,
+) -> Result<(), DatasetError> {
+    let files = plan.sample_files(s);
+    split_dir(root, s)?;
+    let nch = frontal.channels.len();
+    let size = (frontal.width, frontal.height);
+    put_image(root, [&files[0], &files[1]], capture, crop, nch, full_scale)?;
+    let fv: Vec<f32> = frontal.channels.concat();
+    put_image(
+        root,
+        [&files[2], &files[3]],
+        &fv,
+        size,
+        nch,
+        meshes::FRONTAL_PNG_FULL_SCALE,
+    )?;
+    put(
+        root,
+        &files[4],
+        &npy(&files[4], &[size.1, size.0], &frontal.depth_mm)?,
+    )?;
+    let png = crate::io::encode_png16(size.0, size.1, 1, &frontal.mask)
+        .map_err(|m| out_err(&root.join(&files[5]), m))?;
+    put(root, &files[5], &png)
 }
 
 /// One `metadata.jsonl` line (Hugging Face imagefolder: `file_name` is the capture PNG).
 fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
-    let [on, op, cn, cp] = plan.sample_files(s);
+    let files = plan.sample_files(s);
     let base = |p: &str| p.rsplit('/').next().unwrap_or(p).to_string();
     let mut m = serde_json::Map::new();
-    m.insert("file_name".into(), base(&cp).into());
-    m.insert("object_file_name".into(), base(&op).into());
-    m.insert("capture_npy".into(), base(&cn).into());
-    m.insert("object_npy".into(), base(&on).into());
+    let names: &[&str] = if plan.recipe.is_meshes() {
+        &[
+            "capture_npy",
+            "file_name",
+            "frontal_npy",
+            "frontal_file_name",
+            "depth_npy",
+            "mask_file_name",
+        ]
+    } else {
+        &["object_npy", "object_file_name", "capture_npy", "file_name"]
+    };
+    for (k, f) in names.iter().zip(&files) {
+        m.insert((*k).into(), base(f).into());
+    }
     m.insert("id".into(), s.id.into());
     m.insert("split".into(), SPLITS[s.split].into());
     m.insert("seed".into(), s.seed.into());
@@ -1017,6 +1282,25 @@ fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
     }
     for (k, v) in &s.params {
         m.insert(k.clone(), (*v).into());
+    }
+    if let Some((src, files)) = plan.mesh_source(s) {
+        let (ls, _) = plan.sample_scene(s)?;
+        let (d, bounds) = plan.mesh_draw(s, src, files, &ls)?;
+        let mut drawn =
+            serde_json::to_value(&d).map_err(|e| out_err(&plan.recipe_path, e.to_string()))?;
+        if let Some(o) = drawn.as_object_mut() {
+            o.insert("bounds_mm".into(), serde_json::json!(bounds));
+            o.insert(
+                "mask_value".into(),
+                ls.scene
+                    .object
+                    .len()
+                    .saturating_add(1)
+                    .min(usize::from(u16::MAX - 1))
+                    .into(),
+            );
+            m.append(o);
+        }
     }
     serde_json::to_string(&m).map_err(|e| out_err(&plan.recipe_path, e.to_string()))
 }
@@ -1114,12 +1398,22 @@ fn build_card(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
+    let mut units = units;
+    let mut loading_3d = Vec::new();
+    if r.is_meshes() {
+        units.remove("object_npy");
+        units.remove("object_png");
+        units.remove("matrix");
+        units.extend(meshes::units().into_iter().map(|(k, v)| (k.to_string(), v)));
+        loading_3d.push(("metadata_3d", meshes::METADATA_3D));
+    }
     let loading: BTreeMap<String, String> = [
         ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),
         ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG, 'object' the object PNG (datasets 5.2, the version CI tests, reads *_file_name columns as images; older versions give the file name), the rest from metadata.jsonl; the split 'val' is named 'validation'; Pillow reads 16-bit RGB PNGs (colour sensors) as 8-bit, the .npy files are exact"),
-        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key"),
+        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key (depth_mm with [depth])"),
     ]
     .into_iter()
+    .chain(loading_3d)
     .map(|(k, v)| (k.to_string(), v.to_string()))
     .collect();
     Card {

@@ -2,11 +2,10 @@
 //! an uninterrupted one, captures equal H·f + offset when noiseless, image folders (PNG, JPEG)
 //! are read, and bad recipes are refused with one line, exit code 2 and nothing written.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::path::Path;
+use std::process::Command;
 
-use crate::common::stscam;
+use crate::common::{assert_same_tree, stscam, write};
 
 /// A small scene: 48×48 crop with the paper's field of view, so runs take a fraction of a
 /// second.
@@ -51,42 +50,6 @@ max_period_px = 3
 generator = "smooth"
 {extra}"#
     )
-}
-
-fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
-    let p = dir.join(name);
-    std::fs::write(&p, text).unwrap();
-    p
-}
-
-/// Every file under `root` (relative path → bytes).
-fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
-}
-
-fn assert_same_tree(a: &Path, b: &Path) {
-    let (ta, tb) = (tree(a), tree(b));
-    assert_eq!(
-        ta.keys().collect::<Vec<_>>(),
-        tb.keys().collect::<Vec<_>>(),
-        "different file lists"
-    );
-    for (k, v) in &ta {
-        assert!(v == &tb[k], "{k} differs");
-    }
 }
 
 fn ok(args: &[&str]) {
@@ -144,10 +107,7 @@ fn three_shards_merged_equal_one_run_byte_for_byte() {
         shards.push(d);
     }
     let merged = dir.path().join("merged");
-    let mut args = vec!["dataset", "merge"];
-    args.extend(shards.iter().map(|d| d.to_str().unwrap()));
-    args.extend(["--out", merged.to_str().unwrap()]);
-    ok(&args);
+    crate::common::merge_shards(&shards, &merged);
     assert_same_tree(&whole, &merged);
     // The card lists every file with its checksum; both scenes have their H.
     let card: serde_json::Value =
@@ -212,31 +172,8 @@ fn sigkill_and_resume_give_the_uninterrupted_files() {
         whole.to_str().unwrap(),
     ]);
     let killed = dir.path().join("killed");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_stscam"))
-        .args([
-            "dataset",
-            r.to_str().unwrap(),
-            "--out",
-            killed.to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
     // Wait until some samples are finished, then SIGKILL.
-    let t0 = std::time::Instant::now();
-    loop {
-        let n = crate::common::files_in(&killed.join("train")).len();
-        if n >= 12 || t0.elapsed().as_secs() > 120 {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    child.kill().unwrap(); // SIGKILL on Unix
-    let status = child.wait().unwrap();
-    assert!(!status.success(), "the run finished before it was killed");
-    assert!(killed.join(".stscam-run.json").is_file());
-    assert!(!killed.join("dataset.json").exists());
+    crate::common::dataset_killed_midway(&r, &killed, 12);
     let n_before = crate::common::files_in(&killed.join("train")).len();
     assert!((12..4 * 24).contains(&n_before), "{n_before} files");
     // Without --resume the folder is refused.

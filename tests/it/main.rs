@@ -5,6 +5,7 @@ mod bvh;
 mod cli_errors;
 mod common;
 mod dataset;
+mod dataset3d;
 mod estimators;
 mod invariants;
 mod matrix_calibration;
