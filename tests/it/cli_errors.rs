@@ -1,6 +1,7 @@
 //! Bad input gives one line naming the file (or `--set`) and the key, exit code 2, and nothing
 //! written to `--out`.
 
+
 use crate::common::{files_in, stscam};
 
 /// Runs a render expected to fail; returns its single stderr line.

@@ -2,6 +2,8 @@
 //! an uninterrupted one, captures equal H·f + offset when noiseless, image folders (PNG, JPEG)
 //! are read, and bad recipes are refused with one line, exit code 2 and nothing written.
 
+
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

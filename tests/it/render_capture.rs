@@ -1,6 +1,7 @@
 //! End-to-end renders: determinism across thread counts, finite and bounded values, the
 //! output files, and the replicas of a single bright target pixel against `info`.
 
+
 use crate::common::{stscam, stscam_json};
 use stscam::io::read_exr;
 
