@@ -1749,6 +1749,7 @@ fn cmd_bench_render(
                 budget_s,
                 1 << 20,
                 target,
+                true,
             )
         });
         eprintln!(

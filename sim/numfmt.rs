@@ -21,7 +21,9 @@ pub fn sig6(x: f64) -> String {
     let exp: i32 = exp.parse().unwrap_or(0);
     if (-4..15).contains(&exp) {
         let decimals = usize::try_from(5 - exp).unwrap_or(0);
-        trim_zeros(&format!("{x:.decimals$}"))
+        // The rounded value, so that digits beyond the sixth of a large number are zeros.
+        let rounded: f64 = sci.parse().unwrap_or(x);
+        trim_zeros(&format!("{rounded:.decimals$}"))
     } else {
         format!("{}e{exp}", trim_zeros(mantissa))
     }
@@ -55,20 +57,13 @@ mod tests {
         assert_eq!(sig6(0.0), "0");
         assert_eq!(sig6(f64::NAN), "NaN");
         assert_eq!(sig6(f64::NEG_INFINITY), "-inf");
-        // Never more than six digits, whatever the value.
+        // Never more than six significant digits, whatever the value.
         for k in -320..308 {
             let s = sig6(1.234567891 * 10f64.powi(k));
-            let digits = s
-                .split('e')
-                .next()
-                .unwrap()
-                .chars()
-                .filter(char::is_ascii_digit);
-            let sig = digits.skip_while(|&c| c == '0').count();
-            assert!(
-                sig <= 6 || s.split('e').next().unwrap().ends_with('0'),
-                "{s}"
-            );
+            let mantissa = s.split('e').next().unwrap();
+            let digits: String = mantissa.chars().filter(char::is_ascii_digit).collect();
+            let significant = digits.trim_start_matches('0').trim_end_matches('0');
+            assert!(significant.len() <= 6, "{s}");
         }
     }
 }

@@ -48,7 +48,7 @@ fn bad_scenes_and_overrides() {
     std::fs::write(&scene, "[plate]\nthicknes_mm = 2.0\n").unwrap();
     assert_eq!(
         fails(&[s], &out),
-        format!("error: {s}: plate.thicknes_mm: unknown key")
+        format!("error: {s}: plate.thicknes_mm: unknown key; did you mean plate.thickness_mm?")
     );
 
     std::fs::write(&scene, "[plate]\nthickness_mm = -2.0\n").unwrap();
@@ -74,7 +74,7 @@ fn bad_scenes_and_overrides() {
     let e = fails(&["--set", "plate.thicknes_mm=3"], &out);
     assert_eq!(
         e,
-        "error: --set plate.thicknes_mm: plate.thicknes_mm: unknown key"
+        "error: --set plate.thicknes_mm: plate.thicknes_mm: unknown key; did you mean plate.thickness_mm?"
     );
     let e = fails(&["--set", "camera.f_number=0"], &out);
     assert!(

@@ -2,8 +2,6 @@
 //! an uninterrupted one, captures equal H·f + offset when noiseless, image folders (PNG, JPEG)
 //! are read, and bad recipes are refused with one line, exit code 2 and nothing written.
 
-
-
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -17,7 +15,8 @@ const SMALL_SCENE: &str = r#"
 set = ["sensor.crop_px=[48,48]", "sensor.pitch_um=44.0"]
 "#;
 
-fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
+/// A recipe of the small scene (also used by `hostile.rs`).
+pub(crate) fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
     format!(
         r#"name = "{name}"
 seed = 7
@@ -55,7 +54,7 @@ generator = "smooth"
     )
 }
 
-fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+pub(crate) fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
     p

@@ -6,6 +6,7 @@ mod cli_errors;
 mod common;
 mod dataset;
 mod estimators;
+mod hostile;
 mod invariants;
 mod matrix_calibration;
 mod mesh_scenes;
