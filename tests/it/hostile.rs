@@ -50,6 +50,13 @@ fn refused(args: &[&str], expect: &[&str]) -> String {
     err
 }
 
+/// A temporary folder and the (not yet existing) output folder inside it.
+fn scratch() -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    (dir, out)
+}
+
 fn p(path: &Path) -> &str {
     path.to_str().unwrap()
 }
@@ -71,8 +78,7 @@ fn diagonal_npz(path: &Path, values: &[f32]) {
 
 #[test]
 fn sizes_users_control_are_bounded_before_work_starts() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = scratch();
     let o = p(&out);
     // 100000 threads used to spawn for minutes; 4·10⁹ spp ran for ever.
     refused(
@@ -231,8 +237,7 @@ fn sizes_users_control_are_bounded_before_work_starts() {
 #[test]
 fn archives_are_checked_before_inflating_and_files_before_reading() {
     use std::io::Write as _;
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = scratch();
     let o = p(&out);
     let cap = dir.path().join("g.npy");
     npy(&cap, &[1.0, 2.0]);
@@ -395,8 +400,7 @@ fn archives_are_checked_before_inflating_and_files_before_reading() {
 
 #[test]
 fn non_finite_data_is_refused_and_reconstruction_stays_in_float32() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
+    let (dir, out) = scratch();
     let o = p(&out);
     let h = dir.path().join("H.npz");
     diagonal_npz(&h, &[1.0; 4]);
@@ -579,9 +583,8 @@ fn write_errors_exit_1_and_a_dataset_folder_is_locked() {
 
 #[test]
 fn messages_blame_the_key_set_suggest_keys_and_stay_short() {
-    let dir = tempfile::tempdir().unwrap();
-    let o = dir.path().join("out");
-    let o = p(&o);
+    let (_dir, out) = scratch();
+    let o = p(&out);
     // A relation error names the key the user set, not the one derived from it.
     refused(
         &["render", "--set", "camera.focal_length_mm=1000", "--out", o],
