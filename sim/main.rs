@@ -3,7 +3,6 @@
 //! nothing is written to `--out` unless the whole job succeeded (the one exception:
 //! `matrix --check` writes H and then exits 1 if the check fails, so the files can be inspected).
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -428,6 +427,18 @@ enum BenchCommand {
     },
 }
 
+/// Most timed runs of a benchmark figure (`bench recon --runs`).
+const MAX_RUNS: usize = 1000;
+
+/// Longest time budget per estimator of `bench render` (`--budget-s`): one day.
+const MAX_BUDGET_S: f64 = 86_400.0;
+
+/// Most field angles of `validate analytic --fields`.
+const MAX_FIELDS: usize = 100_000;
+
+/// Most iterations of `reconstruct --iters`.
+const MAX_ITERS: usize = 1_000_000;
+
 /// A CLI failure: exit code and one line.
 struct Failure {
     code: u8,
@@ -441,6 +452,11 @@ fn bad_input(message: impl Into<String>) -> Failure {
     }
 }
 
+/// A job beyond a resource limit: bad input.
+fn limit(e: stscam::limits::LimitError) -> Failure {
+    bad_input(e.to_string())
+}
+
 fn load(args: &SceneArgs) -> Result<(LoadedScene, System), Failure> {
     let ls = load_scene(args.scene.as_deref(), &args.set).map_err(|e| bad_input(e.to_string()))?;
     let sys = System::build(&ls).map_err(|e| bad_input(e.to_string()))?;
@@ -450,9 +466,7 @@ fn load(args: &SceneArgs) -> Result<(LoadedScene, System), Failure> {
 fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, Failure> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
-        if t == 0 {
-            return Err(bad_input("--threads: must be at least 1"));
-        }
+        stscam::limits::check_threads(t).map_err(limit)?;
         b = b.num_threads(t);
     }
     b.build().map_err(|e| Failure {
@@ -503,8 +517,13 @@ fn cmd_render(
             SamplerArg::Independent => SamplerKind::Independent,
         },
         spectral_bins: bins,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
+    if let (Some((fw, fh)), true) = (frontal_size, sys.world.is_some()) {
+        stscam::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
+            .map_err(limit)?;
+    }
     let t0 = Instant::now();
     let cap = pool.install(|| render(&sys, &settings));
     let render_s = t0.elapsed().as_secs_f64();
@@ -678,8 +697,9 @@ fn cmd_matrix(
         seed,
         sampler: SamplerKind::Lattice,
         spectral_bins: None,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &settings));
     let matrix_s = t0.elapsed().as_secs_f64();
@@ -771,6 +791,7 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     let values: Vec<f64> = if is_npy {
         let (_, v) = stscam::io::npz::read_npy_f32(path).map_err(|e| bad_input(e.to_string()))?;
+        stscam::io::check_finite(path, "value", &v).map_err(|e| bad_input(e.to_string()))?;
         v.into_iter().map(f64::from).collect()
     } else {
         let (_, _, chans) = stscam::io::read_exr(path).map_err(|e| bad_input(e.to_string()))?;
@@ -779,6 +800,8 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         let mut v = Vec::new();
         for name in order {
             if let Some(c) = chans.iter().find(|c| c.name == name) {
+                stscam::io::check_finite(path, &format!("channel {name}: value"), &c.data)
+                    .map_err(|e| bad_input(e.to_string()))?;
                 v.extend(c.data.iter().map(|&x| f64::from(x)));
             }
         }
@@ -790,20 +813,16 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         }
         v
     };
-    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-        return Err(bad_input(format!(
-            "{}: value {i} is not a finite number",
-            path.display()
-        )));
-    }
     Ok(values)
 }
 
 /// Linear intensities of a truth image or built-in target.
 fn load_truth(spec: &str, gamma: f64, w: usize, h: usize) -> Result<Vec<f64>, Failure> {
     let (tw, th, v) = if stscam::system::is_image_path(spec) {
-        let img = stscam::io::load_image(std::path::Path::new(spec))
-            .map_err(|e| bad_input(e.to_string()))?;
+        let path = std::path::Path::new(spec);
+        let img = stscam::io::load_image(path).map_err(|e| bad_input(e.to_string()))?;
+        stscam::io::check_finite(path, "value", &img.values)
+            .map_err(|e| bad_input(format!("--truth: {e}")))?;
         let v =
             stscam::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
         (img.width, img.height, v)
@@ -844,7 +863,7 @@ fn cmd_calibrate(
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
-    let progress = std::io::stderr().is_terminal();
+    let progress = true;
     let rs = RenderSettings {
         spp,
         seed,
@@ -876,12 +895,22 @@ fn cmd_calibrate(
                     sys.display.width_px, sys.display.height_px
                 )));
             }
+            // H, and with --render one frame per pattern plus the all-white one.
+            let renders = 1 + if render_frames { n_obj as u64 + 1 } else { 0 };
+            stscam::render::check_limits(&sys, &rs, renders, "--spp").map_err(limit)?;
             let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
             (m.h, m.offset, m.object, "computed".to_string())
         }
     };
     let matrix_s = t0.elapsed().as_secs_f64();
     let n = h_true.cols;
+    // The calibration forms every frame value (rows x patterns) in f64, row by row.
+    stscam::limits::check_bytes(
+        "--matrix",
+        &format!("the calibration's {} x {n} frame values", h_true.rows),
+        h_true.rows as u128 * n as u128 * 8,
+    )
+    .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
     if !n.is_power_of_two() {
         return Err(bad_input(format!(
             "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
@@ -919,11 +948,8 @@ fn cmd_calibrate(
                 bytes as f64 / f64::from(1u32 << 30)
             )));
         }
-        let pb = if progress {
-            indicatif::ProgressBar::new(n as u64 + 1)
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
+        stscam::render::check_limits(&sys, &rs, n as u64 + 1, "--spp").map_err(limit)?;
+        let pb = stscam::progress::Progress::new(progress, n as u64 + 1, "calibration frames");
         let quiet = RenderSettings {
             progress: false,
             ..rs.clone()
@@ -1028,8 +1054,12 @@ fn cmd_reconstruct(
     if !(gamma.is_finite() && gamma > 0.0) {
         return Err(bad_input(format!("--gamma {gamma}: must be positive")));
     }
-    if iters == Some(0) {
-        return Err(bad_input("--iters: must be at least 1"));
+    if let Some(n) = iters
+        && !(1..=MAX_ITERS).contains(&n)
+    {
+        return Err(bad_input(format!(
+            "--iters: must be in 1..={MAX_ITERS}, got {n}"
+        )));
     }
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
@@ -1053,6 +1083,12 @@ fn cmd_reconstruct(
     }
     let (w, h) = lm.object;
     let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    stscam::limits::check_bytes(
+        "--matrix",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stscam::recon::setup_bytes_bound(&lm.h, pool.current_num_threads()),
+    )
+    .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
     let t0 = Instant::now();
     let problem = pool.install(|| Problem::new(&lm.h, w, h));
     let setup_s = t0.elapsed().as_secs_f64();
@@ -1083,6 +1119,15 @@ fn cmd_reconstruct(
         }
     });
     let solve_s = t0.elapsed().as_secs_f64();
+    // Computed in f64; stored as float32, which must hold every value.
+    if let Some(i) = f.iter().position(|v| !(v.abs() <= f64::from(f32::MAX))) {
+        return Err(bad_input(format!(
+            "{}: the reconstruction reaches {} at object pixel {i}, outside float32's range (±3.40282e38): H ({}) and the capture are on incompatible scales",
+            capture.display(),
+            stscam::numfmt::sig6(f[i]),
+            matrix.display()
+        )));
+    }
     let metrics = truth_v.as_ref().map(|t| {
         serde_json::json!({
             "psnr_db": stscam::recon::metrics::psnr(&f, t),
@@ -1172,8 +1217,17 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
             tol: 0.0,
         },
         admm: stscam::recon::admm::AdmmSettings::default(),
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    // H and one capture per target.
+    let renders = 1 + stscam::demo::DEMO_TARGETS.len() as u64;
+    stscam::render::check_limits(
+        &sys,
+        &RenderSettings::lattice(spp, seed, false),
+        renders,
+        "--spp",
+    )
+    .map_err(limit)?;
     let res = pool
         .install(|| stscam::demo::run_demo(&sys, &set))
         .map_err(bad_input)?;
@@ -1192,7 +1246,10 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
 
 fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
     use stscam::dataset::{RunOptions, Shard, generate, merge, plan};
-    let fail = |e: stscam::dataset::DatasetError| bad_input(e.to_string());
+    let fail = |e: stscam::dataset::DatasetError| match e {
+        stscam::dataset::DatasetError::Write(_) => write_failure(e),
+        _ => bad_input(e.to_string()),
+    };
     if let Some(DatasetCommand::Merge {
         shards,
         out,
@@ -1231,7 +1288,7 @@ fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
         out: out.clone(),
         shard,
         resume: args.resume,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
     let s = pool.install(|| generate(&p, &opts)).map_err(fail)?;
     eprintln!(
@@ -1287,7 +1344,7 @@ fn cmd_sweep(
             spp: psnr_spp,
             ..PsnrSettings::default()
         }),
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
         ..SweepSettings::default()
     };
     let t0 = Instant::now();
@@ -1357,12 +1414,14 @@ fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
 
 /// `stscam bench bvh`: prints the medians over seeds 1..=runs as JSON.
 fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64) -> Result<(), Failure> {
-    if !(1..=50_000_000).contains(&triangles)
-        || !(1..=100_000_000).contains(&rays)
+    // Measured peak: about 300 bytes per triangle (mesh and BVH) and 48 per ray, so the
+    // largest run stays near 4 GiB.
+    if !(1..=10_000_000).contains(&triangles)
+        || !(1..=20_000_000).contains(&rays)
         || !(1..=99).contains(&runs)
     {
         return Err(bad_input(
-            "bench bvh: --triangles must be 1..=50000000, --rays 1..=100000000, --runs 1..=99",
+            "bench bvh: --triangles must be 1..=10000000, --rays 1..=20000000, --runs 1..=99",
         ));
     }
     let results: Vec<_> = (1..=runs)
@@ -1402,8 +1461,10 @@ fn cmd_bench_recon(
     threads: Option<usize>,
 ) -> Result<(), Failure> {
     use stscam::recon::{Problem, admm, cg};
-    if spp == 0 || runs == 0 {
-        return Err(bad_input("--spp and --runs must be at least 1"));
+    if spp == 0 || !(1..=MAX_RUNS).contains(&runs) {
+        return Err(bad_input(format!(
+            "--spp must be at least 1 and --runs in 1..={MAX_RUNS}"
+        )));
     }
     let pool = thread_pool(threads)?;
     let (_, sys) = pool.install(|| load(scene))?;
@@ -1412,8 +1473,9 @@ fn cmd_bench_recon(
         seed: 1,
         sampler: SamplerKind::Lattice,
         spectral_bins: None,
-        progress: false,
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &rs, 1, "--spp").map_err(limit)?;
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
     let matrix_s = t0.elapsed().as_secs_f64();
@@ -1553,8 +1615,7 @@ fn bench_plot(curves: &[stscam::bench::Curve], target: f64) -> stscam::plot::Lin
 /// Redraws the plots of a finished `bench render` from its JSON (no rendering).
 fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
     let path = dir.join("bench-render.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    let text = stscam::io::read_text(&path).map_err(|e| bad_input(e.to_string()))?;
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
     let target = v["target_relative_rmse"].as_f64().unwrap_or(0.01);
@@ -1617,19 +1678,17 @@ fn cmd_bench_render(
     use stscam::render::Estimator;
     if crop == 0
         || ref_spp == 0
-        || budget_s.is_nan()
-        || budget_s <= 0.0
+        || !(budget_s > 0.0 && budget_s <= MAX_BUDGET_S)
         || !(target > 0.0 && target < 1.0)
     {
-        return Err(bad_input(
-            "--crop, --ref-spp and --budget-s must be positive and --target in (0, 1)",
-        ));
+        return Err(bad_input(format!(
+            "--crop and --ref-spp must be positive, --budget-s in (0, {MAX_BUDGET_S}] and --target in (0, 1)"
+        )));
     }
     check_out_dir(out)?;
     let mut extras: Vec<Curve> = Vec::new();
     for p in extra {
-        let text =
-            std::fs::read_to_string(p).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let text = stscam::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
         let name = v["name"].as_str().unwrap_or("extra").to_string();
@@ -1665,6 +1724,13 @@ fn cmd_bench_render(
         set,
     };
     let (ls, sys) = pool.install(|| load(&args))?;
+    stscam::render::check_limits(
+        &sys,
+        &RenderSettings::lattice(ref_spp, 0, false),
+        1,
+        "--ref-spp",
+    )
+    .map_err(limit)?;
     let t0 = Instant::now();
     let ref_spp = if measure == ErrorMeasure::Halves {
         0
@@ -1682,7 +1748,7 @@ fn cmd_bench_render(
                     seed: 1_000_003,
                     sampler: SamplerKind::Lattice,
                     spectral_bins: None,
-                    progress: std::io::stderr().is_terminal(),
+                    progress: true,
                 },
             )
             .channels
@@ -1710,6 +1776,7 @@ fn cmd_bench_render(
                 budget_s,
                 1 << 20,
                 target,
+                true,
             )
         });
         eprintln!(
@@ -1783,8 +1850,10 @@ fn cmd_validate_analytic(
 ) -> Result<(), Failure> {
     use stscam::analytic::{compare, quantity};
     use stscam::plot::{LinePlot, Series};
-    if fields < 50 {
-        return Err(bad_input("--fields: at least 50"));
+    if !(50..=MAX_FIELDS).contains(&fields) {
+        return Err(bad_input(format!(
+            "--fields: must be in 50..={MAX_FIELDS}, got {fields}"
+        )));
     }
     check_out_dir(out)?;
     let (_, sys) = load(scene)?;
@@ -2026,7 +2095,7 @@ fn cmd_compare(
                 code: 1,
                 message: m,
             })?;
-        stscam::io::write_atomic(path, &png).map_err(|e| bad_input(e.to_string()))?;
+        stscam::io::write_atomic(path, &png).map_err(write_failure)?;
     }
     if json {
         println!(
@@ -2039,13 +2108,31 @@ fn cmd_compare(
     Ok(())
 }
 
+/// An argument error as one line (clap's `error:` line) plus its one-line usage hint, if any.
+fn argument_error(rendered: &str) -> String {
+    let lines: Vec<&str> = rendered.lines().map(str::trim).collect();
+    let error = lines
+        .iter()
+        .find(|l| l.starts_with("error:"))
+        .copied()
+        .unwrap_or_else(|| lines.first().copied().unwrap_or("error: bad arguments"));
+    match lines.iter().find(|l| l.starts_with("Usage:")) {
+        Some(usage) => format!("{error}\n{usage}"),
+        None => error.to_string(),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
+        Err(e) if e.use_stderr() => {
+            eprintln!("{}", argument_error(&e.render().to_string()));
+            return ExitCode::from(2);
+        }
         Err(e) => {
-            let code = if e.use_stderr() { 2 } else { 0 };
+            // --help and --version.
             let _ = e.print();
-            return ExitCode::from(code);
+            return ExitCode::SUCCESS;
         }
     };
     let result = match &cli.command {

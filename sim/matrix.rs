@@ -324,14 +324,9 @@ pub fn load_matrix(
         data: parts.data,
     };
     h.check().map_err(|m| IoError::format(path, m))?;
-    if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
-        return Err(IoError::format(
-            path,
-            format!("data.npy: entry {i} is not a finite number"),
-        ));
-    }
+    crate::io::check_finite(path, "data.npy: entry", &h.data)?;
     let sidecar_shape = || -> Option<(usize, usize)> {
-        let text = std::fs::read_to_string(path.with_extension("json")).ok()?;
+        let text = crate::io::read_text(&path.with_extension("json")).ok()?;
         let v: serde_json::Value = serde_json::from_str(&text).ok()?;
         let o = v.get("object_px")?.as_array()?;
         Some((o.first()?.as_u64()? as usize, o.get(1)?.as_u64()? as usize))
@@ -371,6 +366,7 @@ pub fn load_matrix(
     let offset = match &off_path {
         Some(p) => {
             let (_, v) = crate::io::npz::read_npy_f32(p)?;
+            crate::io::check_finite(p, "value", &v)?;
             if v.len() != h.rows {
                 return Err(IoError::format(
                     p,

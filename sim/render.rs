@@ -402,16 +402,33 @@ pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
     }
 }
 
-/// A progress bar over `len` rows, hidden unless `show`.
-pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    indicatif::ProgressBar::new(len as u64).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta_precise}}] {{per_sec}}"
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+/// Progress over `len` rows (a bar on a terminal, plain lines otherwise), hidden unless
+/// `show`.
+pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> crate::progress::Progress {
+    crate::progress::Progress::new(show, len as u64, what)
+}
+
+/// Checks the run time and memory of `renders` renders of `sys` with `set` against
+/// [`crate::limits`] before any work starts: camera paths (crop pixels × spp × renders,
+/// blamed on `spp_setting`, the flag or key that set `set.spp`) and the capture's arrays
+/// (per value: the row result in f64, the f32 image and its encoded copy, 16 bytes).
+pub fn check_limits(
+    sys: &System,
+    set: &RenderSettings,
+    renders: u64,
+    spp_setting: &str,
+) -> Result<(), crate::limits::LimitError> {
+    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+    let pixels = w as u128 * h as u128;
+    crate::limits::check_paths(
+        spp_setting,
+        pixels * u128::from(set.spp) * u128::from(renders),
+    )?;
+    let values = (sys.response.curves.len() + set.spectral_bins.map_or(0, |b| b.2)) as u128;
+    crate::limits::check_bytes(
+        "sensor.crop_px",
+        &format!("the capture ({w}x{h} px, {values} channels and spectral bins)"),
+        pixels * values * 16,
     )
 }
 

@@ -69,8 +69,9 @@ const NOISE_TAG: u64 = 0x4E4F_4953;
 const WHITE_TAG: u64 = 0x5748_4954;
 const DEPTH_TAG: u64 = 0x4445_5054;
 
-/// A dataset error. Every variant is the user's to fix (recipe, images, output folder,
-/// shards), so the CLI reports it on one line with exit code 2.
+/// A dataset error, reported on one line. [`DatasetError::Write`] is a failed write (exit
+/// code 1 in the CLI); every other variant is the user's to fix (recipe, images, output
+/// folder, shards, a concurrent run: exit code 2).
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
     /// A recipe key (or the recipe file) is wrong.
@@ -83,9 +84,16 @@ pub enum DatasetError {
         /// What is wrong.
         message: String,
     },
-    /// A file could not be read or written.
+    /// A file could not be read (or an input is malformed).
     #[error(transparent)]
     Io(#[from] IoError),
+    /// A file or folder of the output could not be written (full disk, permissions): not
+    /// the recipe's fault, so the CLI exits with code 1 for it.
+    #[error(transparent)]
+    Write(IoError),
+    /// Another run is working in the output folder.
+    #[error(transparent)]
+    Locked(crate::io::LockError),
     /// The output folder or the shards are not usable as asked.
     #[error("{path}: {message}")]
     Output {
@@ -94,6 +102,11 @@ pub enum DatasetError {
         /// What is wrong.
         message: String,
     },
+}
+
+/// A failed write of `path`.
+fn write_err(path: &Path, e: std::io::Error) -> DatasetError {
+    DatasetError::Write(IoError::io(path, e))
 }
 
 fn out_err(path: &Path, message: impl Into<String>) -> DatasetError {
@@ -277,10 +290,7 @@ fn folder_files(
 /// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
 /// scene, image folders), without writing anything.
 pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
-    let text = std::fs::read_to_string(recipe_path).map_err(|e| IoError::Io {
-        path: recipe_path.to_path_buf(),
-        source: e,
-    })?;
+    let text = crate::io::read_text(recipe_path)?;
     let recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
     let base = recipe_path
         .parent()
@@ -360,6 +370,23 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
     }
     // 3-D datasets have no H (the display's H says nothing of a mesh).
     let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
+    // Run time: one H per scene, the white capture and, in render mode, one render per sample.
+    let renders = scenes.len() as u64
+        + 1
+        + if recipe.mode == CaptureMode::Render {
+            recipe.samples as u64
+        } else {
+            0
+        };
+    for ps in &scenes {
+        crate::render::check_limits(
+            &ps.system,
+            &RenderSettings::lattice(recipe.spp, 0, false),
+            renders,
+            "spp",
+        )
+        .map_err(|e| recipe_err(recipe_path, "spp", e.message))?;
+    }
     let counts = recipe.split_counts();
     let id_width = (recipe.samples - 1).to_string().len().max(6);
     let depths_mm = match &recipe.depth {
@@ -718,10 +745,7 @@ fn remove_temporaries(root: &Path) -> Result<usize, DatasetError> {
             if p.is_dir() {
                 dirs.push(p);
             } else if name.starts_with('.') && name.contains(".tmp-") {
-                std::fs::remove_file(&p).map_err(|e| IoError::Io {
-                    path: p.clone(),
-                    source: e,
-                })?;
+                std::fs::remove_file(&p).map_err(|e| write_err(&p, e))?;
                 n += 1;
             }
         }
@@ -729,7 +753,17 @@ fn remove_temporaries(root: &Path) -> Result<usize, DatasetError> {
     Ok(n)
 }
 
-fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
+/// Locks `out` for this run (see [`crate::io::lock`]): a second run in the same folder is
+/// refused while this one works.
+fn lock_out(out: &Path) -> Result<crate::io::FolderLock, DatasetError> {
+    crate::io::FolderLock::acquire(out).map_err(|e| match e {
+        crate::io::LockError::Io(e) => DatasetError::Write(e),
+        held => DatasetError::Locked(held),
+    })
+}
+
+/// Checks and prepares the output folder and locks it for the run.
+fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, DatasetError> {
     let out = &opts.out;
     let marker = RunMarker {
         recipe_sha256: plan.recipe_sha256.clone(),
@@ -746,14 +780,15 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
     if out.exists() && !out.is_dir() {
         return Err(out_err(out, "exists and is not a folder"));
     }
-    if nonempty {
+    let lock = if nonempty {
         if !opts.resume {
             return Err(out_err(
                 out,
                 "is not empty: pass --resume to continue the run that wrote it, or choose another --out",
             ));
         }
-        let found: Option<RunMarker> = std::fs::read(out.join(RUN_MARKER))
+        let lock = lock_out(out)?;
+        let found: Option<RunMarker> = crate::io::read_input(&out.join(RUN_MARKER), 1 << 20)
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .or_else(|| {
@@ -762,7 +797,7 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
                 } else {
                     "dataset.json"
                 };
-                let b = std::fs::read(out.join(card)).ok()?;
+                let b = crate::io::read_input(&out.join(card), crate::io::MAX_BINARY_BYTES).ok()?;
                 if let Some(s) = opts.shard {
                     let c: ShardCard = serde_json::from_slice(&b).ok()?;
                     Some(RunMarker {
@@ -793,18 +828,20 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
             }
         }
         remove_temporaries(out)?;
+        lock
     } else {
-        std::fs::create_dir_all(out)
-            .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
-    }
+        std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+        lock_out(out)?
+    };
     let bytes = serde_json::to_vec_pretty(&marker).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), &bytes)?;
-    Ok(())
+    crate::io::write_atomic(&out.join(RUN_MARKER), &bytes).map_err(DatasetError::Write)?;
+    Ok(lock)
 }
 
 /// Writes a file of a sample: temporary name, rename (no fsync per file; the card is synced).
 fn put(root: &Path, rel: &str, bytes: &[u8]) -> Result<(), DatasetError> {
-    crate::io::atomic::write_atomic_unsynced(&root.join(rel), bytes)?;
+    crate::io::atomic::write_atomic_unsynced(&root.join(rel), bytes)
+        .map_err(DatasetError::Write)?;
     Ok(())
 }
 
@@ -875,7 +912,8 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let ids = opts
         .shard
         .map_or(0..recipe.samples, |s| s.range(recipe.samples));
-    prepare_out(plan, opts)?;
+    // Held until the run ends (dropped on return, also on an error).
+    let _lock = prepare_out(plan, opts)?;
     let root = &opts.out;
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
@@ -937,8 +975,9 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     "units": crate::matrix::MATRIX_UNITS,
                     "stscam_version": crate::VERSION,
                 });
-                crate::output::write_matrix(&dir, &m, &sidecar)?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+                crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                    .map_err(DatasetError::Write)?;
                 matrices.insert(
                     k,
                     SceneMatrix {
@@ -947,11 +986,9 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     },
                 );
             } else {
-                std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
-                    path: dir.clone(),
-                    source: e,
-                })?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+                std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                    .map_err(DatasetError::Write)?;
             }
         }
     }
@@ -1090,18 +1127,18 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 card,
             };
             let bytes = serde_json::to_vec_pretty(&sc).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("shard.json"), &bytes)?;
+            crate::io::write_atomic(&root.join("shard.json"), &bytes)
+                .map_err(DatasetError::Write)?;
         }
         None => {
             let bytes =
                 serde_json::to_vec_pretty(&card).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("dataset.json"), &bytes)?;
+            crate::io::write_atomic(&root.join("dataset.json"), &bytes)
+                .map_err(DatasetError::Write)?;
         }
     }
-    std::fs::remove_file(root.join(RUN_MARKER)).map_err(|e| IoError::Io {
-        path: root.join(RUN_MARKER),
-        source: e,
-    })?;
+    std::fs::remove_file(root.join(RUN_MARKER))
+        .map_err(|e| write_err(&root.join(RUN_MARKER), e))?;
     let finish_s = t2.elapsed().as_secs_f64();
     Ok(RunSummary {
         samples: specs.len(),
@@ -1129,17 +1166,8 @@ fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64) -> Vec<f64> {
         .collect()
 }
 
-fn progress_bar(show: bool, len: usize) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len as u64);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "samples {bar:30} {pos}/{len}  {per_sec}  ETA {eta}",
-    ) {
-        bar.set_style(style);
-    }
-    bar
+fn progress_bar(show: bool, len: usize) -> crate::progress::Progress {
+    crate::progress::Progress::new(show, len as u64, "samples")
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1170,10 +1198,7 @@ fn write_sample(
 fn split_dir(root: &Path, s: &SampleSpec) -> Result<(), DatasetError> {
     let dir = root.join(SPLITS[s.split]);
     if !dir.is_dir() {
-        std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
-            path: dir.clone(),
-            source: e,
-        })?;
+        std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
     }
     Ok(())
 }
@@ -1314,10 +1339,7 @@ struct CardContext<'a> {
 
 fn file_entry(root: &Path, rel: &str) -> Result<FileEntry, DatasetError> {
     let p = root.join(rel);
-    let bytes = std::fs::read(&p).map_err(|e| IoError::Io {
-        path: p.clone(),
-        source: e,
-    })?;
+    let bytes = crate::io::read_input(&p, crate::io::MAX_BINARY_BYTES)?;
     Ok(FileEntry {
         sha256: sha256_hex(&bytes),
         bytes: bytes.len() as u64,
@@ -1455,12 +1477,13 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     let mut cards: Vec<(PathBuf, ShardCard)> = Vec::new();
     for d in shards {
         let p = d.join("shard.json");
-        let bytes = std::fs::read(&p).map_err(|_| {
-            out_err(
+        if !p.is_file() {
+            return Err(out_err(
                 d,
                 "has no shard.json (not a finished shard; finish it with --resume)",
-            )
-        })?;
+            ));
+        }
+        let bytes = crate::io::read_input(&p, crate::io::MAX_BINARY_BYTES)?;
         let c: ShardCard = serde_json::from_slice(&bytes)
             .map_err(|e| out_err(&p, format!("not a shard card: {e}")))?;
         cards.push((d.clone(), c));
@@ -1542,23 +1565,18 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     if nonempty || (out.exists() && !out.is_dir()) {
         return Err(out_err(out, "exists and is not empty"));
     }
-    std::fs::create_dir_all(out)
-        .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")?;
+    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+    let _lock = lock_out(out)?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
+        .map_err(DatasetError::Write)?;
     origin
         .par_iter()
         .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
             let dst = out.join(rel);
             if let Some(parent) = dst.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| IoError::Io {
-                    path: parent.to_path_buf(),
-                    source: e,
-                })?;
+                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
             }
-            let bytes = std::fs::read(d.join(rel)).map_err(|e| IoError::Io {
-                path: d.join(rel),
-                source: e,
-            })?;
+            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
             put(out, rel, &bytes)
         })?;
     // Metadata: concatenate per split in shard (= id) order.
@@ -1605,11 +1623,8 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     card.scenes = scenes.into_values().collect();
     card.files = files;
     let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join("dataset.json"), &bytes)?;
-    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| IoError::Io {
-        path: out.join(RUN_MARKER),
-        source: e,
-    })?;
+    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
+    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
     Ok(RunSummary {
         samples: card.samples,
         generated: 0,

@@ -493,8 +493,12 @@ fn default_noise() -> NoiseModel {
 
 /// Largest object side accepted.
 pub const MAX_OBJECT_PX: usize = 1024;
-/// Largest sample count accepted (ids are written with at least six digits).
-pub const MAX_SAMPLES: usize = 100_000_000;
+/// Largest sample count accepted: a run keeps a few KiB of bookkeeping per sample (its
+/// spec, metadata line and the card's checksums), so 2·10⁶ samples need up to about 6 GiB of
+/// memory (and about 2.4 TB of files at the paper's size); larger sets are several recipes.
+pub const MAX_SAMPLES: usize = 2_000_000;
+/// Most distinct scenes (combinations of the `vary` `values` lists) accepted.
+pub const MAX_SCENES: usize = 256;
 
 /// Parses a recipe; the error is (key, message). Unknown keys and generators are refused with
 /// the list of valid ones.
@@ -708,6 +712,17 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
                 );
             }
         }
+    }
+    let scenes = r.vary.iter().try_fold(1usize, |n, v| {
+        n.checked_mul(v.values.as_ref().map_or(1, Vec::len))
+    });
+    if scenes.is_none_or(|n| n > MAX_SCENES) {
+        return err(
+            "vary",
+            format!(
+                "the `values` lists give more than {MAX_SCENES} distinct scenes (one H each, all held in memory); vary fewer keys or values"
+            ),
+        );
     }
     Ok(())
 }

@@ -182,7 +182,7 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), String> {
 /// Returns `(width, height, channels)` with every channel converted to `f32`,
 /// row-major with row 0 at the top, in the file's (name-sorted) channel order.
 pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<ExrChannel>), IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     decode_exr(path, bytes)
 }
 

@@ -92,7 +92,7 @@ fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {
             ));
         }
     };
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     let image = decode(path, bytes)?;
     if image.width == 0 || image.height == 0 {
         return Err(IoError::format(path, "image is empty"));
@@ -171,6 +171,7 @@ fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
 /// pixel data is not decoded).
 pub fn probe_image(path: &Path) -> Result<(usize, usize), IoError> {
     use std::io::BufReader;
+    super::input::check_input_file(path, super::input::MAX_BINARY_BYTES)?;
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     let ext = path
         .extension()

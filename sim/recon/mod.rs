@@ -57,6 +57,22 @@ pub struct Problem {
 /// Rows of G per parallel task.
 const GRAM_CHUNK: usize = 64;
 
+/// An upper bound on the memory [`Problem::new`] needs for `h` with `threads` workers, in
+/// bytes, computed in O(rows) before any allocation: G has at most min(Σₘ nnzₘ², N²)
+/// entries (row m of H couples each pair of its columns), each held about three times
+/// during the set-up (row lists, offsets, final layout: 32 bytes), plus Hᵀ and two length-N
+/// work rows per thread.
+pub fn setup_bytes_bound(h: &CsrMatrix, threads: usize) -> u128 {
+    let n = h.cols as u128;
+    let pairs: u128 = (0..h.rows)
+        .map(|m| {
+            let k = h.row_range(m).len() as u128;
+            k * k
+        })
+        .sum();
+    pairs.min(n * n) * 32 + h.nnz() as u128 * 8 + n * 9 * threads as u128
+}
+
 impl Problem {
     /// Prepares H (rows = captures values, columns = object pixels, object `width`×`height`).
     pub fn new(h: &CsrMatrix, width: usize, height: usize) -> Problem {

@@ -14,7 +14,8 @@ const SMALL_SCENE: &str = r#"
 set = ["sensor.crop_px=[48,48]", "sensor.pitch_um=44.0"]
 "#;
 
-fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
+/// A recipe of the small scene (also used by `hostile.rs`).
+pub(crate) fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
     format!(
         r#"name = "{name}"
 seed = 7
@@ -465,11 +466,21 @@ fn bad_recipes_are_refused_with_one_line_and_nothing_written() {
         |_| {},
         "smaples",
     );
-    // An unwritable output: its parent is a regular file.
+    // An unwritable output: its parent is a regular file. A failed write, not bad input:
+    // exit code 1 (issue 13), one line naming the folder.
     let dir = tempfile::tempdir().unwrap();
     let r = write(dir.path(), "r.toml", &good);
     std::fs::write(dir.path().join("file"), b"x").unwrap();
-    fails_with_one_line(&r, &dir.path().join("file/out"), "file/out");
+    let out = stscam(&[
+        "dataset",
+        r.to_str().unwrap(),
+        "--out",
+        dir.path().join("file/out").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("file/out"), "{err}");
     assert_eq!(std::fs::read(dir.path().join("file")).unwrap(), b"x");
     // A bad --shard.
     let out = stscam(&["dataset", r.to_str().unwrap(), "--shard", "3/3"]);

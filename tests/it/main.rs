@@ -7,6 +7,7 @@ mod common;
 mod dataset;
 mod dataset3d;
 mod estimators;
+mod hostile;
 mod invariants;
 mod matrix_calibration;
 mod mesh_scenes;
