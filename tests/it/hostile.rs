@@ -9,7 +9,8 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::common::{files_in, stscam};
-use crate::dataset::{recipe, write};
+use crate::common::write;
+use crate::dataset::recipe;
 
 /// A finished run's exit code and stderr, asserting that it took under `limit_s` seconds
 /// (a hang on a FIFO or a read of a device fails here instead of blocking the suite).
