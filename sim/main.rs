@@ -691,7 +691,6 @@ fn cmd_matrix(
     if let Some(d) = depth_mm {
         sys.display.z_mm = -d;
     }
-    warn_coverage(&sys, "");
     let settings = RenderSettings {
         spp,
         seed,
@@ -700,6 +699,7 @@ fn cmd_matrix(
         progress: true,
     };
     stscam::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
+    warn_coverage(&sys, "");
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &settings));
     let matrix_s = t0.elapsed().as_secs_f64();
@@ -1197,18 +1197,6 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (_, mut sys) = pool.install(|| load(scene))?;
-    // The paper's experiment saw the whole target: frame the crop on it when the scene's crop
-    // misses part of it (the embedded paper scene's centred crop loses the bottom rows).
-    if let Some(off) = analysis::framing_offset_px(&sys) {
-        let mut framed = scene.clone();
-        let set = format!("sensor.crop_offset_px=[{},{}]", off[0], off[1]);
-        eprintln!(
-            "demo: the scene's crop misses part of the object; framing it with --set {set} (the crop moved onto the strongest replica of the display centre)"
-        );
-        framed.set.push(set);
-        sys = pool.install(|| load(&framed))?.1;
-    }
-    warn_coverage(&sys, "");
     let set = stscam::demo::DemoSettings {
         spp,
         seed,
@@ -1228,6 +1216,18 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
         "--spp",
     )
     .map_err(limit)?;
+    // The paper's experiment saw the whole target: frame the crop on it when the scene's crop
+    // misses part of it (the embedded paper scene's centred crop loses the bottom rows).
+    if let Some(off) = analysis::framing_offset_px(&sys) {
+        let mut framed = scene.clone();
+        let set = format!("sensor.crop_offset_px=[{},{}]", off[0], off[1]);
+        eprintln!(
+            "demo: the scene's crop misses part of the object; framing it with --set {set} (the crop moved onto the strongest replica of the display centre)"
+        );
+        framed.set.push(set);
+        sys = pool.install(|| load(&framed))?.1;
+    }
+    warn_coverage(&sys, "");
     let res = pool
         .install(|| stscam::demo::run_demo(&sys, &set))
         .map_err(bad_input)?;
