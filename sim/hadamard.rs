@@ -74,14 +74,19 @@ pub const DEFAULT_THRESHOLD_SIGMA: f64 = 5.0;
 /// Renders the N Sylvester patterns of `sys`'s object (the display shows u_i = (h_i + 1)/2)
 /// and then a dark frame (all black), each with the full Monte Carlo tracer; every frame is
 /// one vector over the rows of H (channels concatenated). `on_frame` is called after each.
+/// Once the job is cancelled ([`crate::cancel`]) the remaining frames are empty.
 pub fn render_frames(
     sys: &crate::system::System,
     set: &crate::render::RenderSettings,
     mut on_frame: impl FnMut(),
 ) -> Vec<Vec<f32>> {
     let n = sys.display.width_px * sys.display.height_px;
+    let cancel = crate::cancel::current();
     (0..=n)
         .map(|i| {
+            if cancel.is_cancelled() {
+                return Vec::new();
+            }
             let mut s = sys.clone();
             let u = if i < n {
                 display_pattern(n, i)

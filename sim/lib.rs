@@ -7,6 +7,7 @@
 pub mod analysis;
 pub mod analytic;
 pub mod bench;
+pub mod cancel;
 pub mod camera;
 pub mod dataset;
 pub mod demo;

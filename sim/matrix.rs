@@ -223,9 +223,18 @@ pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
     let cols = sys.display.width_px * sys.display.height_px;
     let pb = row_progress(set.progress, h, "matrix rows");
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
     let blocks: Vec<RowBlock> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                return RowBlock {
+                    counts: vec![vec![0; w]; nch],
+                    entries: vec![(Vec::new(), Vec::new()); nch],
+                    offset: vec![vec![0.0; w]; nch],
+                    stats: RenderStats::default(),
+                };
+            }
             let b = matrix_row(sys, set, rule, row);
             pb.inc(1);
             b

@@ -520,18 +520,26 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
     let (w, h) = (cam.width_px, cam.height_px);
     let pb = row_progress(set.progress, h, "rendering rows");
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
+    let nch = sys.response.curves.len();
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                return RowResult {
+                    values: vec![0.0; w * nch],
+                    spectral: vec![0.0; w * nbins],
+                    stats: RenderStats::default(),
+                };
+            }
             let r = render_row(sys, set, estimator, rule, row);
             pb.inc(1);
             r
         })
         .collect();
     pb.finish_and_clear();
-    let nch = sys.response.curves.len();
     let mut channels = vec![vec![0f32; w * h]; nch];
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let mut spec = vec![vec![0f32; w * h]; nbins];
     let mut stats = RenderStats::default();
     for (row, r) in rows.iter().enumerate() {

@@ -993,7 +993,11 @@ pub fn run_sweep(
     let pb = crate::render::row_progress(set.progress, systems.len(), "sweep points");
     let mut rows = Vec::with_capacity(systems.len());
     let mut point_seconds = Vec::with_capacity(systems.len());
+    let cancel = crate::cancel::current();
     for (p, sys) in points.iter().zip(&systems) {
+        if cancel.is_cancelled() {
+            break;
+        }
         let t0 = Instant::now();
         let mut figures = design_figures(sys, set);
         if let Some(ps) = &set.psnr {
