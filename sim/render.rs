@@ -509,6 +509,14 @@ fn render_row_with(
     }
 }
 
+/// The spectral bins of `render --spectral`: about 10 nm wide, tiling the sampled band exactly,
+/// as (start nm, width nm, count) for [`RenderSettings::spectral_bins`].
+pub fn spectral_bins(sm: &crate::scene::SamplingDesc) -> (f64, f64, usize) {
+    let band = sm.lambda_max_nm - sm.lambda_min_nm;
+    let n = (band / 10.0).round().max(1.0) as usize;
+    (sm.lambda_min_nm, band / n as f64, n)
+}
+
 /// Renders the capture of `sys`. Deterministic for a given seed, whatever the thread count.
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     render_with(sys, set, Estimator::Bragg)
