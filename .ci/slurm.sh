@@ -11,6 +11,10 @@ cd "$(dirname "$0")/.."
 stscam=$(realpath "${1:?usage: .ci/slurm.sh STSCAM_BINARY}")
 recipe=validation/python/noiseless.toml   # 30 samples, name "ci-clean"
 tasks=3
+if [[ $(id -u) -ne 0 ]]; then
+    echo "slurm: SKIPPED (not root: the daemons and munge must be started as root)"
+    exit 0
+fi
 if ! .ci/apt.sh install slurmctld slurmd slurm-client munge; then
     echo "slurm: SKIPPED (slurm and munge could not be installed on this machine)"
     exit 0

@@ -80,8 +80,12 @@ fn run_job<T: Send>(
     })
 }
 
-fn load(path: Option<&str>, sets: &[String]) -> Result<System, String> {
-    let ls = stscam::scene::load_scene(path.map(Path::new), sets).map_err(|e| e.to_string())?;
+/// A scene as the Python layer passes it: (scene file or None, `--set KEY=VALUE` overrides).
+type SceneArg = (Option<String>, Vec<String>);
+
+fn load(scene: &SceneArg) -> Result<System, String> {
+    let ls = stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1)
+        .map_err(|e| e.to_string())?;
     System::build(&ls).map_err(|e| e.to_string())
 }
 
@@ -120,20 +124,19 @@ fn json<T: serde::Serialize>(v: &T) -> PyResult<String> {
 
 /// The scene after overrides as JSON (raises ValueError on a bad scene or override).
 #[pyfunction]
-#[pyo3(signature = (path, sets))]
-fn scene_json(path: Option<&str>, sets: Vec<String>) -> PyResult<String> {
-    let sys = load(path, &sets).map_err(value_error)?;
+#[pyo3(signature = (scene))]
+fn scene_json(scene: SceneArg) -> PyResult<String> {
+    let sys = load(&scene).map_err(value_error)?;
     json(&sys.scene)
 }
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (path, sets, spp, seed, threads, sampler, spectral, frontal_px))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
-    path: Option<&str>,
-    sets: Vec<String>,
+    scene: SceneArg,
     spp: u32,
     seed: u64,
     threads: Option<usize>,
@@ -159,7 +162,7 @@ fn render<'py>(
         )));
     }
     let (cap, frontal, render_s) = run_job(py, threads, || {
-        let sys = load(path, &sets)?;
+        let sys = load(&scene)?;
         let settings = RenderSettings {
             spp,
             seed,
@@ -206,11 +209,10 @@ fn render<'py>(
 
 /// H and the offset (as `stscam matrix`).
 #[pyfunction]
-#[pyo3(signature = (path, sets, spp, seed, depth_mm, threads))]
+#[pyo3(signature = (scene, spp, seed, depth_mm, threads))]
 fn matrix<'py>(
     py: Python<'py>,
-    path: Option<&str>,
-    sets: Vec<String>,
+    scene: SceneArg,
     spp: u32,
     seed: u64,
     depth_mm: Option<f64>,
@@ -221,7 +223,7 @@ fn matrix<'py>(
         stscam::matrix::check_depth(d).map_err(value_error)?;
     }
     let m = run_job(py, threads, || {
-        let mut sys = load(path, &sets)?;
+        let mut sys = load(&scene)?;
         if let Some(d) = depth_mm {
             stscam::matrix::place_object(&mut sys, d);
         }
@@ -242,23 +244,24 @@ fn matrix<'py>(
 
 /// `stscam info --json`.
 #[pyfunction]
-#[pyo3(signature = (path, sets))]
-fn info(path: Option<&str>, sets: Vec<String>) -> PyResult<String> {
-    let sys = load(path, &sets).map_err(value_error)?;
+#[pyo3(signature = (scene))]
+fn info(scene: SceneArg) -> PyResult<String> {
+    let sys = load(&scene).map_err(value_error)?;
     json(&stscam::analysis::info(&sys))
 }
 
 /// `stscam probe --pixel COL,ROW --json`.
 #[pyfunction]
-#[pyo3(signature = (path, sets, col, row))]
-fn probe(path: Option<&str>, sets: Vec<String>, col: usize, row: usize) -> PyResult<String> {
-    let sys = load(path, &sets).map_err(value_error)?;
+#[pyo3(signature = (scene, col, row))]
+fn probe(scene: SceneArg, col: usize, row: usize) -> PyResult<String> {
+    let sys = load(&scene).map_err(value_error)?;
     let p = stscam::analysis::probe(&sys, col, row)
         .map_err(|m| value_error(format!("--pixel {col},{row}: {m}")))?;
     json(&p)
 }
 
-fn le_chunks<const N: usize>(b: &[u8], what: &str) -> PyResult<Vec<[u8; N]>> {
+/// Little-endian values of `N` bytes each from `b`, converted by `f`.
+fn decode<const N: usize, T>(b: &[u8], what: &str, f: impl Fn([u8; N]) -> T) -> PyResult<Vec<T>> {
     if b.len() % N != 0 {
         return Err(value_error(format!(
             "{what}: {} bytes is not a whole number of {N}-byte values",
@@ -269,7 +272,7 @@ fn le_chunks<const N: usize>(b: &[u8], what: &str) -> PyResult<Vec<[u8; N]>> {
         .map(|c| {
             let mut a = [0u8; N];
             a.copy_from_slice(c);
-            a
+            f(a)
         })
         .collect())
 }
@@ -322,18 +325,14 @@ fn reconstruct<'py>(
     if iters == Some(0) {
         return Err(value_error("--iters: must be at least 1"));
     }
-    let indptr: Vec<u64> = le_chunks::<8>(indptr, "indptr")?
-        .into_iter()
-        .map(|c| u64::try_from(i64::from_le_bytes(c)).unwrap_or(u64::MAX))
-        .collect();
-    let indices: Vec<u32> = le_chunks::<8>(indices, "indices")?
-        .into_iter()
-        .map(|c| u32::try_from(i64::from_le_bytes(c)).unwrap_or(u32::MAX))
-        .collect();
-    let data: Vec<f32> = le_chunks::<4>(data, "data")?
-        .into_iter()
-        .map(f32::from_le_bytes)
-        .collect();
+    // Negative or too large indices become values that `check` rejects.
+    let indptr: Vec<u64> = decode(indptr, "indptr", |c| {
+        u64::try_from(i64::from_le_bytes(c)).unwrap_or(u64::MAX)
+    })?;
+    let indices: Vec<u32> = decode(indices, "indices", |c| {
+        u32::try_from(i64::from_le_bytes(c)).unwrap_or(u32::MAX)
+    })?;
+    let data: Vec<f32> = decode(data, "data", f32::from_le_bytes)?;
     let h = stscam::sparse::CsrMatrix {
         rows,
         cols,
@@ -353,10 +352,7 @@ fn reconstruct<'py>(
             object.0.saturating_mul(object.1)
         )));
     }
-    let mut g: Vec<f64> = le_chunks::<8>(capture, "capture")?
-        .into_iter()
-        .map(f64::from_le_bytes)
-        .collect();
+    let mut g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
     if g.len() != rows {
         return Err(value_error(format!(
             "capture: the capture has {} values but H has {rows} rows (crop pixels x channels); they must match",
@@ -369,10 +365,7 @@ fn reconstruct<'py>(
         )));
     }
     if let Some(o) = offset {
-        let o: Vec<f32> = le_chunks::<4>(o, "offset")?
-            .into_iter()
-            .map(f32::from_le_bytes)
-            .collect();
+        let o: Vec<f32> = decode(o, "offset", f32::from_le_bytes)?;
         if o.len() != rows {
             return Err(value_error(format!(
                 "offset: {} values but H has {rows} rows",
@@ -398,12 +391,11 @@ fn reconstruct<'py>(
 
 /// The simulated Hadamard calibration (as `stscam calibrate`): H_est and the report.
 #[pyfunction]
-#[pyo3(signature = (path, sets, spp, seed, matrix, object, noise, dark_frame, render, threshold_sigma, threads))]
+#[pyo3(signature = (scene, spp, seed, matrix, object, noise, dark_frame, render, threshold_sigma, threads))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
-    path: Option<&str>,
-    sets: Vec<String>,
+    scene: SceneArg,
     spp: u32,
     seed: u64,
     matrix: Option<PathBuf>,
@@ -436,7 +428,7 @@ fn calibrate<'py>(
         progress: false,
     };
     let run = run_job(py, threads, || {
-        let sys = load(path, &sets)?;
+        let sys = load(&scene)?;
         calibrate_scene(&sys, &job)
     })?
     .map_err(value_error)?;
@@ -448,12 +440,11 @@ fn calibrate<'py>(
 
 /// A design sweep (as `stscam sweep --json`): the rows as JSON.
 #[pyfunction]
-#[pyo3(signature = (path, sets, vary, fov_fraction, psnr, psnr_spp, threads))]
+#[pyo3(signature = (scene, vary, fov_fraction, psnr, psnr_spp, threads))]
 #[allow(clippy::too_many_arguments)]
 fn sweep(
     py: Python<'_>,
-    path: Option<&str>,
-    sets: Vec<String>,
+    scene: SceneArg,
     vary: Vec<String>,
     fov_fraction: f64,
     psnr: Option<String>,
@@ -483,7 +474,7 @@ fn sweep(
         ..SweepSettings::default()
     };
     let res = run_job(py, threads, || {
-        run_sweep(path.map(Path::new), &sets, &axes, &set)
+        run_sweep(scene.0.as_deref().map(Path::new), &scene.1, &axes, &set)
     })?
     .map_err(value_error)?;
     json(&res.rows)

@@ -51,7 +51,8 @@ class Scene:
         self.path: Optional[str] = None if path is None else os.fspath(path)
         self.overrides: dict[str, Any] = dict(overrides or {})
         self._sets = [f"{k}={_toml_value(v)}" for k, v in self.overrides.items()]
-        self._json = _native.scene_json(self.path, self._sets)
+        self._arg = (self.path, self._sets)
+        self._json = _native.scene_json(self._arg)
 
     @property
     def sets(self) -> list[str]:
@@ -134,7 +135,7 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed`` and ``sampler``
     give the values of ``capture.exr`` (for any ``threads``)."""
     s = _scene(scene)
-    d = _native.render(s.path, s._sets, int(spp), int(seed), threads, sampler, bool(spectral),
+    d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
                        None if frontal_px is None else tuple(frontal_px))
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
@@ -164,7 +165,7 @@ def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     offset (capture of an all-black object), equal to ``stscam matrix``'s ``H.npz`` and
     ``offset.npy``. ``depth_mm`` moves the object plane, keeping the focus."""
     s = _scene(scene)
-    d = _native.matrix(s.path, s._sets, int(spp), int(seed),
+    d = _native.matrix(s._arg, int(spp), int(seed),
                        None if depth_mm is None else float(depth_mm), threads)
     h = _csr(d)
     return h, np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)
@@ -173,7 +174,7 @@ def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
 def info(scene: Optional[Scene] = None) -> dict:
     """Design summary, equal to ``stscam info --json``."""
     s = _scene(scene)
-    return json.loads(_native.info(s.path, s._sets))
+    return json.loads(_native.info(s._arg))
 
 
 def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dict:
@@ -185,7 +186,7 @@ def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dic
         raise ValueError(f"--pixel {pixel!r}: expected COL,ROW with non-negative integers") from None
     if col < 0 or row < 0:
         raise ValueError(f"--pixel {col},{row}: expected COL,ROW with non-negative integers")
-    return json.loads(_native.probe(s.path, s._sets, col, row))
+    return json.loads(_native.probe(s._arg, col, row))
 
 
 def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None,
@@ -232,7 +233,7 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     if noise not in ("sensor", "none"):
         raise ValueError(f"noise {noise!r}: expected \"sensor\" or \"none\"")
     s = _scene(scene)
-    d = _native.calibrate(s.path, s._sets, int(spp), int(seed),
+    d = _native.calibrate(s._arg, int(spp), int(seed),
                           None if matrix is None else os.fspath(matrix),
                           None if object_shape is None else tuple(object_shape),
                           noise == "sensor", bool(dark_frame), bool(render),
@@ -248,7 +249,7 @@ def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tupl
     if isinstance(vary, Mapping):
         vary = [f"{k}={a}:{b}:{n}" for k, (a, b, n) in vary.items()]
     s = _scene(scene)
-    return json.loads(_native.sweep(s.path, s._sets, list(vary), float(fov_fraction), psnr,
+    return json.loads(_native.sweep(s._arg, list(vary), float(fov_fraction), psnr,
                                     int(psnr_spp), threads))
 
 
