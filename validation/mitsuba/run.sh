@@ -72,7 +72,7 @@ if [[ "$mode" == update ]]; then
     dest="$here/reference"
 elif [[ "$variant" == llvm_ad_spectral ]]; then
     spp=([plain-glass]=1024 [waveguide]=32768 [mesh-plain-glass]=1024 [mesh-waveguide]=8192)
-    passes=([plain-glass]=4 [waveguide]=8 [mesh-plain-glass]=4 [mesh-waveguide]=8)
+    passes=([plain-glass]=4 [waveguide]=32 [mesh-plain-glass]=4 [mesh-waveguide]=16)
     sspp=([plain-glass]=128 [waveguide]=1024 [mesh-plain-glass]=128 [mesh-waveguide]=256)
     limits=(--max-tolerance 0.10 0.05)
     dest="$work"
