@@ -9,6 +9,7 @@ import _thread
 import filecmp
 import json
 import os
+import signal
 import subprocess
 import threading
 import time
@@ -226,6 +227,17 @@ def test_bad_input_raises_value_error_with_the_cli_message(tmp_path):
 
 
 def test_ctrl_c_stops_a_long_render():
+    # Python's own Ctrl-C handler, as in an interactive session: a process started in the
+    # background by a non-interactive shell inherits SIGINT ignored, and then
+    # _thread.interrupt_main() does nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        check_ctrl_c_stops_a_long_render()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def check_ctrl_c_stops_a_long_render():
     big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
     t0 = time.monotonic()
     stscam.render(big, spp=1)
