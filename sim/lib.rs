@@ -8,6 +8,7 @@ pub mod analysis;
 pub mod analytic;
 pub mod bench;
 pub mod camera;
+pub mod cancel;
 pub mod dataset;
 pub mod demo;
 pub mod display;

@@ -502,13 +502,7 @@ fn cmd_render(
     }
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
-    let sm = &sys.scene.sampling;
-    let bins = spectral.then(|| {
-        // Bins of about 10 nm that tile the band exactly.
-        let band = sm.lambda_max_nm - sm.lambda_min_nm;
-        let n = (band / 10.0).round().max(1.0) as usize;
-        (sm.lambda_min_nm, band / n as f64, n)
-    });
+    let bins = spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling));
     let settings = RenderSettings {
         spp,
         seed,
@@ -678,18 +672,14 @@ fn cmd_matrix(
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
     let start = Instant::now();
-    if let Some(d) = depth_mm
-        && !(d.is_finite() && d > 0.0)
-    {
-        return Err(bad_input(format!(
-            "--depth-mm {d}: must be a positive distance"
-        )));
+    if let Some(d) = depth_mm {
+        stscam::matrix::check_depth(d).map_err(bad_input)?;
     }
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (ls, mut sys) = pool.install(|| load(scene))?;
     if let Some(d) = depth_mm {
-        sys.display.z_mm = -d;
+        stscam::matrix::place_object(&mut sys, d);
     }
     let settings = RenderSettings {
         spp,
@@ -853,7 +843,7 @@ fn cmd_calibrate(
     threshold_sigma: f64,
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
-    use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate};
+    use stscam::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
     let start = Instant::now();
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(bad_input(
@@ -863,119 +853,38 @@ fn cmd_calibrate(
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
-    let progress = true;
-    let rs = RenderSettings {
-        spp,
-        seed,
-        sampler: SamplerKind::Lattice,
-        spectral_bins: None,
-        progress,
-    };
-    let n_obj = sys.display.width_px * sys.display.height_px;
-    let t0 = Instant::now();
-    let (h_true, offset, object, source_desc) = match matrix {
+    let matrix = match matrix {
         Some(p) => {
             let shape = object.map(parse_object).transpose()?;
-            let lm = stscam::matrix::load_matrix(p, shape, None)
-                .map_err(|e| bad_input(e.to_string()))?;
-            if lm.offset.is_none() {
+            let (m, offset_found) =
+                TrueMatrix::load(p, shape).map_err(|e| bad_input(e.to_string()))?;
+            if !offset_found {
                 eprintln!(
                     "warning: no {} beside {}: the offset (all-black capture) is taken as 0",
                     stscam::matrix::default_offset_path(p).display(),
                     p.display()
                 );
             }
-            let off = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
-            (lm.h, off, lm.object, p.display().to_string())
+            Some(m)
         }
-        None => {
-            if !n_obj.is_power_of_two() {
-                return Err(bad_input(format!(
-                    "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
-                    sys.display.width_px, sys.display.height_px
-                )));
-            }
-            // H, and with --render one frame per pattern plus the all-white one.
-            let renders = 1 + if render_frames { n_obj as u64 + 1 } else { 0 };
-            stscam::render::check_limits(&sys, &rs, renders, "--spp").map_err(limit)?;
-            let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
-            (m.h, m.offset, m.object, "computed".to_string())
-        }
+        None => None,
     };
-    let matrix_s = t0.elapsed().as_secs_f64();
-    let n = h_true.cols;
-    // The calibration forms every frame value (rows x patterns) in f64, row by row.
-    stscam::limits::check_bytes(
-        "--matrix",
-        &format!("the calibration's {} x {n} frame values", h_true.rows),
-        h_true.rows as u128 * n as u128 * 8,
-    )
-    .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
-    if !n.is_power_of_two() {
-        return Err(bad_input(format!(
-            "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
-        )));
-    }
-    let sensor_noise = if noise == NoiseArg::Sensor {
-        let white = pool.install(|| h_true.mul_vec(&vec![1.0; n]));
-        let peak = white
-            .iter()
-            .zip(&offset)
-            .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
-        if !(peak > 0.0 && peak.is_finite()) {
-            return Err(bad_input(format!(
-                "{source_desc}: an all-white object gives no light on the sensor, so the exposure cannot be set (use --noise none)"
-            )));
-        }
-        Some(stscam::noise::SensorNoise::new(&sys.scene.noise, peak))
-    } else {
-        None
-    };
-    let t0 = Instant::now();
-    let frames: Option<Vec<Vec<f32>>> = if render_frames {
-        if object != (sys.display.width_px, sys.display.height_px) {
-            return Err(bad_input(format!(
-                "--render: the matrix object {}x{} differs from the scene's display target {}x{}",
-                object.0, object.1, sys.display.width_px, sys.display.height_px
-            )));
-        }
-        let bytes = (n as u64 + 1) * h_true.rows as u64 * 4;
-        if bytes > 4 << 30 {
-            return Err(bad_input(format!(
-                "--render: {} frames of {} values need {:.1} GiB; use a smaller object (display.image=...@16) or crop (sensor.crop_px)",
-                n + 1,
-                h_true.rows,
-                bytes as f64 / f64::from(1u32 << 30)
-            )));
-        }
-        stscam::render::check_limits(&sys, &rs, n as u64 + 1, "--spp").map_err(limit)?;
-        let pb = stscam::progress::Progress::new(progress, n as u64 + 1, "calibration frames");
-        let quiet = RenderSettings {
-            progress: false,
-            ..rs.clone()
-        };
-        let fr = pool.install(|| stscam::hadamard::render_frames(&sys, &quiet, || pb.inc(1)));
-        pb.finish_and_clear();
-        Some(fr)
-    } else {
-        None
-    };
-    let render_s = t0.elapsed().as_secs_f64();
-    let source = match &frames {
-        Some(f) => FrameSource::Rendered(f),
-        None => FrameSource::Matrix,
-    };
-    let settings = CalibrationSettings {
-        noise: sensor_noise.clone(),
+    let job = CalibrationJob {
+        matrix,
+        spp,
         seed,
+        sensor_noise: noise == NoiseArg::Sensor,
         dark_frame,
+        render_frames,
         threshold_sigma,
+        progress: true,
     };
-    let t0 = Instant::now();
-    let cal = pool
-        .install(|| calibrate(&h_true, &offset, source, &settings))
-        .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
-    let calibrate_s = t0.elapsed().as_secs_f64();
+    let run = pool
+        .install(|| calibrate_scene(&sys, &job))
+        .map_err(bad_input)?;
+    let (cal, object, source_desc, sensor_noise) =
+        (&run.calibration, run.object, &run.source, &run.noise);
+    let (matrix_s, render_s, calibrate_s) = (run.matrix_s, run.render_s, run.calibrate_s);
     let npz = cal
         .h_est
         .encode_npz(&out.join("H_est.npz"))
@@ -1045,7 +954,7 @@ fn cmd_reconstruct(
     out: &std::path::Path,
     threads: Option<usize>,
 ) -> Result<(), Failure> {
-    use stscam::recon::{Problem, admm, cg};
+    use stscam::recon::{Method, Problem, Solution, SolveOptions, admm};
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(bad_input(format!(
             "--tau {tau}: must be a non-negative number"
@@ -1093,31 +1002,20 @@ fn cmd_reconstruct(
     let problem = pool.install(|| Problem::new(&lm.h, w, h));
     let setup_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let (f, info) = pool.install(|| {
-        let htg = problem.back_project(&g);
-        match method {
-            MethodArg::Cg => {
-                let set = cg::CgSettings {
-                    iters: iters.unwrap_or(stscam::recon::cg::DEFAULT_CG_ITERS),
-                    tol: 0.0,
-                };
-                let r = cg::cg_normal(&problem, &htg, &set);
-                let info = serde_json::json!({"method": "cg", "iterations": r.iterations, "relative_residual": r.relative_residual});
-                (r.f, info)
-            }
-            MethodArg::AdmmTv => {
-                let set = admm::AdmmSettings {
-                    iters: iters.unwrap_or(50),
-                    tau_rel: tau,
-                    tv: if tv == TvArg::Iso { admm::TvKind::Iso } else { admm::TvKind::Aniso },
-                    ..Default::default()
-                };
-                let r = admm::admm_tv(&problem, &htg, &set);
-                let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": tau, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
-                (r.f, info)
-            }
-        }
-    });
+    let opts = SolveOptions {
+        method: match method {
+            MethodArg::Cg => Method::Cg,
+            MethodArg::AdmmTv => Method::AdmmTv,
+        },
+        iters,
+        tau_rel: tau,
+        tv: if tv == TvArg::Iso {
+            admm::TvKind::Iso
+        } else {
+            admm::TvKind::Aniso
+        },
+    };
+    let Solution { f, info } = pool.install(|| stscam::recon::solve(&problem, &g, &opts));
     let solve_s = t0.elapsed().as_secs_f64();
     // Computed in f64; stored as float32, which must hold every value.
     if let Some(i) = f.iter().position(|v| !(v.abs() <= f64::from(f32::MAX))) {

@@ -215,6 +215,24 @@ fn matrix_row(
     block
 }
 
+/// Checks a `--depth-mm` value: the object plane must be a positive distance in front of the
+/// plate.
+pub fn check_depth(depth_mm: f64) -> Result<(), String> {
+    if depth_mm.is_finite() && depth_mm > 0.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "--depth-mm {depth_mm}: must be a positive distance"
+        ))
+    }
+}
+
+/// Moves the object (display) plane to `depth_mm` in front of the plate, keeping the camera
+/// focus (`stscam matrix --depth-mm`); check the value with [`check_depth`] first.
+pub fn place_object(sys: &mut System, depth_mm: f64) {
+    sys.display.z_mm = -depth_mm;
+}
+
 /// Computes H and the offset of `sys` for the object size of its display target.
 /// Deterministic for a given seed, whatever the thread count.
 pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
@@ -223,9 +241,18 @@ pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
     let cols = sys.display.width_px * sys.display.height_px;
     let pb = row_progress(set.progress, h, "matrix rows");
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
     let blocks: Vec<RowBlock> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                return RowBlock {
+                    counts: vec![vec![0; w]; nch],
+                    entries: vec![(Vec::new(), Vec::new()); nch],
+                    offset: vec![vec![0.0; w]; nch],
+                    stats: RenderStats::default(),
+                };
+            }
             let b = matrix_row(sys, set, rule, row);
             pb.inc(1);
             b

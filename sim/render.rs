@@ -526,6 +526,14 @@ fn render_row_with(
     }
 }
 
+/// The spectral bins of `render --spectral`: about 10 nm wide, tiling the sampled band exactly,
+/// as (start nm, width nm, count) for [`RenderSettings::spectral_bins`].
+pub fn spectral_bins(sm: &crate::scene::SamplingDesc) -> (f64, f64, usize) {
+    let band = sm.lambda_max_nm - sm.lambda_min_nm;
+    let n = (band / 10.0).round().max(1.0) as usize;
+    (sm.lambda_min_nm, band / n as f64, n)
+}
+
 /// Renders the capture of `sys`. Deterministic for a given seed, whatever the thread count.
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     render_with(sys, set, Estimator::Bragg)
@@ -537,18 +545,26 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
     let (w, h) = (cam.width_px, cam.height_px);
     let pb = row_progress(set.progress, h, "rendering rows");
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
+    let nch = sys.response.curves.len();
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                return RowResult {
+                    values: vec![0.0; w * nch],
+                    spectral: vec![0.0; w * nbins],
+                    stats: RenderStats::default(),
+                };
+            }
             let r = render_row(sys, set, estimator, rule, row);
             pb.inc(1);
             r
         })
         .collect();
     pb.finish_and_clear();
-    let nch = sys.response.curves.len();
     let mut channels = vec![vec![0f32; w * h]; nch];
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let mut spec = vec![vec![0f32; w * h]; nbins];
     let mut stats = RenderStats::default();
     for (row, r) in rows.iter().enumerate() {

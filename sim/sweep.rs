@@ -1006,7 +1006,11 @@ pub fn run_sweep(
     let pb = crate::render::row_progress(set.progress, points.len(), "sweep points");
     let mut rows = Vec::with_capacity(points.len());
     let mut point_seconds = Vec::with_capacity(points.len());
+    let cancel = crate::cancel::current();
     for p in &points {
+        if cancel.is_cancelled() {
+            break;
+        }
         let sys = &build(p)?;
         let t0 = Instant::now();
         let mut figures = design_figures(sys, set);

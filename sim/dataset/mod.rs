@@ -102,6 +102,9 @@ pub enum DatasetError {
         /// What is wrong.
         message: String,
     },
+    /// The run was cancelled ([`crate::cancel`]); what was finished is kept for `--resume`.
+    #[error("cancelled")]
+    Cancelled,
 }
 
 /// A failed write of `path`.
@@ -915,6 +918,14 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     // Held until the run ends (dropped on return, also on an error).
     let _lock = prepare_out(plan, opts)?;
     let root = &opts.out;
+    let cancel = crate::cancel::current();
+    let check_cancel = || {
+        if cancel.is_cancelled() {
+            Err(DatasetError::Cancelled)
+        } else {
+            Ok(())
+        }
+    };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
     let done = |s: &SampleSpec| plan.sample_files(s).iter().all(|f| root.join(f).is_file());
@@ -962,6 +973,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                         &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
                     )
                 });
+                check_cancel()?;
                 let sidecar = serde_json::json!({
                     "object_px": [object.0, object.1],
                     "crop_px": [m.crop.0, m.crop.1],
@@ -1012,6 +1024,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             .into_iter()
             .fold(0.0f64, f64::max)
     };
+    check_cancel()?;
     let noise_desc = &ref_sys.scene.noise;
     let exposure = Exposure {
         white_peak,
@@ -1045,6 +1058,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             }
             CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
         };
+        check_cancel()?;
         let capture = exposure.measure(&clean, s.seed);
         write_sample(
             plan,
@@ -1091,6 +1105,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         }
     }
     bar.finish_and_clear();
+    check_cancel()?;
     let samples_s = t1.elapsed().as_secs_f64();
     let generated = counter.load(Ordering::Relaxed);
     // Finish: metadata, checksums, card.

@@ -241,3 +241,62 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     }
     t
 }
+
+/// The solver of [`solve`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Conjugate gradients on HᵀHf = Hᵀg from f = 0 ([`cg::cg_normal`]).
+    Cg,
+    /// ADMM for ½‖Hf − g‖² + τ·TV(f) ([`admm::admm_tv`]).
+    AdmmTv,
+}
+
+/// Options of [`solve`] (the `stscam reconstruct` flags).
+#[derive(Clone, Copy, Debug)]
+pub struct SolveOptions {
+    /// The solver.
+    pub method: Method,
+    /// Iterations (default: [`cg::DEFAULT_CG_ITERS`] for CG, 50 for ADMM-TV).
+    pub iters: Option<usize>,
+    /// ADMM-TV: τ relative to ‖Hᵀg‖∞.
+    pub tau_rel: f64,
+    /// ADMM-TV: isotropic or anisotropic TV.
+    pub tv: admm::TvKind,
+}
+
+/// A reconstruction with what the solver reports (`recon.json`'s `solver`).
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// The object, linear intensities, row-major.
+    pub f: Vec<f64>,
+    /// Method, iterations and residuals.
+    pub info: serde_json::Value,
+}
+
+/// Reconstructs the object from `g` (offset already subtracted) for a set-up `problem`: one
+/// back-projection, then CG or ADMM-TV. The CLI's `reconstruct` and the Python module call this.
+pub fn solve(problem: &Problem, g: &[f64], opts: &SolveOptions) -> Solution {
+    let htg = problem.back_project(g);
+    match opts.method {
+        Method::Cg => {
+            let set = cg::CgSettings {
+                iters: opts.iters.unwrap_or(cg::DEFAULT_CG_ITERS),
+                tol: 0.0,
+            };
+            let r = cg::cg_normal(problem, &htg, &set);
+            let info = serde_json::json!({"method": "cg", "iterations": r.iterations, "relative_residual": r.relative_residual});
+            Solution { f: r.f, info }
+        }
+        Method::AdmmTv => {
+            let set = admm::AdmmSettings {
+                iters: opts.iters.unwrap_or(50),
+                tau_rel: opts.tau_rel,
+                tv: opts.tv,
+                ..Default::default()
+            };
+            let r = admm::admm_tv(problem, &htg, &set);
+            let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": opts.tau_rel, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
+            Solution { f: r.f, info }
+        }
+    }
+}

@@ -2,6 +2,7 @@
 
 mod analytic_field;
 mod bvh;
+mod cancel;
 mod cli_errors;
 mod common;
 mod dataset;
