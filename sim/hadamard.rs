@@ -554,7 +554,11 @@ pub fn calibrate_scene(
                 ));
             }
             // H, and with --render one frame per pattern plus the all-white one.
-            let renders = 1 + if job.render_frames { n_obj as u64 + 1 } else { 0 };
+            let renders = 1 + if job.render_frames {
+                n_obj as u64 + 1
+            } else {
+                0
+            };
             crate::render::check_limits(sys, &rs, renders, "--spp").map_err(|e| e.to_string())?;
             let m = crate::matrix::compute_matrix(sys, &rs);
             computed = TrueMatrix {

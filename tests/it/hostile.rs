@@ -8,8 +8,8 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{files_in, stscam};
 use crate::common::write;
+use crate::common::{files_in, stscam};
 use crate::dataset::recipe;
 
 /// A finished run's exit code and stderr, asserting that it took under `limit_s` seconds
