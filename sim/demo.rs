@@ -266,6 +266,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
                     .collect::<Vec<f32>>()],
                 0.999,
             ),
+            crate::io::PngTransfer::Srgb,
         )?;
         files.push((format!("capture_{}.png", shot.name), cap_png));
         let names = [
@@ -476,5 +477,5 @@ fn figure(
         .iter()
         .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
         .collect();
-    crate::io::encode_png16(w, h, 1, &samples)
+    crate::io::encode_png16(w, h, 1, &samples, crate::io::PngTransfer::DisplayGamma(gamma))
 }

@@ -1988,7 +1988,13 @@ fn cmd_compare(
     if let Some(path) = map {
         let (x, y) = pairs[0];
         let diff: Vec<f32> = x.iter().zip(y).map(|(p, q)| (p - q).abs()).collect();
-        let png = stscam::io::encode_png16(wa, ha, 1, &stscam::io::preview_u16(&[&diff], 0.999))
+        let png = stscam::io::encode_png16(
+            wa,
+            ha,
+            1,
+            &stscam::io::preview_u16(&[&diff], 0.999),
+            stscam::io::PngTransfer::Srgb,
+        )
             .map_err(|m| Failure {
                 code: 1,
                 message: m,

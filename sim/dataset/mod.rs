@@ -1244,7 +1244,13 @@ fn put_image(
             .flat_map(|i| (0..channels).map(move |c| q(v[c * p + i])))
             .collect()
     };
-    let png = crate::io::encode_png16(size.0, size.1, channels.min(3), &samples)
+    let png = crate::io::encode_png16(
+        size.0,
+        size.1,
+        channels.min(3),
+        &samples,
+        crate::io::PngTransfer::Linear,
+    )
         .map_err(|m| out_err(&root.join(rel_png), m))?;
     put(root, rel_png, &png)
 }
@@ -1280,7 +1286,7 @@ fn write_mesh_sample(
         &files[4],
         &npy(&files[4], &[size.1, size.0], &frontal.depth_mm)?,
     )?;
-    let png = crate::io::encode_png16(size.0, size.1, 1, &frontal.mask)
+    let png = crate::io::encode_png16(size.0, size.1, 1, &frontal.mask, crate::io::PngTransfer::Labels)
         .map_err(|m| out_err(&root.join(&files[5]), m))?;
     put(root, &files[5], &png)
 }

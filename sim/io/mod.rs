@@ -23,7 +23,7 @@ pub use self::npz::{
     CsrParts, decode_csr_npz, decode_npy_f32, encode_csr_npz, encode_npy_f32, read_csr_npz,
     read_npy_f32,
 };
-pub use self::png::{encode_png16, preview_u16};
+pub use self::png::{PngTransfer, encode_png16, preview_u16};
 
 /// Largest pixel count accepted when reading an image, so that a corrupt or
 /// hostile header cannot trigger a huge allocation.
