@@ -441,7 +441,7 @@ impl Canvas {
     }
 
     fn text(&mut self, s: &str, x: f64, y: f64, scale: usize, align: Align, col: (u8, u8, u8)) {
-        let (w, h, v) = crate::targets::label(&s.to_uppercase(), scale);
+        let (w, h, v) = crate::targets::label(&s.to_ascii_uppercase(), scale);
         let x0 = match align {
             Align::Left => x,
             Align::Centre => x - w as f64 / 2.0,
@@ -507,5 +507,37 @@ mod tests {
         // Linear ticks are round numbers.
         let a = Axis::new([0.0, 7.3].into_iter(), false);
         assert_eq!(a.ticks(), vec![0.0, 2.0, 4.0, 6.0]);
+    }
+
+    /// Every character of every string literal in the modules that build plots and figures
+    /// has a glyph in the PNG font (an unknown one would be drawn as a box).
+    #[test]
+    fn every_label_character_has_a_glyph() {
+        let sources = [
+            include_str!("sweep.rs"),
+            include_str!("analytic.rs"),
+            include_str!("bench.rs"),
+            include_str!("main.rs"),
+            include_str!("demo.rs"),
+            include_str!("plot.rs"),
+        ];
+        let mut missing = std::collections::BTreeSet::new();
+        for src in sources {
+            // String literals, roughly: text between unescaped double quotes on one line.
+            for line in src.lines() {
+                let mut inside = false;
+                let mut prev = ' ';
+                for c in line.chars() {
+                    if c == '"' && prev != '\\' && prev != '\'' {
+                        inside = !inside;
+                    } else if inside && !c.is_control() && !crate::targets::has_label_glyph(c) {
+                        missing.insert(c);
+                    }
+                    prev = c;
+                }
+            }
+        }
+        assert!(missing.is_empty(), "no glyph for {missing:?}");
+        assert!(!crate::targets::has_label_glyph('☃'), "the check can fail");
     }
 }
