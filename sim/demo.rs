@@ -477,5 +477,11 @@ fn figure(
         .iter()
         .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
         .collect();
-    crate::io::encode_png16(w, h, 1, &samples, crate::io::PngTransfer::DisplayGamma(gamma))
+    crate::io::encode_png16(
+        w,
+        h,
+        1,
+        &samples,
+        crate::io::PngTransfer::DisplayGamma(gamma),
+    )
 }

@@ -1995,10 +1995,10 @@ fn cmd_compare(
             &stscam::io::preview_u16(&[&diff], 0.999),
             stscam::io::PngTransfer::Srgb,
         )
-            .map_err(|m| Failure {
-                code: 1,
-                message: m,
-            })?;
+        .map_err(|m| Failure {
+            code: 1,
+            message: m,
+        })?;
         stscam::io::write_atomic(path, &png).map_err(write_failure)?;
     }
     if json {

@@ -9,8 +9,8 @@
 use std::path::Path;
 
 use crate::io::{
-    ExrAttr, ExrChannel, IoError, PngTransfer, encode_exr, encode_png16, preview_u16, spectral_channel_name,
-    write_all_atomic,
+    ExrAttr, ExrChannel, IoError, PngTransfer, encode_exr, encode_png16, preview_u16,
+    spectral_channel_name, write_all_atomic,
 };
 use crate::render::Capture;
 
@@ -74,7 +74,13 @@ pub fn encode_capture_exr(
 pub fn encode_capture_png(cap: &Capture) -> Result<Vec<u8>, String> {
     let refs: Vec<&[f32]> = cap.channels.iter().map(|c| c.as_slice()).collect();
     let samples = preview_u16(&refs, 0.999);
-    encode_png16(cap.width, cap.height, refs.len(), &samples, PngTransfer::Srgb)
+    encode_png16(
+        cap.width,
+        cap.height,
+        refs.len(),
+        &samples,
+        PngTransfer::Srgb,
+    )
 }
 
 /// Writes `capture.exr`, `capture.png` and `capture.json` into `dir` (created if needed).
@@ -135,7 +141,7 @@ pub fn write_capture_with(
             &preview_u16(&refs, 0.999),
             PngTransfer::Srgb,
         )
-            .map_err(fmt_err(dir.join("frontal.png")))?;
+        .map_err(fmt_err(dir.join("frontal.png")))?;
         let dexr = encode_exr(
             f.width,
             f.height,
@@ -146,8 +152,8 @@ pub fn write_capture_with(
             &attrs("distance from the plate's front face along -z, mm; +inf where nothing is hit"),
         )
         .map_err(fmt_err(dir.join("depth.exr")))?;
-        let mpng =
-            encode_png16(f.width, f.height, 1, &f.mask, PngTransfer::Labels).map_err(fmt_err(dir.join("mask.png")))?;
+        let mpng = encode_png16(f.width, f.height, 1, &f.mask, PngTransfer::Labels)
+            .map_err(fmt_err(dir.join("mask.png")))?;
         files.push(("frontal.exr", fexr));
         files.push(("frontal.png", fpng));
         files.push(("depth.exr", dexr));

@@ -464,7 +464,9 @@ const PUNCT: &[(char, [u8; GLYPH_H])] = &[
 ];
 
 /// Drawn for a character the font lacks: a hollow box, so nothing is dropped silently.
-const MISSING_GLYPH: [u8; GLYPH_H] = [0b11111, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b11111];
+const MISSING_GLYPH: [u8; GLYPH_H] = [
+    0b11111, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b11111,
+];
 
 /// True if the figure-label font has a glyph for `c` (letters are drawn upper case).
 pub fn has_label_glyph(c: char) -> bool {

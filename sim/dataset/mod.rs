@@ -1251,7 +1251,7 @@ fn put_image(
         &samples,
         crate::io::PngTransfer::Linear,
     )
-        .map_err(|m| out_err(&root.join(rel_png), m))?;
+    .map_err(|m| out_err(&root.join(rel_png), m))?;
     put(root, rel_png, &png)
 }
 
@@ -1286,8 +1286,14 @@ fn write_mesh_sample(
         &files[4],
         &npy(&files[4], &[size.1, size.0], &frontal.depth_mm)?,
     )?;
-    let png = crate::io::encode_png16(size.0, size.1, 1, &frontal.mask, crate::io::PngTransfer::Labels)
-        .map_err(|m| out_err(&root.join(&files[5]), m))?;
+    let png = crate::io::encode_png16(
+        size.0,
+        size.1,
+        1,
+        &frontal.mask,
+        crate::io::PngTransfer::Labels,
+    )
+    .map_err(|m| out_err(&root.join(&files[5]), m))?;
     put(root, &files[5], &png)
 }
 

@@ -362,7 +362,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("rgb.png");
         let rgb: [u16; 6] = [65535, 0, 0, 1000, 30000, 65535];
-        write_atomic(&path, &encode_png16(2, 1, 3, &rgb, crate::io::PngTransfer::Srgb).unwrap()).unwrap();
+        write_atomic(
+            &path,
+            &encode_png16(2, 1, 3, &rgb, crate::io::PngTransfer::Srgb).unwrap(),
+        )
+        .unwrap();
         let img = load_image(&path).unwrap();
         assert_eq!((img.width, img.height, img.channels), (2, 1, 3));
         let expect: Vec<f32> = rgb

@@ -162,7 +162,10 @@ mod tests {
             .map(|i| (i as u16).wrapping_mul(7919) ^ 0x8001)
             .collect();
         let bytes = encode_png16(4, 3, 3, &rgb, PngTransfer::Srgb).unwrap();
-        assert_eq!(encode_png16(4, 3, 3, &rgb, PngTransfer::Srgb).unwrap(), bytes);
+        assert_eq!(
+            encode_png16(4, 3, 3, &rgb, PngTransfer::Srgb).unwrap(),
+            bytes
+        );
         let (info, back) = decode(bytes);
         assert_eq!(
             (info.width, info.height, info.color_type, info.bit_depth),
