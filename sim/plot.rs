@@ -396,7 +396,6 @@ impl LinePlot {
                 d.trim_end()
             );
             s.push_str(&marks);
-            let lines = wrap(&ser.name, LEGEND_CHARS);
             let _ = write!(
                 s,
                 r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"{dash_attr}/>"#,
@@ -404,16 +403,24 @@ impl LinePlot {
                 x1 + 32.0
             );
             mark(&mut s, x1 + 20.0, ly);
-            for (k, line) in lines.iter().enumerate() {
-                let _ = write!(
-                    s,
-                    r#"<text x="{}" y="{}" font-size="11">{}</text>"#,
-                    x1 + 36.0,
-                    ly + 4.0 + 13.0 * k as f64,
-                    esc(line)
-                );
-            }
-            ly += 8.0 + 13.0 * lines.len() as f64;
+            // A name longer than the margin is squeezed to fit it (one element, still
+            // searchable text), never clipped.
+            let fit = if ser.name.chars().count() > LEGEND_CHARS {
+                format!(
+                    r#" textLength="{}" lengthAdjust="spacingAndGlyphs""#,
+                    RIGHT - 44.0
+                )
+            } else {
+                String::new()
+            };
+            let _ = write!(
+                s,
+                r#"<text x="{}" y="{}" font-size="11"{fit}>{}</text>"#,
+                x1 + 36.0,
+                ly + 4.0,
+                esc(&ser.name)
+            );
+            ly += 20.0;
         }
         s.push_str("</svg>\n");
         s
