@@ -5,6 +5,7 @@ mod bvh;
 mod cancel;
 mod cli_errors;
 mod common;
+mod coverage;
 mod dataset;
 mod dataset3d;
 mod estimators;
