@@ -217,6 +217,8 @@ pub struct DesignInfo {
     pub focus_distance_mm: f64,
     /// Lens-to-sensor distance, mm.
     pub sensor_distance_mm: f64,
+    /// Which object rows and columns the crop sees through a strong replica.
+    pub object_coverage: ObjectCoverage,
 }
 
 /// Where a point object appears on the sensor through one replica.
@@ -235,6 +237,18 @@ pub struct PointReplica {
 /// ray's Bragg wavelength). The spacing differs between replicas: each extra round trip adds
 /// an angle-dependent shift 2w·tanΘ'(θ), which acts like a replica-dependent object distance.
 pub fn point_replicas(sys: &System, object_mm: DVec2) -> Vec<PointReplica> {
+    let rows = sys.camera.height_px as f64;
+    point_replicas_in(sys, object_mm, -0.5, rows - 0.5)
+}
+
+/// [`point_replicas`] over the continuous crop rows `row_lo..row_hi` (may extend beyond the
+/// crop: rows < −0.5 are above it, rows > height − 0.5 below it, on the same sensor line).
+pub fn point_replicas_in(
+    sys: &System,
+    object_mm: DVec2,
+    row_lo: f64,
+    row_hi: f64,
+) -> Vec<PointReplica> {
     let cam = &sys.camera;
     let pitch = cam.pitch_mm;
     let v_of_row = |row: f64| (0.5 * cam.height_px as f64 - (row + 0.5) + cam.offset_px.y) * pitch;
@@ -269,10 +283,10 @@ pub fn point_replicas(sys: &System, object_mm: DVec2) -> Vec<PointReplica> {
         out
     };
     let find = |v: f64, k: u32| objects(v).into_iter().find(|o| o.0 == k);
-    let steps = 4 * cam.height_px.max(50);
+    let steps = 4 * ((row_hi - row_lo).ceil() as usize).max(50);
     let mut found: Vec<PointReplica> = Vec::new();
-    let v_start = v_of_row(-0.5);
-    let v_end = v_of_row(cam.height_px as f64 - 0.5);
+    let v_start = v_of_row(row_lo);
+    let v_end = v_of_row(row_hi);
     let mut prev = objects(v_start);
     let mut v_prev = v_start;
     for i in 1..=steps {
@@ -326,6 +340,173 @@ pub fn strong_replica_spacing_px(reps: &[PointReplica], frac: f64) -> f64 {
         return f64::NAN;
     }
     (strong[strong.len() - 1] - strong[0]) / (strong.len() - 1) as f64
+}
+
+/// A replica counts as strong when it carries at least this fraction of the weight of the
+/// strongest replica of the same object point (in or out of the crop).
+pub const STRONG_REPLICA_FRACTION: f64 = 0.25;
+
+/// Which rows and columns of the object (the display image) are seen inside the crop through
+/// at least one strong replica ([`STRONG_REPLICA_FRACTION`]): the rows from the chief-ray
+/// replicas of each row's centre point, scanned over three crop heights (so a strongest replica
+/// outside the crop is found); the columns from the object points of the strongest replica at
+/// the crop's left and right edges.
+#[derive(Clone, Debug, Serialize)]
+pub struct ObjectCoverage {
+    /// Object size in image pixels [cols, rows].
+    pub object_px: [usize; 2],
+    /// The strong-replica threshold used.
+    pub strong_fraction: f64,
+    /// Object rows with no strong replica inside the crop.
+    pub rows_unseen: Vec<usize>,
+    /// Object columns outside the horizontal field of the crop.
+    pub cols_unseen: Vec<usize>,
+}
+
+impl ObjectCoverage {
+    /// True when every row and column is seen.
+    pub fn complete(&self) -> bool {
+        self.rows_unseen.is_empty() && self.cols_unseen.is_empty()
+    }
+
+    /// One-line warning naming the unseen rows and columns, or None when all are seen.
+    pub fn warning(&self) -> Option<String> {
+        if self.complete() {
+            return None;
+        }
+        let mut parts = Vec::new();
+        if !self.rows_unseen.is_empty() {
+            parts.push(format!(
+                "object rows {} (of 0-{})",
+                ranges(&self.rows_unseen),
+                self.object_px[1] - 1
+            ));
+        }
+        if !self.cols_unseen.is_empty() {
+            parts.push(format!(
+                "object columns {} (of 0-{})",
+                ranges(&self.cols_unseen),
+                self.object_px[0] - 1
+            ));
+        }
+        Some(format!(
+            "warning: {} have no replica inside the crop with at least {} % of their strongest \
+             replica's weight: they are barely measured and cannot be reconstructed well \
+             (move sensor.crop_offset_px or display.center_mm, or enlarge sensor.crop_px)",
+            parts.join(" and "),
+            self.strong_fraction * 100.0
+        ))
+    }
+}
+
+/// A crop offset (pixels, the `sensor.crop_offset_px` convention) that frames the object: the
+/// crop moved vertically so that the strongest replica of the display centre lands on the
+/// crop's centre row. `None` when the scene's own crop already sees every object row and
+/// column, or when the moved crop would not see more of them.
+pub fn framing_offset_px(sys: &System) -> Option<[f64; 2]> {
+    let before = object_coverage(sys);
+    if before.complete() {
+        return None;
+    }
+    let cam = &sys.camera;
+    let h = cam.height_px as f64;
+    let strongest = point_replicas_in(sys, sys.display.center_mm, -h - 0.5, 2.0 * h - 0.5)
+        .into_iter()
+        .max_by(|a, b| a.weight.total_cmp(&b.weight))?;
+    let shift = (0.5 * h - 0.5 - strongest.row).round();
+    if shift == 0.0 {
+        return None;
+    }
+    let offset = [cam.offset_px.x, cam.offset_px.y + shift];
+    let mut moved = sys.clone();
+    moved.camera.offset_px.y = offset[1];
+    let after = object_coverage(&moved);
+    let unseen = |c: &ObjectCoverage| c.rows_unseen.len() + c.cols_unseen.len();
+    (unseen(&after) < unseen(&before)).then_some(offset)
+}
+
+/// Compact "0-3, 7, 9-12" form of sorted indices.
+pub fn ranges(idx: &[usize]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < idx.len() {
+        let mut j = i;
+        while j + 1 < idx.len() && idx[j + 1] == idx[j] + 1 {
+            j += 1;
+        }
+        out.push(if j > i {
+            format!("{}-{}", idx[i], idx[j])
+        } else {
+            idx[i].to_string()
+        });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
+/// The object coverage of the scene's crop (see [`ObjectCoverage`]).
+pub fn object_coverage(sys: &System) -> ObjectCoverage {
+    let disp = &sys.display;
+    let cam = &sys.camera;
+    let (ow, oh) = (disp.width_px, disp.height_px);
+    let pix = disp.image_pixel_mm;
+    let crop_h = cam.height_px as f64;
+    let strong_inside = |reps: &[PointReplica]| {
+        let max = reps.iter().map(|r| r.weight).fold(0.0, f64::max);
+        max > 0.0
+            && reps.iter().any(|r| {
+                r.weight >= STRONG_REPLICA_FRACTION * max && r.row >= -0.5 && r.row <= crop_h - 0.5
+            })
+    };
+    let rows_unseen: Vec<usize> = (0..oh)
+        .filter(|&r| {
+            let y = disp.center_mm.y + (0.5 * oh as f64 - r as f64 - 0.5) * pix;
+            let reps = point_replicas_in(
+                sys,
+                DVec2::new(disp.center_mm.x, y),
+                -crop_h - 0.5,
+                2.0 * crop_h - 0.5,
+            );
+            !strong_inside(&reps)
+        })
+        .collect();
+    // Horizontal field: the object x seen by the strongest replica at the crop's left and
+    // right edges, on the row where the display centre's strongest replica lies (clamped to
+    // the crop).
+    let centre = point_replicas_in(sys, disp.center_mm, -0.5, crop_h - 0.5);
+    let row = centre
+        .iter()
+        .max_by(|a, b| a.weight.total_cmp(&b.weight))
+        .map_or(0.5 * crop_h - 0.5, |r| r.row);
+    let pitch = cam.pitch_mm;
+    let v = (0.5 * crop_h + cam.offset_px.y - row - 0.5) * pitch;
+    let edge_x = |col_edge: f64| -> Option<f64> {
+        let u = (col_edge - 0.5 * cam.width_px as f64 + cam.offset_px.x) * pitch;
+        let ray = cam.ray_through(DVec2::new(u, v), DVec2::ZERO);
+        let p = probe_direction(sys, ray.origin, ray.dir, [0, 0])?;
+        p.replicas
+            .iter()
+            .max_by(|a, b| a.weight.total_cmp(&b.weight))
+            .map(|r| r.object_point_mm[0])
+    };
+    let cols_unseen: Vec<usize> = match (edge_x(0.0), edge_x(cam.width_px as f64)) {
+        (Some(a), Some(b)) => {
+            let (lo, hi) = (a.min(b), a.max(b));
+            (0..ow)
+                .filter(|&c| {
+                    let x = disp.center_mm.x + (c as f64 + 0.5 - 0.5 * ow as f64) * pix;
+                    x < lo || x > hi
+                })
+                .collect()
+        }
+        _ => (0..ow).collect(),
+    };
+    ObjectCoverage {
+        object_px: [ow, oh],
+        strong_fraction: STRONG_REPLICA_FRACTION,
+        rows_unseen,
+        cols_unseen,
+    }
 }
 
 fn count_above(p: &ProbeResult, frac: f64) -> usize {
@@ -491,5 +672,6 @@ pub fn info(sys: &System) -> DesignInfo {
         fov_horizontal_capture: scan_fov(sys, false, true),
         focus_distance_mm: cam.focus_distance_mm,
         sensor_distance_mm: cam.sensor_distance_mm,
+        object_coverage: object_coverage(sys),
     }
 }

@@ -90,7 +90,8 @@ fn timed_render(sys: &System, spp: u32, seed: u64, estimator: Estimator) -> (Vec
 }
 
 /// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` until `budget_s`
-/// seconds have been spent (or `max_spp`), measuring each render's error.
+/// seconds have been spent (or `max_spp`), measuring each render's error. With `progress`,
+/// the seconds of the budget spent are shown (see [`crate::progress`]).
 #[allow(clippy::too_many_arguments)]
 pub fn measure_curve(
     sys: &System,
@@ -101,7 +102,13 @@ pub fn measure_curve(
     budget_s: f64,
     max_spp: u32,
     target: f64,
+    progress: bool,
 ) -> Curve {
+    let pb = crate::progress::Progress::new(
+        progress,
+        budget_s.ceil() as u64,
+        &format!("{name}: seconds of the budget"),
+    );
     let mut points = Vec::new();
     let mut spent = 0.0;
     let mut spp = if measure == ErrorMeasure::Halves {
@@ -141,6 +148,7 @@ pub fn measure_curve(
                 )
             }
         };
+        pb.inc((spent + seconds).floor() as u64 - spent.floor() as u64);
         spent += seconds;
         points.push(Point {
             spp,
@@ -156,6 +164,7 @@ pub fn measure_curve(
         }
         spp *= 2;
     }
+    pb.finish_and_clear();
     let t = time_to_error(&points, target);
     Curve {
         name: name.to_string(),

@@ -52,6 +52,7 @@ pub struct Camera {
 }
 
 /// Concentric (Shirley–Chiu) map of the unit square to the unit disc.
+#[inline]
 pub fn concentric_disk(u: [f64; 2]) -> DVec2 {
     let a = 2.0 * u[0] - 1.0;
     let b = 2.0 * u[1] - 1.0;
@@ -72,6 +73,7 @@ pub fn concentric_disk(u: [f64; 2]) -> DVec2 {
 impl Camera {
     /// Position (mm) of a point in pixel (col, row) with in-pixel offsets `f` ∈ [0,1)², in the
     /// upright image plane centred on the optical axis (+x right, +y up).
+    #[inline]
     pub fn image_point_mm(&self, col: usize, row: usize, f: [f64; 2]) -> DVec2 {
         let x = col as f64 + f[0] - 0.5 * self.width_px as f64 + self.offset_px.x;
         let y = 0.5 * self.height_px as f64 - (row as f64 + f[1]) + self.offset_px.y;
@@ -79,6 +81,7 @@ impl Camera {
     }
 
     /// Ray for a pixel sample `pixel_u` ∈ [0,1)² and aperture sample `lens_u` ∈ [0,1)².
+    #[inline]
     pub fn generate_ray(
         &self,
         col: usize,
@@ -97,6 +100,7 @@ impl Camera {
     }
 
     /// Ray from the sensor point conjugate to image point `img` through lens point `lens`.
+    #[inline]
     pub fn ray_through(&self, img: DVec2, lens: DVec2) -> CameraRay {
         let d0 = self.sensor_distance_mm;
         // In-focus point: along the chief ray (img, −d0) scaled to the focus distance.

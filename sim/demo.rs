@@ -99,11 +99,7 @@ pub(crate) fn intensity_of_spec(
 /// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
 /// `m` (physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
-pub fn exposure_and_dark(
-    sys: &System,
-    m: &SystemMatrix,
-    seed: u64,
-) -> (SensorNoise, Vec<f64>) {
+pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
     let (ow, oh) = m.object;
     let white = m.capture_of(&vec![1.0; ow * oh]);
     let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
@@ -162,7 +158,12 @@ pub fn noisy_capture_of(
     seed: u64,
     index: u64,
 ) -> Vec<f64> {
-    measure_frame(m.capture_of(truth).iter().flatten().copied(), noise, seed, index)
+    measure_frame(
+        m.capture_of(truth).iter().flatten().copied(),
+        noise,
+        seed,
+        index,
+    )
 }
 
 /// `noise` applied to each value of a clean frame, value i from the stream
@@ -289,6 +290,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
                     .collect::<Vec<f32>>()],
                 0.999,
             ),
+            crate::io::PngTransfer::Srgb,
         )?;
         files.push((format!("capture_{}.png", shot.name), cap_png));
         let names = [
@@ -306,7 +308,7 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         figure(
             &shots
                 .iter()
-                .map(|s| (&s.truth[..], &s.noisy[..rows_per_channel]))
+                .map(|s| (s.name, &s.truth[..], &s.noisy[..rows_per_channel]))
                 .collect::<Vec<_>>(),
             &recons,
             (ow, oh),
@@ -441,7 +443,7 @@ const GAP: usize = 6;
 /// The Fig. 9-like figure: per target a row object | capture | CGM | ADMM-TV (H true) |
 /// CGM | ADMM-TV (H calibrated), with column labels; grey 16-bit PNG, display code values.
 fn figure(
-    shots: &[(&[f64], &[f64])],
+    shots: &[(&str, &[f64], &[f64])],
     recons: &[Vec<Vec<f64>>],
     object: (usize, usize),
     crop: (usize, usize),
@@ -457,27 +459,59 @@ fn figure(
     ];
     let cols = labels.len();
     let label_h = 9 * 2 + 4;
-    let w = cols * TILE + (cols + 1) * GAP;
-    let h = label_h + shots.len() * (TILE + GAP) + GAP;
+    // Row labels (target names) in a left column; each reconstruction's PSNR under its tile.
+    let row_label_w = shots
+        .iter()
+        .map(|s| crate::targets::label(&s.0.to_ascii_uppercase(), 2).0)
+        .max()
+        .unwrap_or(0)
+        + GAP;
+    let psnr_h = label_h;
+    let row_h = TILE + psnr_h + GAP;
+    let w = row_label_w + cols * TILE + (cols + 1) * GAP;
+    let h = label_h + shots.len() * row_h + GAP;
     let mut img = vec![1.0f64; w * h];
     let mut blit = |tile: &[f64], x0: usize, y0: usize, tw: usize, th: usize| {
         for y in 0..th {
             for x in 0..tw {
-                img[(y0 + y) * w + x0 + x] = tile[y * tw + x];
+                if x0 + x < w && y0 + y < h {
+                    img[(y0 + y) * w + x0 + x] = tile[y * tw + x];
+                }
             }
         }
     };
-    for (c, l) in labels.iter().enumerate() {
-        let (lw, lh, v) = crate::targets::label(l, 2);
-        let x0 = GAP + c * (TILE + GAP) + TILE.saturating_sub(lw) / 2;
+    let text = |blit: &mut dyn FnMut(&[f64], usize, usize, usize, usize),
+                s: &str,
+                x_centre: usize,
+                y0: usize,
+                max_w: usize| {
+        let (lw, lh, v) = crate::targets::label(&s.to_ascii_uppercase(), 2);
         let inv: Vec<f64> = v.iter().map(|&p| 1.0 - f64::from(p)).collect();
-        if lw <= TILE {
-            blit(&inv, x0, 2, lw, lh);
+        if lw <= max_w {
+            blit(&inv, x_centre.saturating_sub(lw / 2), y0, lw, lh);
         }
+    };
+    let col_x = |c: usize| row_label_w + GAP + c * (TILE + GAP);
+    for (c, l) in labels.iter().enumerate() {
+        text(&mut blit, l, col_x(c) + TILE / 2, 2, TILE);
+    }
+    for (r, (name, _, _)) in shots.iter().enumerate() {
+        let y0 = label_h + r * row_h + TILE / 2 - 9;
+        text(&mut blit, name, row_label_w / 2, y0, row_label_w);
     }
     let code = |v: f64| v.clamp(0.0, 1.0).powf(1.0 / gamma);
-    for (r, ((truth, capture), rec)) in shots.iter().zip(recons).enumerate() {
-        let y0 = label_h + r * (TILE + GAP);
+    for (r, ((_, truth, capture), rec)) in shots.iter().zip(recons).enumerate() {
+        let y0 = label_h + r * row_h;
+        for (k, f) in rec.iter().enumerate() {
+            let p = crate::recon::metrics::psnr(f, truth);
+            text(
+                &mut blit,
+                &format!("{p:.2} DB"),
+                col_x(2 + k) + TILE / 2,
+                y0 + TILE + 3,
+                TILE,
+            );
+        }
         let mut tiles: Vec<Vec<f64>> = Vec::new();
         tiles.push(resample(truth, object.0, object.1, TILE, TILE));
         let peak = {
@@ -492,12 +526,18 @@ fn figure(
         }
         for (c, t) in tiles.iter().enumerate() {
             let t: Vec<f64> = t.iter().map(|&v| code(v)).collect();
-            blit(&t, GAP + c * (TILE + GAP), y0, TILE, TILE);
+            blit(&t, col_x(c), y0, TILE, TILE);
         }
     }
     let samples: Vec<u16> = img
         .iter()
         .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
         .collect();
-    crate::io::encode_png16(w, h, 1, &samples)
+    crate::io::encode_png16(
+        w,
+        h,
+        1,
+        &samples,
+        crate::io::PngTransfer::DisplayGamma(gamma),
+    )
 }

@@ -74,14 +74,19 @@ pub const DEFAULT_THRESHOLD_SIGMA: f64 = 5.0;
 /// Renders the N Sylvester patterns of `sys`'s object (the display shows u_i = (h_i + 1)/2)
 /// and then a dark frame (all black), each with the full Monte Carlo tracer; every frame is
 /// one vector over the rows of H (channels concatenated). `on_frame` is called after each.
+/// Once the job is cancelled ([`crate::cancel`]) the remaining frames are empty.
 pub fn render_frames(
     sys: &crate::system::System,
     set: &crate::render::RenderSettings,
     mut on_frame: impl FnMut(),
 ) -> Vec<Vec<f32>> {
     let n = sys.display.width_px * sys.display.height_px;
+    let cancel = crate::cancel::current();
     (0..=n)
         .map(|i| {
+            if cancel.is_cancelled() {
+                return Vec::new();
+            }
             let mut s = sys.clone();
             let u = if i < n {
                 display_pattern(n, i)
@@ -453,4 +458,204 @@ mod tests {
             }
         }
     }
+}
+
+/// H_true and the offset a calibration starts from: a matrix loaded from disk, or `None` in
+/// [`CalibrationJob::matrix`] to compute it from the scene.
+pub struct TrueMatrix {
+    /// H_true.
+    pub h: CsrMatrix,
+    /// Capture of an all-black object, one value per row.
+    pub offset: Vec<f32>,
+    /// Object size (width, height).
+    pub object: (usize, usize),
+    /// Where it came from (a path), named in error messages.
+    pub source: String,
+}
+
+impl TrueMatrix {
+    /// Reads H_true from a scipy CSR `.npz` ([`crate::matrix::load_matrix`]) with the offset
+    /// beside it; a missing offset is taken as 0, and the flag returned says so.
+    pub fn load(
+        path: &std::path::Path,
+        object: Option<(usize, usize)>,
+    ) -> Result<(TrueMatrix, bool), crate::io::IoError> {
+        let lm = crate::matrix::load_matrix(path, object, None)?;
+        let found = lm.offset.is_some();
+        let offset = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
+        let m = TrueMatrix {
+            h: lm.h,
+            offset,
+            object: lm.object,
+            source: path.display().to_string(),
+        };
+        Ok((m, found))
+    }
+}
+
+/// A whole simulated calibration of a scene (`stscam calibrate`).
+pub struct CalibrationJob {
+    /// H_true from disk, or `None` to compute it from the scene at `spp` and `seed`.
+    pub matrix: Option<TrueMatrix>,
+    /// Samples per pixel of a computed H and of rendered frames.
+    pub spp: u32,
+    /// Seed of the tracer and of the noise.
+    pub seed: u64,
+    /// Apply the scene's sensor noise model (exposure from the all-white frame), else none.
+    pub sensor_noise: bool,
+    /// Store the dark-frame-subtracted estimate.
+    pub dark_frame: bool,
+    /// Render every pattern with the tracer instead of taking frames from H_true.
+    pub render_frames: bool,
+    /// Threshold of the stored entries in predicted noise σ.
+    pub threshold_sigma: f64,
+    /// Show progress on a terminal.
+    pub progress: bool,
+}
+
+/// What [`calibrate_scene`] made.
+pub struct CalibrationRun {
+    /// H_est and the report.
+    pub calibration: Calibration,
+    /// Object size (width, height).
+    pub object: (usize, usize),
+    /// Where H_true came from: a path, or "computed".
+    pub source: String,
+    /// The noise model with its exposure, if any.
+    pub noise: Option<SensorNoise>,
+    /// Seconds spent computing H_true (0 when loaded).
+    pub matrix_s: f64,
+    /// Seconds spent rendering frames.
+    pub render_s: f64,
+    /// Seconds spent in the calibration transform.
+    pub calibrate_s: f64,
+}
+
+/// Runs a calibration job on `sys` (the CLI's `calibrate` and the Python module call this):
+/// H_true (loaded or computed), the exposure from its all-white frame, the frames (from H_true
+/// or rendered) and [`calibrate`]. Errors are the user's to fix (one line).
+pub fn calibrate_scene(
+    sys: &crate::system::System,
+    job: &CalibrationJob,
+) -> Result<CalibrationRun, String> {
+    use crate::render::RenderSettings;
+    use std::time::Instant;
+    let rs = RenderSettings::lattice(job.spp, job.seed, job.progress);
+    let n_obj = sys.display.width_px * sys.display.height_px;
+    let t0 = Instant::now();
+    let computed;
+    let tm = match &job.matrix {
+        Some(m) => m,
+        None => {
+            if !n_obj.is_power_of_two() {
+                return Err(format!(
+                    "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
+                    sys.display.width_px, sys.display.height_px
+                ));
+            }
+            // H, and with --render one frame per pattern plus the all-white one.
+            let renders = 1 + if job.render_frames {
+                n_obj as u64 + 1
+            } else {
+                0
+            };
+            crate::render::check_limits(sys, &rs, renders, "--spp").map_err(|e| e.to_string())?;
+            let m = crate::matrix::compute_matrix(sys, &rs);
+            computed = TrueMatrix {
+                h: m.h,
+                offset: m.offset,
+                object: m.object,
+                source: "computed".to_string(),
+            };
+            &computed
+        }
+    };
+    let TrueMatrix {
+        h: h_true,
+        offset,
+        object,
+        source: source_desc,
+    } = tm;
+    let object = *object;
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let n = h_true.cols;
+    // The calibration forms every frame value (rows x patterns) in f64, row by row.
+    crate::limits::check_bytes(
+        "--matrix",
+        &format!("the calibration's {} x {n} frame values", h_true.rows),
+        h_true.rows as u128 * n as u128 * 8,
+    )
+    .map_err(|e| format!("{source_desc}: {e}"))?;
+    if !n.is_power_of_two() {
+        return Err(format!(
+            "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
+        ));
+    }
+    let sensor_noise = if job.sensor_noise {
+        let white = h_true.mul_vec(&vec![1.0; n]);
+        let peak = white
+            .iter()
+            .zip(offset)
+            .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
+        if !(peak > 0.0 && peak.is_finite()) {
+            return Err(format!(
+                "{source_desc}: an all-white object gives no light on the sensor, so the exposure cannot be set (use --noise none)"
+            ));
+        }
+        Some(SensorNoise::new(&sys.scene.noise, peak))
+    } else {
+        None
+    };
+    let t0 = Instant::now();
+    let frames: Option<Vec<Vec<f32>>> = if job.render_frames {
+        if object != (sys.display.width_px, sys.display.height_px) {
+            return Err(format!(
+                "--render: the matrix object {}x{} differs from the scene's display target {}x{}",
+                object.0, object.1, sys.display.width_px, sys.display.height_px
+            ));
+        }
+        let bytes = (n as u64 + 1) * h_true.rows as u64 * 4;
+        if bytes > 4 << 30 {
+            return Err(format!(
+                "--render: {} frames of {} values need {:.1} GiB; use a smaller object (display.image=...@16) or crop (sensor.crop_px)",
+                n + 1,
+                h_true.rows,
+                bytes as f64 / f64::from(1u32 << 30)
+            ));
+        }
+        crate::render::check_limits(sys, &rs, n as u64 + 1, "--spp").map_err(|e| e.to_string())?;
+        let pb = crate::progress::Progress::new(job.progress, n as u64 + 1, "calibration frames");
+        let quiet = RenderSettings {
+            progress: false,
+            ..rs.clone()
+        };
+        let fr = render_frames(sys, &quiet, || pb.inc(1));
+        pb.finish_and_clear();
+        Some(fr)
+    } else {
+        None
+    };
+    let render_s = t0.elapsed().as_secs_f64();
+    let source = match &frames {
+        Some(f) => FrameSource::Rendered(f),
+        None => FrameSource::Matrix,
+    };
+    let settings = CalibrationSettings {
+        noise: sensor_noise.clone(),
+        seed: job.seed,
+        dark_frame: job.dark_frame,
+        threshold_sigma: job.threshold_sigma,
+    };
+    let t0 = Instant::now();
+    let calibration =
+        calibrate(h_true, offset, source, &settings).map_err(|e| format!("{source_desc}: {e}"))?;
+    Ok(CalibrationRun {
+        calibration,
+        object,
+        source: source_desc.clone(),
+        noise: sensor_noise,
+        matrix_s,
+        render_s,
+        calibrate_s: t0.elapsed().as_secs_f64(),
+    })
 }

@@ -3,7 +3,6 @@
 //! nothing is written to `--out` unless the whole job succeeded (the one exception:
 //! `matrix --check` writes H and then exits 1 if the check fails, so the files can be inspected).
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -140,46 +139,10 @@ enum Command {
         #[arg(long, default_value_t = stscam::hadamard::DEFAULT_THRESHOLD_SIGMA)]
         threshold_sigma: f64,
     },
-    /// Reconstruct the object from a capture: DIR/recon.{exr,png,json}.
-    Reconstruct {
-        /// System matrix (scipy CSR .npz); its offset.npy is used when present.
-        #[arg(long)]
-        matrix: PathBuf,
-        /// Capture: EXR (channels in H's row order) or float .npy.
-        #[arg(long)]
-        capture: PathBuf,
-        /// Method.
-        #[arg(long, value_enum, default_value = "admm-tv")]
-        method: MethodArg,
-        /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see the README).
-        #[arg(long)]
-        iters: Option<usize>,
-        /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free).
-        #[arg(long, default_value_t = stscam::recon::admm::DEFAULT_TAU_REL)]
-        tau: f64,
-        /// Total variation.
-        #[arg(long, value_enum, default_value = "iso")]
-        tv: TvArg,
-        /// Object shape WxH (default: from H.json, else square).
-        #[arg(long, value_name = "WxH")]
-        object: Option<String>,
-        /// Offset to subtract from the capture (default: offset.npy beside the matrix, if any).
-        #[arg(long)]
-        offset: Option<PathBuf>,
-        /// Ground truth for PSNR/SSIM: a PNG (display code values), an EXR (linear) or a
-        /// built-in target spec.
-        #[arg(long)]
-        truth: Option<String>,
-        /// Display gamma used to linearise a PNG or built-in truth.
-        #[arg(long, default_value_t = 2.2)]
-        gamma: f64,
-        /// Output directory.
-        #[arg(long, default_value = "out/reconstruct")]
-        out: PathBuf,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-    },
+    /// Reconstruct the object from a capture with H (CGM or ADMM-TV), or with a depth stack
+    /// (`H_stack.npz` from `matrix --depth-mm D1,D2,…`): joint multi-depth ADMM-TV or depth
+    /// estimation.
+    Reconstruct(ReconArgs),
     /// The paper's experiment end to end: targets, captures, H, calibration, CGM and ADMM-TV,
     /// a table like its Table 1 and a figure like its Fig. 9.
     Demo {
@@ -324,12 +287,62 @@ enum NoiseArg {
     None,
 }
 
+/// `stscam reconstruct`'s arguments.
+#[derive(Args, Debug)]
+struct ReconArgs {
+    /// System matrix (scipy CSR .npz); its offset.npy is used when present. A depth stack's
+    /// H_stack.npz (its H_stack.json lists the depths) selects the stack methods.
+    #[arg(long)]
+    matrix: PathBuf,
+    /// Capture: EXR (channels in H's row order) or float .npy.
+    #[arg(long)]
+    capture: PathBuf,
+    /// Method (default: admm-tv with one H, joint with a depth stack).
+    #[arg(long, value_enum)]
+    method: Option<MethodArg>,
+    /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see the README).
+    #[arg(long)]
+    iters: Option<usize>,
+    /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free).
+    #[arg(long, default_value_t = stscam::recon::admm::DEFAULT_TAU_REL)]
+    tau: f64,
+    /// Joint: weight μ of the group sparsity across depth, relative to ‖Hᵀg‖_∞.
+    #[arg(long, default_value_t = stscam::recon::joint::DEFAULT_MU_REL)]
+    mu: f64,
+    /// Total variation.
+    #[arg(long, value_enum, default_value = "iso")]
+    tv: TvArg,
+    /// Object shape WxH (default: from H.json, else square).
+    #[arg(long, value_name = "WxH")]
+    object: Option<String>,
+    /// Offset to subtract from the capture (default: offset.npy beside the matrix, if any).
+    #[arg(long)]
+    offset: Option<PathBuf>,
+    /// Ground truth for PSNR/SSIM: a PNG (display code values), an EXR (linear) or a
+    /// built-in target spec.
+    #[arg(long)]
+    truth: Option<String>,
+    /// Display gamma used to linearise a PNG or built-in truth.
+    #[arg(long, default_value_t = 2.2)]
+    gamma: f64,
+    /// Output directory.
+    #[arg(long, default_value = "out/reconstruct")]
+    out: PathBuf,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
 enum MethodArg {
     /// Conjugate gradients on the normal equations (the paper's CGM).
     Cg,
     /// ADMM with total variation.
     AdmmTv,
+    /// Depth stack: joint multi-depth ADMM-TV with a sparsity prior across depth.
+    Joint,
+    /// Depth stack: estimate the depth of one planar object, then ADMM-TV at that depth.
+    Depth,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
@@ -430,6 +443,18 @@ enum BenchCommand {
     },
 }
 
+/// Most timed runs of a benchmark figure (`bench recon --runs`).
+const MAX_RUNS: usize = 1000;
+
+/// Longest time budget per estimator of `bench render` (`--budget-s`): one day.
+const MAX_BUDGET_S: f64 = 86_400.0;
+
+/// Most field angles of `validate analytic --fields`.
+const MAX_FIELDS: usize = 100_000;
+
+/// Most iterations of `reconstruct --iters`.
+const MAX_ITERS: usize = 1_000_000;
+
 /// A CLI failure: exit code and one line.
 struct Failure {
     code: u8,
@@ -443,6 +468,11 @@ fn bad_input(message: impl Into<String>) -> Failure {
     }
 }
 
+/// A job beyond a resource limit: bad input.
+fn limit(e: stscam::limits::LimitError) -> Failure {
+    bad_input(e.to_string())
+}
+
 fn load(args: &SceneArgs) -> Result<(LoadedScene, System), Failure> {
     let ls = load_scene(args.scene.as_deref(), &args.set).map_err(|e| bad_input(e.to_string()))?;
     let sys = System::build(&ls).map_err(|e| bad_input(e.to_string()))?;
@@ -452,9 +482,7 @@ fn load(args: &SceneArgs) -> Result<(LoadedScene, System), Failure> {
 fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, Failure> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
-        if t == 0 {
-            return Err(bad_input("--threads: must be at least 1"));
-        }
+        stscam::limits::check_threads(t).map_err(limit)?;
         b = b.num_threads(t);
     }
     b.build().map_err(|e| Failure {
@@ -490,13 +518,7 @@ fn cmd_render(
     }
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
-    let sm = &sys.scene.sampling;
-    let bins = spectral.then(|| {
-        // Bins of about 10 nm that tile the band exactly.
-        let band = sm.lambda_max_nm - sm.lambda_min_nm;
-        let n = (band / 10.0).round().max(1.0) as usize;
-        (sm.lambda_min_nm, band / n as f64, n)
-    });
+    let bins = spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling));
     let settings = RenderSettings {
         spp,
         seed,
@@ -505,8 +527,13 @@ fn cmd_render(
             SamplerArg::Independent => SamplerKind::Independent,
         },
         spectral_bins: bins,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
+    if let (Some((fw, fh)), true) = (frontal_size, sys.world.is_some()) {
+        stscam::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
+            .map_err(limit)?;
+    }
     let t0 = Instant::now();
     let cap = pool.install(|| render(&sys, &settings));
     let render_s = t0.elapsed().as_secs_f64();
@@ -745,17 +772,21 @@ fn cmd_matrix(
     let pool = thread_pool(threads)?;
     let (ls, mut sys) = pool.install(|| load(scene))?;
     if let Some(DepthSpec::Single(d)) = spec {
-        sys.display.z_mm = -d;
+        stscam::matrix::place_object(&mut sys, d);
     }
     let settings = RenderSettings {
         spp,
         seed,
         sampler: SamplerKind::Lattice,
         spectral_bins: None,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
+    warn_coverage(&sys, "");
     if let Some(DepthSpec::Stack(depths)) = &spec {
-        return matrix_stack(&ls, scene, &sys, &settings, &pool, depths, check, out, start);
+        return matrix_stack(
+            &ls, scene, &sys, &settings, &pool, depths, check, out, start,
+        );
     }
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &settings));
@@ -823,8 +854,7 @@ fn matrix_stack(
         STACK_MATRIX, STACK_OFFSET, STACK_SIDECAR, coverage, depth_file_names, layered_offset,
     };
     let t0 = Instant::now();
-    let stack =
-        pool.install(|| stscam::matrix::compute_matrix_stack(sys, settings, depths));
+    let stack = pool.install(|| stscam::matrix::compute_matrix_stack(sys, settings, depths));
     let matrix_s = t0.elapsed().as_secs_f64();
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut per_depth = Vec::new();
@@ -856,7 +886,8 @@ fn matrix_stack(
         let dir = out.to_path_buf();
         files.push((
             names[0].clone(),
-            m.h.encode_npz(&dir.join(&names[0])).map_err(write_failure)?,
+            m.h.encode_npz(&dir.join(&names[0]))
+                .map_err(write_failure)?,
         ));
         files.push((
             names[1].clone(),
@@ -914,7 +945,9 @@ fn matrix_stack(
     });
     files.push((
         STACK_MATRIX.to_string(),
-        block.encode_npz(&out.join(STACK_MATRIX)).map_err(write_failure)?,
+        block
+            .encode_npz(&out.join(STACK_MATRIX))
+            .map_err(write_failure)?,
     ));
     files.push((
         STACK_OFFSET.to_string(),
@@ -963,6 +996,7 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     let values: Vec<f64> = if is_npy {
         let (_, v) = stscam::io::npz::read_npy_f32(path).map_err(|e| bad_input(e.to_string()))?;
+        stscam::io::check_finite(path, "value", &v).map_err(|e| bad_input(e.to_string()))?;
         v.into_iter().map(f64::from).collect()
     } else {
         let (_, _, chans) = stscam::io::read_exr(path).map_err(|e| bad_input(e.to_string()))?;
@@ -971,6 +1005,8 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         let mut v = Vec::new();
         for name in order {
             if let Some(c) = chans.iter().find(|c| c.name == name) {
+                stscam::io::check_finite(path, &format!("channel {name}: value"), &c.data)
+                    .map_err(|e| bad_input(e.to_string()))?;
                 v.extend(c.data.iter().map(|&x| f64::from(x)));
             }
         }
@@ -982,20 +1018,16 @@ fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> {
         }
         v
     };
-    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-        return Err(bad_input(format!(
-            "{}: value {i} is not a finite number",
-            path.display()
-        )));
-    }
     Ok(values)
 }
 
 /// Linear intensities of a truth image or built-in target.
 fn load_truth(spec: &str, gamma: f64, w: usize, h: usize) -> Result<Vec<f64>, Failure> {
     let (tw, th, v) = if stscam::system::is_image_path(spec) {
-        let img = stscam::io::load_image(std::path::Path::new(spec))
-            .map_err(|e| bad_input(e.to_string()))?;
+        let path = std::path::Path::new(spec);
+        let img = stscam::io::load_image(path).map_err(|e| bad_input(e.to_string()))?;
+        stscam::io::check_finite(path, "value", &img.values)
+            .map_err(|e| bad_input(format!("--truth: {e}")))?;
         let v =
             stscam::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
         (img.width, img.height, v)
@@ -1026,7 +1058,7 @@ fn cmd_calibrate(
     threshold_sigma: f64,
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
-    use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate};
+    use stscam::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
     let start = Instant::now();
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(bad_input(
@@ -1036,112 +1068,38 @@ fn cmd_calibrate(
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
-    let progress = std::io::stderr().is_terminal();
-    let rs = RenderSettings {
-        spp,
-        seed,
-        sampler: SamplerKind::Lattice,
-        spectral_bins: None,
-        progress,
-    };
-    let n_obj = sys.display.width_px * sys.display.height_px;
-    let t0 = Instant::now();
-    let (h_true, offset, object, source_desc) = match matrix {
+    let matrix = match matrix {
         Some(p) => {
             let shape = object.map(parse_object).transpose()?;
-            let lm = stscam::matrix::load_matrix(p, shape, None)
-                .map_err(|e| bad_input(e.to_string()))?;
-            if lm.offset.is_none() {
+            let (m, offset_found) =
+                TrueMatrix::load(p, shape).map_err(|e| bad_input(e.to_string()))?;
+            if !offset_found {
                 eprintln!(
                     "warning: no {} beside {}: the offset (all-black capture) is taken as 0",
                     stscam::matrix::default_offset_path(p).display(),
                     p.display()
                 );
             }
-            let off = lm.offset.unwrap_or_else(|| vec![0.0; lm.h.rows]);
-            (lm.h, off, lm.object, p.display().to_string())
+            Some(m)
         }
-        None => {
-            if !n_obj.is_power_of_two() {
-                return Err(bad_input(format!(
-                    "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
-                    sys.display.width_px, sys.display.height_px
-                )));
-            }
-            let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
-            (m.h, m.offset, m.object, "computed".to_string())
-        }
+        None => None,
     };
-    let matrix_s = t0.elapsed().as_secs_f64();
-    let n = h_true.cols;
-    if !n.is_power_of_two() {
-        return Err(bad_input(format!(
-            "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
-        )));
-    }
-    let sensor_noise = if noise == NoiseArg::Sensor {
-        let white = pool.install(|| h_true.mul_vec(&vec![1.0; n]));
-        let peak = white
-            .iter()
-            .zip(&offset)
-            .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
-        if !(peak > 0.0 && peak.is_finite()) {
-            return Err(bad_input(format!(
-                "{source_desc}: an all-white object gives no light on the sensor, so the exposure cannot be set (use --noise none)"
-            )));
-        }
-        Some(stscam::noise::SensorNoise::new(&sys.scene.noise, peak))
-    } else {
-        None
-    };
-    let t0 = Instant::now();
-    let frames: Option<Vec<Vec<f32>>> = if render_frames {
-        if object != (sys.display.width_px, sys.display.height_px) {
-            return Err(bad_input(format!(
-                "--render: the matrix object {}x{} differs from the scene's display target {}x{}",
-                object.0, object.1, sys.display.width_px, sys.display.height_px
-            )));
-        }
-        let bytes = (n as u64 + 1) * h_true.rows as u64 * 4;
-        if bytes > 4 << 30 {
-            return Err(bad_input(format!(
-                "--render: {} frames of {} values need {:.1} GiB; use a smaller object (display.image=...@16) or crop (sensor.crop_px)",
-                n + 1,
-                h_true.rows,
-                bytes as f64 / f64::from(1u32 << 30)
-            )));
-        }
-        let pb = if progress {
-            indicatif::ProgressBar::new(n as u64 + 1)
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
-        let quiet = RenderSettings {
-            progress: false,
-            ..rs.clone()
-        };
-        let fr = pool.install(|| stscam::hadamard::render_frames(&sys, &quiet, || pb.inc(1)));
-        pb.finish_and_clear();
-        Some(fr)
-    } else {
-        None
-    };
-    let render_s = t0.elapsed().as_secs_f64();
-    let source = match &frames {
-        Some(f) => FrameSource::Rendered(f),
-        None => FrameSource::Matrix,
-    };
-    let settings = CalibrationSettings {
-        noise: sensor_noise.clone(),
+    let job = CalibrationJob {
+        matrix,
+        spp,
         seed,
+        sensor_noise: noise == NoiseArg::Sensor,
         dark_frame,
+        render_frames,
         threshold_sigma,
+        progress: true,
     };
-    let t0 = Instant::now();
-    let cal = pool
-        .install(|| calibrate(&h_true, &offset, source, &settings))
-        .map_err(|e| bad_input(format!("{source_desc}: {e}")))?;
-    let calibrate_s = t0.elapsed().as_secs_f64();
+    let run = pool
+        .install(|| calibrate_scene(&sys, &job))
+        .map_err(bad_input)?;
+    let (cal, object, source_desc, sensor_noise) =
+        (&run.calibration, run.object, &run.source, &run.noise);
+    let (matrix_s, render_s, calibrate_s) = (run.matrix_s, run.render_s, run.calibrate_s);
     let npz = cal
         .h_est
         .encode_npz(&out.join("H_est.npz"))
@@ -1197,35 +1155,93 @@ fn cmd_calibrate(
 }
 
 #[allow(clippy::too_many_arguments)]
-fn cmd_reconstruct(
-    matrix: &std::path::Path,
-    capture: &std::path::Path,
-    method: MethodArg,
-    iters: Option<usize>,
-    tau: f64,
-    tv: TvArg,
-    object: Option<&str>,
-    offset: Option<&std::path::Path>,
-    truth: Option<&str>,
-    gamma: f64,
-    out: &std::path::Path,
-    threads: Option<usize>,
-) -> Result<(), Failure> {
-    use stscam::recon::{Problem, admm, cg};
+fn cmd_reconstruct(a: &ReconArgs) -> Result<(), Failure> {
+    use stscam::recon::{Method, Problem, Solution, SolveOptions, admm};
+    let ReconArgs {
+        matrix,
+        capture,
+        method,
+        iters,
+        tau,
+        mu,
+        tv,
+        object,
+        offset,
+        truth,
+        gamma,
+        out,
+        threads,
+    } = a;
+    let (matrix, capture, out) = (matrix.as_path(), capture.as_path(), out.as_path());
+    let (iters, tau, gamma) = (*iters, *tau, *gamma);
+    let (object, offset, truth) = (object.as_deref(), offset.as_deref(), truth.as_deref());
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(bad_input(format!(
             "--tau {tau}: must be a non-negative number"
         )));
     }
+    if !(mu.is_finite() && *mu >= 0.0) {
+        return Err(bad_input(format!(
+            "--mu {mu}: must be a non-negative number"
+        )));
+    }
     if !(gamma.is_finite() && gamma > 0.0) {
         return Err(bad_input(format!("--gamma {gamma}: must be positive")));
     }
-    if iters == Some(0) {
-        return Err(bad_input("--iters: must be at least 1"));
+    if let Some(n) = iters
+        && !(1..=MAX_ITERS).contains(&n)
+    {
+        return Err(bad_input(format!(
+            "--iters: must be in 1..={MAX_ITERS}, got {n}"
+        )));
+    }
+    let stack = stscam::stack::is_stack(matrix);
+    let method = match (method, stack) {
+        (None, false) => MethodArg::AdmmTv,
+        (None, true) => MethodArg::Joint,
+        (Some(m @ (MethodArg::Joint | MethodArg::Depth)), false) => {
+            return Err(bad_input(format!(
+                "{}: --method {}: needs a depth stack (H_stack.npz from matrix --depth-mm D1,D2,...)",
+                matrix.display(),
+                if *m == MethodArg::Joint {
+                    "joint"
+                } else {
+                    "depth"
+                }
+            )));
+        }
+        (Some(m @ (MethodArg::Cg | MethodArg::AdmmTv)), true) => {
+            return Err(bad_input(format!(
+                "{}: --method {}: a depth stack takes --method joint or depth (or pass one depth's H_<D>mm.npz)",
+                matrix.display(),
+                if *m == MethodArg::Cg { "cg" } else { "admm-tv" }
+            )));
+        }
+        (Some(m), _) => *m,
+    };
+    let tv = if *tv == TvArg::Iso {
+        admm::TvKind::Iso
+    } else {
+        admm::TvKind::Aniso
+    };
+    if stack {
+        let opts = stscam::recon::layered::StackOptions {
+            method: if method == MethodArg::Joint {
+                stscam::recon::layered::StackMethod::Joint
+            } else {
+                stscam::recon::layered::StackMethod::Depth
+            },
+            iters,
+            tau_rel: tau,
+            mu_rel: *mu,
+            tv,
+            ..Default::default()
+        };
+        return reconstruct_stack(matrix, capture, offset, truth, gamma, out, *threads, &opts);
     }
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
-    let pool = thread_pool(threads)?;
+    let pool = thread_pool(*threads)?;
     let lm = stscam::matrix::load_matrix(matrix, object, offset)
         .map_err(|e| bad_input(e.to_string()))?;
     let mut g = load_capture(capture)?;
@@ -1245,36 +1261,30 @@ fn cmd_reconstruct(
     }
     let (w, h) = lm.object;
     let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    stscam::limits::check_bytes(
+        "--matrix",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stscam::recon::setup_bytes_bound(&lm.h, pool.current_num_threads()),
+    )
+    .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
     let t0 = Instant::now();
     let problem = pool.install(|| Problem::new(&lm.h, w, h));
     let setup_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let (f, info) = pool.install(|| {
-        let htg = problem.back_project(&g);
-        match method {
-            MethodArg::Cg => {
-                let set = cg::CgSettings {
-                    iters: iters.unwrap_or(stscam::recon::cg::DEFAULT_CG_ITERS),
-                    tol: 0.0,
-                };
-                let r = cg::cg_normal(&problem, &htg, &set);
-                let info = serde_json::json!({"method": "cg", "iterations": r.iterations, "relative_residual": r.relative_residual});
-                (r.f, info)
-            }
-            MethodArg::AdmmTv => {
-                let set = admm::AdmmSettings {
-                    iters: iters.unwrap_or(50),
-                    tau_rel: tau,
-                    tv: if tv == TvArg::Iso { admm::TvKind::Iso } else { admm::TvKind::Aniso },
-                    ..Default::default()
-                };
-                let r = admm::admm_tv(&problem, &htg, &set);
-                let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": tau, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
-                (r.f, info)
-            }
-        }
-    });
+    let opts = SolveOptions {
+        method: if method == MethodArg::Cg {
+            Method::Cg
+        } else {
+            Method::AdmmTv
+        },
+        iters,
+        tau_rel: tau,
+        tv,
+    };
+    let Solution { f, info } = pool.install(|| stscam::recon::solve(&problem, &g, &opts));
     let solve_s = t0.elapsed().as_secs_f64();
+    // Computed in f64; stored as float32, which must hold every value.
+    check_f32_range(&f, capture, matrix)?;
     let metrics = truth_v.as_ref().map(|t| {
         serde_json::json!({
             "psnr_db": stscam::recon::metrics::psnr(&f, t),
@@ -1328,11 +1338,157 @@ fn cmd_reconstruct(
     Ok(())
 }
 
+/// Refuses a reconstruction f64 → float32 would not hold (H and the capture on incompatible
+/// scales).
+fn check_f32_range(
+    f: &[f64],
+    capture: &std::path::Path,
+    matrix: &std::path::Path,
+) -> Result<(), Failure> {
+    if let Some(i) = f.iter().position(|v| !(v.abs() <= f64::from(f32::MAX))) {
+        return Err(bad_input(format!(
+            "{}: the reconstruction reaches {} at object pixel {i}, outside float32's range (±3.40282e38): H ({}) and the capture are on incompatible scales",
+            capture.display(),
+            stscam::numfmt::sig6(f[i]),
+            matrix.display()
+        )));
+    }
+    Ok(())
+}
+
+/// `reconstruct` with a depth stack: recon_<D>mm.{exr,png} per reconstructed plane and
+/// recon.json (with the depth method also recon.{exr,png}, the plane at the estimated depth).
+#[allow(clippy::too_many_arguments)]
+fn reconstruct_stack(
+    matrix: &std::path::Path,
+    capture: &std::path::Path,
+    offset: Option<&std::path::Path>,
+    truth: Option<&str>,
+    gamma: f64,
+    out: &std::path::Path,
+    threads: Option<usize>,
+    opts: &stscam::recon::layered::StackOptions,
+) -> Result<(), Failure> {
+    use stscam::recon::layered::{StackMethod, solve_stack, stack_setup_bytes};
+    if truth.is_some() && opts.method == StackMethod::Joint {
+        return Err(bad_input(
+            "--truth: compares one plane; with --method joint compare each recon_<D>mm.exr yourself (or use --method depth)",
+        ));
+    }
+    if offset.is_some() && opts.method == StackMethod::Depth {
+        return Err(bad_input(
+            "--offset: the depth method subtracts each depth's own offset_<D>mm.npy; --offset applies to --method joint",
+        ));
+    }
+    check_out_dir(out)?;
+    let pool = thread_pool(threads)?;
+    let ls = stscam::stack::load_stack(matrix, offset).map_err(|e| bad_input(e.to_string()))?;
+    let g = load_capture(capture)?;
+    let rows = ls.blocks[0].rows;
+    if g.len() != rows {
+        return Err(bad_input(format!(
+            "{}: the capture has {} values but {} has {} rows (crop pixels x channels); they must match",
+            capture.display(),
+            g.len(),
+            matrix.display(),
+            rows
+        )));
+    }
+    let (w, h) = ls.object;
+    let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    stscam::limits::check_bytes(
+        "--matrix",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stack_setup_bytes(&ls, opts.method, pool.current_num_threads()),
+    )
+    .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
+    let t0 = Instant::now();
+    let sol = pool
+        .install(|| solve_stack(&ls, &g, opts))
+        .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
+    let time_s = t0.elapsed().as_secs_f64();
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+    let mut planes = Vec::new();
+    for (d, f) in &sol.planes {
+        check_f32_range(f, capture, matrix)?;
+        let label = stscam::stack::depth_label(*d);
+        let exr = stscam::output::encode_object_exr(f, w, h, &[]).map_err(write_failure)?;
+        let png = stscam::output::encode_object_png(f, w, h, gamma).map_err(write_failure)?;
+        files.push((format!("recon_{label}mm.exr"), exr));
+        files.push((format!("recon_{label}mm.png"), png));
+        planes.push(serde_json::json!({"depth_mm": d, "exr": format!("recon_{label}mm.exr"), "png": format!("recon_{label}mm.png")}));
+    }
+    let metrics = truth_v.as_ref().map(|t| {
+        let f = &sol.planes[0].1;
+        serde_json::json!({
+            "psnr_db": stscam::recon::metrics::psnr(f, t),
+            "ssim": stscam::recon::metrics::ssim(f, t, w, h),
+            "normalisation": "linear object intensity in [0,1], reconstruction at the estimated depth clipped to [0,1]; PSNR peak 1",
+        })
+    });
+    if let Some(est) = &sol.estimate {
+        let f = &sol.planes[0].1;
+        files.push((
+            "recon.exr".into(),
+            stscam::output::encode_object_exr(f, w, h, &[]).map_err(write_failure)?,
+        ));
+        files.push((
+            "recon.png".into(),
+            stscam::output::encode_object_png(f, w, h, gamma).map_err(write_failure)?,
+        ));
+        eprintln!(
+            "estimated depth {} mm (refined {:.1} mm, confidence {:.3}) over {} depths",
+            stscam::numfmt::sig6(est.depth_mm),
+            est.refined_depth_mm,
+            est.confidence,
+            est.depths_mm.len()
+        );
+    }
+    let json = serde_json::json!({
+        "stscam_version": stscam::VERSION,
+        "command": "reconstruct",
+        "matrix": matrix.display().to_string(),
+        "capture": capture.display().to_string(),
+        "object_px": [w, h],
+        "depths_mm": ls.depths_mm,
+        "solver": sol.info,
+        "planes": planes,
+        "time_s": time_s,
+        "metrics": metrics,
+        "units": "linear object intensity (0 = black, 1 = white display pixel)",
+    });
+    files.push((
+        "recon.json".into(),
+        serde_json::to_vec_pretty(&json).map_err(write_failure)?,
+    ));
+    write_files(out, &files)?;
+    eprintln!(
+        "wrote {}: {} plane(s) of {}x{}, {:.2} s",
+        out.display(),
+        sol.planes.len(),
+        w,
+        h,
+        time_s
+    );
+    Ok(())
+}
+
+/// Warns on stderr when part of the object has no strong replica inside the crop
+/// (`analysis::object_coverage`); `what` names the scene in the message.
+fn warn_coverage(sys: &System, what: &str) {
+    if !sys.scene.display.enabled {
+        return;
+    }
+    if let Some(w) = analysis::object_coverage(sys).warning() {
+        eprintln!("{what}{w}");
+    }
+}
+
 fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
     check_out_dir(out)?;
     let pool = thread_pool(threads)?;
-    let (_, sys) = pool.install(|| load(scene))?;
+    let (_, mut sys) = pool.install(|| load(scene))?;
     let set = stscam::demo::DemoSettings {
         spp,
         seed,
@@ -1341,8 +1497,29 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
             tol: 0.0,
         },
         admm: stscam::recon::admm::AdmmSettings::default(),
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
+    // H and one capture per target.
+    let renders = 1 + stscam::demo::DEMO_TARGETS.len() as u64;
+    stscam::render::check_limits(
+        &sys,
+        &RenderSettings::lattice(spp, seed, false),
+        renders,
+        "--spp",
+    )
+    .map_err(limit)?;
+    // The paper's experiment saw the whole target: frame the crop on it when the scene's crop
+    // misses part of it (the embedded paper scene's centred crop loses the bottom rows).
+    if let Some(off) = analysis::framing_offset_px(&sys) {
+        let mut framed = scene.clone();
+        let set = format!("sensor.crop_offset_px=[{},{}]", off[0], off[1]);
+        eprintln!(
+            "demo: the scene's crop misses part of the object; framing it with --set {set} (the crop moved onto the strongest replica of the display centre)"
+        );
+        framed.set.push(set);
+        sys = pool.install(|| load(&framed))?.1;
+    }
+    warn_coverage(&sys, "");
     let res = pool
         .install(|| stscam::demo::run_demo(&sys, &set))
         .map_err(bad_input)?;
@@ -1361,7 +1538,10 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
 
 fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
     use stscam::dataset::{RunOptions, Shard, generate, merge, plan};
-    let fail = |e: stscam::dataset::DatasetError| bad_input(e.to_string());
+    let fail = |e: stscam::dataset::DatasetError| match e {
+        stscam::dataset::DatasetError::Write(_) => write_failure(e),
+        _ => bad_input(e.to_string()),
+    };
     if let Some(DatasetCommand::Merge {
         shards,
         out,
@@ -1400,7 +1580,7 @@ fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
         out: out.clone(),
         shard,
         resume: args.resume,
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
     };
     let s = pool.install(|| generate(&p, &opts)).map_err(fail)?;
     eprintln!(
@@ -1418,6 +1598,9 @@ fn cmd_dataset(args: &DatasetArgs) -> Result<(), Failure> {
         s.finish_s,
         pool.current_num_threads()
     );
+    for sc in &p.scenes {
+        warn_coverage(&sc.system, &format!("{}: ", sc.id));
+    }
     Ok(())
 }
 
@@ -1453,7 +1636,7 @@ fn cmd_sweep(
             spp: psnr_spp,
             ..PsnrSettings::default()
         }),
-        progress: std::io::stderr().is_terminal(),
+        progress: true,
         ..SweepSettings::default()
     };
     let t0 = Instant::now();
@@ -1523,12 +1706,14 @@ fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
 
 /// `stscam bench bvh`: prints the medians over seeds 1..=runs as JSON.
 fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64) -> Result<(), Failure> {
-    if !(1..=50_000_000).contains(&triangles)
-        || !(1..=100_000_000).contains(&rays)
+    // Measured peak: about 300 bytes per triangle (mesh and BVH) and 48 per ray, so the
+    // largest run stays near 4 GiB.
+    if !(1..=10_000_000).contains(&triangles)
+        || !(1..=20_000_000).contains(&rays)
         || !(1..=99).contains(&runs)
     {
         return Err(bad_input(
-            "bench bvh: --triangles must be 1..=50000000, --rays 1..=100000000, --runs 1..=99",
+            "bench bvh: --triangles must be 1..=10000000, --rays 1..=20000000, --runs 1..=99",
         ));
     }
     let results: Vec<_> = (1..=runs)
@@ -1568,8 +1753,10 @@ fn cmd_bench_recon(
     threads: Option<usize>,
 ) -> Result<(), Failure> {
     use stscam::recon::{Problem, admm, cg};
-    if spp == 0 || runs == 0 {
-        return Err(bad_input("--spp and --runs must be at least 1"));
+    if spp == 0 || !(1..=MAX_RUNS).contains(&runs) {
+        return Err(bad_input(format!(
+            "--spp must be at least 1 and --runs in 1..={MAX_RUNS}"
+        )));
     }
     let pool = thread_pool(threads)?;
     let (_, sys) = pool.install(|| load(scene))?;
@@ -1578,8 +1765,9 @@ fn cmd_bench_recon(
         seed: 1,
         sampler: SamplerKind::Lattice,
         spectral_bins: None,
-        progress: false,
+        progress: true,
     };
+    stscam::render::check_limits(&sys, &rs, 1, "--spp").map_err(limit)?;
     let t0 = Instant::now();
     let m = pool.install(|| stscam::matrix::compute_matrix(&sys, &rs));
     let matrix_s = t0.elapsed().as_secs_f64();
@@ -1719,8 +1907,7 @@ fn bench_plot(curves: &[stscam::bench::Curve], target: f64) -> stscam::plot::Lin
 /// Redraws the plots of a finished `bench render` from its JSON (no rendering).
 fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
     let path = dir.join("bench-render.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    let text = stscam::io::read_text(&path).map_err(|e| bad_input(e.to_string()))?;
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
     let target = v["target_relative_rmse"].as_f64().unwrap_or(0.01);
@@ -1783,19 +1970,17 @@ fn cmd_bench_render(
     use stscam::render::Estimator;
     if crop == 0
         || ref_spp == 0
-        || budget_s.is_nan()
-        || budget_s <= 0.0
+        || !(budget_s > 0.0 && budget_s <= MAX_BUDGET_S)
         || !(target > 0.0 && target < 1.0)
     {
-        return Err(bad_input(
-            "--crop, --ref-spp and --budget-s must be positive and --target in (0, 1)",
-        ));
+        return Err(bad_input(format!(
+            "--crop and --ref-spp must be positive, --budget-s in (0, {MAX_BUDGET_S}] and --target in (0, 1)"
+        )));
     }
     check_out_dir(out)?;
     let mut extras: Vec<Curve> = Vec::new();
     for p in extra {
-        let text =
-            std::fs::read_to_string(p).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let text = stscam::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
         let name = v["name"].as_str().unwrap_or("extra").to_string();
@@ -1831,6 +2016,13 @@ fn cmd_bench_render(
         set,
     };
     let (ls, sys) = pool.install(|| load(&args))?;
+    stscam::render::check_limits(
+        &sys,
+        &RenderSettings::lattice(ref_spp, 0, false),
+        1,
+        "--ref-spp",
+    )
+    .map_err(limit)?;
     let t0 = Instant::now();
     let ref_spp = if measure == ErrorMeasure::Halves {
         0
@@ -1848,7 +2040,7 @@ fn cmd_bench_render(
                     seed: 1_000_003,
                     sampler: SamplerKind::Lattice,
                     spectral_bins: None,
-                    progress: std::io::stderr().is_terminal(),
+                    progress: true,
                 },
             )
             .channels
@@ -1876,6 +2068,7 @@ fn cmd_bench_render(
                 budget_s,
                 1 << 20,
                 target,
+                true,
             )
         });
         eprintln!(
@@ -1949,8 +2142,10 @@ fn cmd_validate_analytic(
 ) -> Result<(), Failure> {
     use stscam::analytic::{compare, quantity};
     use stscam::plot::{LinePlot, Series};
-    if fields < 50 {
-        return Err(bad_input("--fields: at least 50"));
+    if !(50..=MAX_FIELDS).contains(&fields) {
+        return Err(bad_input(format!(
+            "--fields: must be in 50..={MAX_FIELDS}, got {fields}"
+        )));
     }
     check_out_dir(out)?;
     let (_, sys) = load(scene)?;
@@ -2100,6 +2295,17 @@ fn cmd_info(scene: &SceneArgs, json: bool) -> Result<(), Failure> {
         "{}",
         fmt_fov("horizontal FOV, capture", &info.fov_horizontal_capture)
     );
+    let cov = &info.object_coverage;
+    match cov.warning() {
+        _ if !sys.scene.display.enabled => {}
+        None => println!(
+            "object ({}x{} px): every row and column seen through a replica with >= {} % of its strongest",
+            cov.object_px[0],
+            cov.object_px[1],
+            cov.strong_fraction * 100.0
+        ),
+        Some(w) => println!("{w}"),
+    }
     Ok(())
 }
 
@@ -2176,12 +2382,18 @@ fn cmd_compare(
     if let Some(path) = map {
         let (x, y) = pairs[0];
         let diff: Vec<f32> = x.iter().zip(y).map(|(p, q)| (p - q).abs()).collect();
-        let png = stscam::io::encode_png16(wa, ha, 1, &stscam::io::preview_u16(&[&diff], 0.999))
-            .map_err(|m| Failure {
-                code: 1,
-                message: m,
-            })?;
-        stscam::io::write_atomic(path, &png).map_err(|e| bad_input(e.to_string()))?;
+        let png = stscam::io::encode_png16(
+            wa,
+            ha,
+            1,
+            &stscam::io::preview_u16(&[&diff], 0.999),
+            stscam::io::PngTransfer::Srgb,
+        )
+        .map_err(|m| Failure {
+            code: 1,
+            message: m,
+        })?;
+        stscam::io::write_atomic(path, &png).map_err(write_failure)?;
     }
     if json {
         println!(
@@ -2194,13 +2406,31 @@ fn cmd_compare(
     Ok(())
 }
 
+/// An argument error as one line (clap's `error:` line) plus its one-line usage hint, if any.
+fn argument_error(rendered: &str) -> String {
+    let lines: Vec<&str> = rendered.lines().map(str::trim).collect();
+    let error = lines
+        .iter()
+        .find(|l| l.starts_with("error:"))
+        .copied()
+        .unwrap_or_else(|| lines.first().copied().unwrap_or("error: bad arguments"));
+    match lines.iter().find(|l| l.starts_with("Usage:")) {
+        Some(usage) => format!("{error}\n{usage}"),
+        None => error.to_string(),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
+        Err(e) if e.use_stderr() => {
+            eprintln!("{}", argument_error(&e.render().to_string()));
+            return ExitCode::from(2);
+        }
         Err(e) => {
-            let code = if e.use_stderr() { 2 } else { 0 };
+            // --help and --version.
             let _ = e.print();
-            return ExitCode::from(code);
+            return ExitCode::SUCCESS;
         }
     };
     let result = match &cli.command {
@@ -2240,33 +2470,7 @@ fn main() -> ExitCode {
             *render,
             *threshold_sigma,
         ),
-        Command::Reconstruct {
-            matrix,
-            capture,
-            method,
-            iters,
-            tau,
-            tv,
-            object,
-            offset,
-            truth,
-            gamma,
-            out,
-            threads,
-        } => cmd_reconstruct(
-            matrix,
-            capture,
-            *method,
-            *iters,
-            *tau,
-            *tv,
-            object.as_deref(),
-            offset.as_deref(),
-            truth.as_deref(),
-            *gamma,
-            out,
-            *threads,
-        ),
+        Command::Reconstruct(args) => cmd_reconstruct(args),
         Command::Demo { scene, out, run } => cmd_demo(scene, out, run),
         Command::Dataset(args) => cmd_dataset(args),
         Command::Sweep {

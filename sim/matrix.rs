@@ -300,6 +300,24 @@ fn matrix_row(
     (acc.into_iter().map(|a| a.block).collect(), stats)
 }
 
+/// Checks a `--depth-mm` value: the object plane must be a positive distance in front of the
+/// plate.
+pub fn check_depth(depth_mm: f64) -> Result<(), String> {
+    if depth_mm.is_finite() && depth_mm > 0.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "--depth-mm {depth_mm}: must be a positive distance"
+        ))
+    }
+}
+
+/// Moves the object (display) plane to `depth_mm` in front of the plate, keeping the camera
+/// focus (`stscam matrix --depth-mm`); check the value with [`check_depth`] first.
+pub fn place_object(sys: &mut System, depth_mm: f64) {
+    sys.display.z_mm = -depth_mm;
+}
+
 /// Computes H and the offset of `sys` for the object size of its display target.
 /// Deterministic for a given seed, whatever the thread count.
 pub fn compute_matrix(sys: &System, set: &RenderSettings) -> SystemMatrix {
@@ -329,9 +347,21 @@ pub fn compute_matrix_stack(
     };
     let pb = row_progress(set.progress, h, &what);
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
     let rows: Vec<(Vec<RowBlock>, RenderStats)> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                let empty = || RowBlock {
+                    counts: vec![vec![0; w]; nch],
+                    entries: vec![(Vec::new(), Vec::new()); nch],
+                    offset: vec![vec![0.0; w]; nch],
+                };
+                return (
+                    depths_mm.iter().map(|_| empty()).collect(),
+                    RenderStats::default(),
+                );
+            }
             let b = matrix_row(sys, set, rule, depths_mm, row);
             pb.inc(1);
             b
@@ -429,12 +459,7 @@ pub fn read_checked_csr(path: &std::path::Path) -> Result<CsrMatrix, crate::io::
         data: parts.data,
     };
     h.check().map_err(|m| IoError::format(path, m))?;
-    if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
-        return Err(IoError::format(
-            path,
-            format!("data.npy: entry {i} is not a finite number"),
-        ));
-    }
+    crate::io::check_finite(path, "data.npy: entry", &h.data)?;
     Ok(h)
 }
 
@@ -450,7 +475,7 @@ pub fn load_matrix(
     use crate::io::IoError;
     let h = read_checked_csr(path)?;
     let sidecar_shape = || -> Option<(usize, usize)> {
-        let text = std::fs::read_to_string(path.with_extension("json")).ok()?;
+        let text = crate::io::read_text(&path.with_extension("json")).ok()?;
         let v: serde_json::Value = serde_json::from_str(&text).ok()?;
         let o = v.get("object_px")?.as_array()?;
         Some((o.first()?.as_u64()? as usize, o.get(1)?.as_u64()? as usize))
@@ -490,6 +515,7 @@ pub fn load_matrix(
     let offset = match &off_path {
         Some(p) => {
             let (_, v) = crate::io::npz::read_npy_f32(p)?;
+            crate::io::check_finite(p, "value", &v)?;
             if v.len() != h.rows {
                 return Err(IoError::format(
                     p,

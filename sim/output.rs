@@ -9,13 +9,13 @@
 use std::path::Path;
 
 use crate::io::{
-    ExrAttr, ExrChannel, IoError, encode_exr, encode_png16, preview_u16, spectral_channel_name,
-    write_all_atomic,
+    ExrAttr, ExrChannel, IoError, PngTransfer, encode_exr, encode_png16, preview_u16,
+    spectral_channel_name, write_all_atomic,
 };
 use crate::render::Capture;
 
 /// What one pixel value means (recorded in the EXR header and the JSON sidecar).
-pub const CAPTURE_UNITS: &str = "relative irradiance: 1 = a white display pixel seen by an on-axis pixel through lossless optics with a vanishing aperture (flat spectrum and response); the finite aperture and the field angle add the cos^4 falloff";
+pub const CAPTURE_UNITS: &str = "relative irradiance: 1 = a white display pixel seen by an on-axis pixel through lossless optics with a vanishing aperture (flat spectrum and response); the finite aperture and the field angle add the cos^4 falloff. Spectral channels S0.<nm> (--spectral) hold the same relative quantity per nm, before the sensor response (no absolute W.m^-2.sr^-1.nm^-1)";
 
 /// EXR channels from names and data (cloned).
 fn named_channels(names: &[&str], data: &[Vec<f32>]) -> Vec<ExrChannel> {
@@ -74,7 +74,13 @@ pub fn encode_capture_exr(
 pub fn encode_capture_png(cap: &Capture) -> Result<Vec<u8>, String> {
     let refs: Vec<&[f32]> = cap.channels.iter().map(|c| c.as_slice()).collect();
     let samples = preview_u16(&refs, 0.999);
-    encode_png16(cap.width, cap.height, refs.len(), &samples)
+    encode_png16(
+        cap.width,
+        cap.height,
+        refs.len(),
+        &samples,
+        PngTransfer::Srgb,
+    )
 }
 
 /// Writes `capture.exr`, `capture.png` and `capture.json` into `dir` (created if needed).
@@ -128,8 +134,14 @@ pub fn write_capture_with(
         let fexr = encode_exr(f.width, f.height, chans, &attrs(FRONTAL_UNITS))
             .map_err(fmt_err(dir.join("frontal.exr")))?;
         let refs: Vec<&[f32]> = f.channels.iter().map(|c| c.as_slice()).collect();
-        let fpng = encode_png16(f.width, f.height, refs.len(), &preview_u16(&refs, 0.999))
-            .map_err(fmt_err(dir.join("frontal.png")))?;
+        let fpng = encode_png16(
+            f.width,
+            f.height,
+            refs.len(),
+            &preview_u16(&refs, 0.999),
+            PngTransfer::Srgb,
+        )
+        .map_err(fmt_err(dir.join("frontal.png")))?;
         let dexr = encode_exr(
             f.width,
             f.height,
@@ -140,8 +152,8 @@ pub fn write_capture_with(
             &attrs("distance from the plate's front face along -z, mm; +inf where nothing is hit"),
         )
         .map_err(fmt_err(dir.join("depth.exr")))?;
-        let mpng =
-            encode_png16(f.width, f.height, 1, &f.mask).map_err(fmt_err(dir.join("mask.png")))?;
+        let mpng = encode_png16(f.width, f.height, 1, &f.mask, PngTransfer::Labels)
+            .map_err(fmt_err(dir.join("mask.png")))?;
         files.push(("frontal.exr", fexr));
         files.push(("frontal.png", fpng));
         files.push(("depth.exr", dexr));
@@ -184,7 +196,7 @@ pub fn encode_object_png(
         .iter()
         .map(|&v| (v.clamp(0.0, 1.0).powf(1.0 / gamma) * 65535.0).round() as u16)
         .collect();
-    encode_png16(width, height, 1, &samples)
+    encode_png16(width, height, 1, &samples, PngTransfer::DisplayGamma(gamma))
 }
 
 /// Encodes object intensities as a linear float32 EXR with one `Y` channel (not clipped).

@@ -39,6 +39,69 @@ const LEFT: f64 = 90.0;
 const RIGHT: f64 = 200.0;
 const TOP: f64 = 40.0;
 const BOTTOM: f64 = 60.0;
+/// Dash pattern (on, off, … in px; empty = solid) of series i: with the colour, the marker
+/// and a line width that shrinks with i (earlier curves drawn wider, underneath), curves that
+/// coincide stay distinguishable.
+const DASHES: [&[f64]; 4] = [&[], &[10.0, 5.0], &[3.0, 4.0], &[10.0, 4.0, 3.0, 4.0]];
+/// PNG label font: pixels per character at scale 1 (5 + 1 spacing).
+const CHAR_PX: f64 = 6.0;
+/// Characters of a legend line that fit the right margin at scale 1.
+const LEGEND_CHARS: usize = ((RIGHT - 40.0) / CHAR_PX) as usize;
+
+/// Marker shapes, by series index.
+#[derive(Clone, Copy)]
+enum Marker {
+    Disc,
+    Square,
+    Triangle,
+    Diamond,
+}
+
+fn series_style(i: usize, n: usize) -> ((u8, u8, u8), &'static [f64], Marker, f64) {
+    let marker = [
+        Marker::Disc,
+        Marker::Square,
+        Marker::Triangle,
+        Marker::Diamond,
+    ][i % 4];
+    let width = 2.0 + 2.0 * (n.saturating_sub(1 + i)).min(3) as f64;
+    (
+        COLOURS[i % COLOURS.len()],
+        DASHES[i % DASHES.len()],
+        marker,
+        width,
+    )
+}
+
+/// Splits `text` into lines of at most `max` characters, at spaces where possible.
+fn wrap(text: &str, max: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut cur = String::new();
+    for word in text.split(' ') {
+        let mut word = word.to_string();
+        while word.chars().count() > max {
+            if !cur.is_empty() {
+                lines.push(std::mem::take(&mut cur));
+            }
+            let head: String = word.chars().take(max).collect();
+            word = word.chars().skip(max).collect();
+            lines.push(head);
+        }
+        if cur.is_empty() {
+            cur = word;
+        } else if cur.chars().count() + 1 + word.chars().count() <= max {
+            cur.push(' ');
+            cur.push_str(&word);
+        } else {
+            lines.push(std::mem::replace(&mut cur, word));
+        }
+    }
+    if !cur.is_empty() || lines.is_empty() {
+        lines.push(cur);
+    }
+    lines
+}
+
 const COLOURS: [(u8, u8, u8); 6] = [
     (31, 119, 180),
     (214, 39, 40),
@@ -170,12 +233,27 @@ impl LinePlot {
             r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="13">"#
         );
         let _ = write!(s, r#"<rect width="{W}" height="{H}" fill="white"/>"#);
-        let _ = write!(
-            s,
-            r#"<text x="{}" y="24" text-anchor="middle" font-size="16">{}</text>"#,
-            (x0 + x1) / 2.0,
-            esc(&self.title)
-        );
+        // Title: 16 px when it fits (about 0.55 em per character), else 12 px, wrapped.
+        let fit16 = ((W as f64 - 20.0) / (0.55 * 16.0)) as usize;
+        if self.title.chars().count() <= fit16 {
+            let _ = write!(
+                s,
+                r#"<text x="{}" y="22" text-anchor="middle" font-size="16">{}</text>"#,
+                W as f64 / 2.0,
+                esc(&self.title)
+            );
+        } else {
+            let fit12 = ((W as f64 - 20.0) / (0.55 * 12.0)) as usize;
+            for (k, line) in wrap(&self.title, fit12).iter().take(2).enumerate() {
+                let _ = write!(
+                    s,
+                    r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">{}</text>"#,
+                    W as f64 / 2.0,
+                    14.0 + 13.0 * k as f64,
+                    esc(line)
+                );
+            }
+        }
         for v in ax.ticks() {
             if let Some((px, _)) = Self::to_px(
                 &ax,
@@ -252,42 +330,97 @@ impl LinePlot {
                 esc(label)
             );
         }
+        let n = self.series.len();
+        let mut ly = y0 + 10.0;
         for (i, ser) in self.series.iter().enumerate() {
-            let (r, g, b) = COLOURS[i % COLOURS.len()];
+            let ((r, g, b), dash, marker, width) = series_style(i, n);
+            let dash_attr = if dash.is_empty() {
+                String::new()
+            } else {
+                let d: Vec<String> = dash.iter().map(|v| v.to_string()).collect();
+                format!(r#" stroke-dasharray="{}""#, d.join(" "))
+            };
+            let mark = |s: &mut String, px: f64, py: f64| {
+                let fill = format!("rgb({r},{g},{b})");
+                let _ = match marker {
+                    Marker::Disc => write!(
+                        s,
+                        r#"<circle cx="{px:.1}" cy="{py:.1}" r="3.5" fill="{fill}"/>"#
+                    ),
+                    Marker::Square => write!(
+                        s,
+                        r#"<rect x="{:.1}" y="{:.1}" width="7" height="7" fill="{fill}"/>"#,
+                        px - 3.5,
+                        py - 3.5
+                    ),
+                    Marker::Triangle => write!(
+                        s,
+                        r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
+                        px,
+                        py - 4.5,
+                        px - 4.0,
+                        py + 3.5,
+                        px + 4.0,
+                        py + 3.5
+                    ),
+                    Marker::Diamond => write!(
+                        s,
+                        r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
+                        px,
+                        py - 4.5,
+                        px + 4.5,
+                        py,
+                        px,
+                        py + 4.5,
+                        px - 4.5,
+                        py
+                    ),
+                };
+            };
             let mut d = String::new();
             let mut pen_up = true;
+            let mut marks = String::new();
             for &p in &ser.points {
                 match Self::to_px(&ax, &ay, p) {
                     Some((px, py)) => {
                         let _ = write!(d, "{}{px:.1},{py:.1} ", if pen_up { "M" } else { "L" });
                         pen_up = false;
-                        let _ = write!(
-                            s,
-                            r#"<circle cx="{px:.1}" cy="{py:.1}" r="3" fill="rgb({r},{g},{b})"/>"#
-                        );
+                        mark(&mut marks, px, py);
                     }
                     None => pen_up = true,
                 }
             }
             let _ = write!(
                 s,
-                r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="2"/>"#,
+                r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="{width}"{dash_attr}/>"#,
                 d.trim_end()
             );
-            let ly = y0 + 10.0 + 20.0 * i as f64;
+            s.push_str(&marks);
             let _ = write!(
                 s,
-                r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"/>"#,
-                x1 + 10.0,
-                x1 + 30.0
+                r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"{dash_attr}/>"#,
+                x1 + 8.0,
+                x1 + 32.0
             );
+            mark(&mut s, x1 + 20.0, ly);
+            // A name longer than the margin is squeezed to fit it (one element, still
+            // searchable text), never clipped.
+            let fit = if ser.name.chars().count() > LEGEND_CHARS {
+                format!(
+                    r#" textLength="{}" lengthAdjust="spacingAndGlyphs""#,
+                    RIGHT - 44.0
+                )
+            } else {
+                String::new()
+            };
             let _ = write!(
                 s,
-                r#"<text x="{}" y="{}">{}</text>"#,
+                r#"<text x="{}" y="{}" font-size="11"{fit}>{}</text>"#,
                 x1 + 36.0,
                 ly + 4.0,
                 esc(&ser.name)
             );
+            ly += 20.0;
         }
         s.push_str("</svg>\n");
         s
@@ -327,14 +460,30 @@ impl LinePlot {
         ] {
             c.line((a, b), (cc, d), (0, 0, 0), 1.0);
         }
-        c.text(
-            &self.title,
-            (x0 + x1) / 2.0,
-            12.0,
-            2,
-            Align::Centre,
-            (0, 0, 0),
-        );
+        // Title: double size when it fits the width, else single size, wrapped if need be;
+        // always above the y label (y = 26) and the plot (y = TOP).
+        let fit = ((W as f64 - 60.0) / CHAR_PX) as usize;
+        if self.title.chars().count() * 2 <= fit {
+            c.text(
+                &self.title,
+                W as f64 / 2.0,
+                4.0,
+                2,
+                Align::Centre,
+                (0, 0, 0),
+            );
+        } else {
+            for (k, line) in wrap(&self.title, fit).iter().take(2).enumerate() {
+                c.text(
+                    line,
+                    W as f64 / 2.0,
+                    4.0 + 10.0 * k as f64,
+                    1,
+                    Align::Centre,
+                    (0, 0, 0),
+                );
+            }
+        }
         c.text(
             &self.x_label,
             (x0 + x1) / 2.0,
@@ -343,7 +492,7 @@ impl LinePlot {
             Align::Centre,
             (0, 0, 0),
         );
-        c.text(&self.y_label, 6.0, 22.0, 1, Align::Left, (0, 0, 0));
+        c.text(&self.y_label, 6.0, 26.0, 1, Align::Left, (0, 0, 0));
         if let Some((v, label)) = &self.h_line
             && let Some((_, py)) = Self::to_px(
                 &ax,
@@ -354,24 +503,32 @@ impl LinePlot {
             c.line((x0, py), (x1, py), (136, 136, 136), 1.0);
             c.text(label, x1 + 6.0, py - 4.0, 1, Align::Left, (85, 85, 85));
         }
+        let n = self.series.len();
+        let mut ly = y0 + 10.0;
         for (i, ser) in self.series.iter().enumerate() {
-            let col = COLOURS[i % COLOURS.len()];
+            let (col, dash, marker, width) = series_style(i, n);
             let mut last: Option<(f64, f64)> = None;
+            let mut phase = 0.0;
             for &p in &ser.points {
                 match Self::to_px(&ax, &ay, p) {
                     Some(q) => {
                         if let Some(l) = last {
-                            c.line(l, q, col, 2.0);
+                            phase = c.dashed_line(l, q, col, width, dash, phase);
                         }
-                        c.disc(q, 3.0, col);
+                        c.marker(q, marker, col);
                         last = Some(q);
                     }
                     None => last = None,
                 }
             }
-            let ly = y0 + 10.0 + 20.0 * i as f64;
-            c.line((x1 + 10.0, ly), (x1 + 30.0, ly), col, 3.0);
-            c.text(&ser.name, x1 + 36.0, ly - 4.0, 1, Align::Left, (0, 0, 0));
+            c.dashed_line((x1 + 8.0, ly), (x1 + 32.0, ly), col, 3.0, dash, 0.0);
+            c.marker((x1 + 20.0, ly), marker, col);
+            let lines = wrap(&ser.name, LEGEND_CHARS);
+            for (k, line) in lines.iter().enumerate() {
+                let y = ly - 4.0 + 11.0 * k as f64;
+                c.text(line, x1 + 36.0, y, 1, Align::Left, (0, 0, 0));
+            }
+            ly += 9.0 + 11.0 * lines.len() as f64;
         }
         c.encode()
     }
@@ -431,6 +588,65 @@ impl Canvas {
         }
     }
 
+    /// A line with dash pattern `dash` (on, off, … px; empty = solid) starting `phase` px into
+    /// the pattern; returns the phase at the end, so a polyline's dashes run on.
+    fn dashed_line(
+        &mut self,
+        a: (f64, f64),
+        b: (f64, f64),
+        col: (u8, u8, u8),
+        width: f64,
+        dash: &[f64],
+        phase: f64,
+    ) -> f64 {
+        let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
+        let period: f64 = dash.iter().sum();
+        if dash.is_empty() || period <= 0.0 || len == 0.0 {
+            self.line(a, b, col, width);
+            return phase;
+        }
+        let at = |t: f64| (a.0 + (b.0 - a.0) * t / len, a.1 + (b.1 - a.1) * t / len);
+        let mut t = 0.0;
+        let mut ph = phase % period;
+        while t < len {
+            // Which dash element the phase is in, and how much of it is left.
+            let (mut k, mut acc) = (0, 0.0);
+            while acc + dash[k] <= ph {
+                acc += dash[k];
+                k = (k + 1) % dash.len();
+            }
+            let step = (acc + dash[k] - ph).min(len - t);
+            if k % 2 == 0 {
+                self.line(at(t), at(t + step), col, width);
+            }
+            t += step;
+            ph = (ph + step) % period;
+        }
+        ph
+    }
+
+    /// A filled marker of about 8 px at `c`.
+    fn marker(&mut self, c: (f64, f64), m: Marker, col: (u8, u8, u8)) {
+        match m {
+            Marker::Disc => self.disc(c, 3.5, col),
+            Marker::Square | Marker::Triangle | Marker::Diamond => {
+                for y in (c.1 - 5.0).floor() as i64..=(c.1 + 5.0).ceil() as i64 {
+                    for x in (c.0 - 5.0).floor() as i64..=(c.0 + 5.0).ceil() as i64 {
+                        let (dx, dy) = (x as f64 + 0.5 - c.0, y as f64 + 0.5 - c.1);
+                        let inside = match m {
+                            Marker::Square => dx.abs() <= 3.5 && dy.abs() <= 3.5,
+                            Marker::Diamond => dx.abs() + dy.abs() <= 4.5,
+                            _ => dy <= 3.5 && dy >= -4.5 && dx.abs() <= (dy + 4.5) * 0.5,
+                        };
+                        if inside {
+                            self.blend(x, y, col, 1.0);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     fn disc(&mut self, c: (f64, f64), r: f64, col: (u8, u8, u8)) {
         for y in (c.1 - r - 1.0).floor() as i64..=(c.1 + r + 1.0).ceil() as i64 {
             for x in (c.0 - r - 1.0).floor() as i64..=(c.0 + r + 1.0).ceil() as i64 {
@@ -441,7 +657,7 @@ impl Canvas {
     }
 
     fn text(&mut self, s: &str, x: f64, y: f64, scale: usize, align: Align, col: (u8, u8, u8)) {
-        let (w, h, v) = crate::targets::label(&s.to_uppercase(), scale);
+        let (w, h, v) = crate::targets::label(&s.to_ascii_uppercase(), scale);
         let x0 = match align {
             Align::Left => x,
             Align::Centre => x - w as f64 / 2.0,
@@ -462,6 +678,9 @@ impl Canvas {
             let mut enc = png::Encoder::new(&mut out, self.w as u32, self.h as u32);
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
+            // The colours are sRGB values.
+            enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+            enc.set_source_gamma(png::ScaledFloat::from_scaled(45455));
             let mut wr = enc.write_header().map_err(|e| e.to_string())?;
             let data: Vec<u8> = self
                 .px
@@ -500,12 +719,96 @@ mod tests {
         assert!(
             svg.starts_with("<svg") && svg.contains("RMSE against time") && svg.contains("1 %")
         );
-        // One path with three points (the NaN point is skipped).
-        assert_eq!(svg.matches("<circle").count(), 3);
+        // One path with three points (the NaN point is skipped), plus the legend's marker.
+        assert_eq!(svg.matches("<circle").count(), 4);
         let png = p.to_png().unwrap();
         assert_eq!(&png[1..4], b"PNG");
         // Linear ticks are round numbers.
         let a = Axis::new([0.0, 7.3].into_iter(), false);
         assert_eq!(a.ticks(), vec![0.0, 2.0, 4.0, 6.0]);
+    }
+
+    /// Every character of every string literal in the modules that build plots and figures
+    /// has a glyph in the PNG font (an unknown one would be drawn as a box).
+    #[test]
+    fn every_label_character_has_a_glyph() {
+        let sources = [
+            include_str!("sweep.rs"),
+            include_str!("analytic.rs"),
+            include_str!("bench.rs"),
+            include_str!("main.rs"),
+            include_str!("demo.rs"),
+            include_str!("plot.rs"),
+        ];
+        let mut missing = std::collections::BTreeSet::new();
+        for src in sources {
+            // String literals, roughly: text between unescaped double quotes on one line.
+            for line in src.lines() {
+                let mut inside = false;
+                let mut prev = ' ';
+                for c in line.chars() {
+                    if c == '"' && prev != '\\' && prev != '\'' {
+                        inside = !inside;
+                    } else if inside && !c.is_control() && !crate::targets::has_label_glyph(c) {
+                        missing.insert(c);
+                    }
+                    prev = c;
+                }
+            }
+        }
+        assert!(missing.is_empty(), "no glyph for {missing:?}");
+        assert!(!crate::targets::has_label_glyph('☃'), "the check can fail");
+    }
+
+    /// Two curves on top of each other both show (the earlier one is drawn wider, underneath,
+    /// and the later one dashed), and long titles and legend names are wrapped inside the image.
+    #[test]
+    fn coinciding_curves_and_long_labels_stay_readable() {
+        let pts: Vec<(f64, f64)> = (0..20).map(|i| (i as f64, (i as f64).sqrt())).collect();
+        let long = "a very long legend entry that would run off the right edge of the image";
+        let p = LinePlot {
+            title: "a title far too long for one line at double size: ".repeat(3),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            log_x: false,
+            log_y: false,
+            series: vec![
+                Series {
+                    name: long.into(),
+                    points: pts.clone(),
+                },
+                Series {
+                    name: "same".into(),
+                    points: pts,
+                },
+            ],
+            h_line: None,
+        };
+        let png = p.to_png().unwrap();
+        let mut reader = png::Decoder::new(std::io::Cursor::new(png))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let count = |col: (u8, u8, u8)| {
+            buf.chunks_exact(3)
+                .filter(|p| p[0] == col.0 && p[1] == col.1 && p[2] == col.2)
+                .count()
+        };
+        // Both series' colours appear well beyond their legend swatches.
+        assert!(count(COLOURS[0]) > 150, "{}", count(COLOURS[0]));
+        assert!(count(COLOURS[1]) > 100, "{}", count(COLOURS[1]));
+        // Wrapped lines fit: legend lines in the right margin, title lines across the width.
+        let x1 = W as f64 - RIGHT;
+        for line in wrap(long, LEGEND_CHARS) {
+            assert!(
+                x1 + 36.0 + CHAR_PX * line.chars().count() as f64 <= W as f64,
+                "{line}"
+            );
+        }
+        let fit = ((W as f64 - 60.0) / CHAR_PX) as usize;
+        assert!(wrap(&p.title, fit).iter().all(|l| l.chars().count() <= fit));
+        assert_eq!(wrap("ab cd", 2), vec!["ab", "cd"]);
+        assert_eq!(wrap("abcde", 2), vec!["ab", "cd", "e"]);
     }
 }

@@ -414,16 +414,33 @@ pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
     }
 }
 
-/// A progress bar over `len` rows, hidden unless `show`.
-pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    indicatif::ProgressBar::new(len as u64).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta_precise}}] {{per_sec}}"
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+/// Progress over `len` rows (a bar on a terminal, plain lines otherwise), hidden unless
+/// `show`.
+pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> crate::progress::Progress {
+    crate::progress::Progress::new(show, len as u64, what)
+}
+
+/// Checks the run time and memory of `renders` renders of `sys` with `set` against
+/// [`crate::limits`] before any work starts: camera paths (crop pixels × spp × renders,
+/// blamed on `spp_setting`, the flag or key that set `set.spp`) and the capture's arrays
+/// (per value: the row result in f64, the f32 image and its encoded copy, 16 bytes).
+pub fn check_limits(
+    sys: &System,
+    set: &RenderSettings,
+    renders: u64,
+    spp_setting: &str,
+) -> Result<(), crate::limits::LimitError> {
+    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+    let pixels = w as u128 * h as u128;
+    crate::limits::check_paths(
+        spp_setting,
+        pixels * u128::from(set.spp) * u128::from(renders),
+    )?;
+    let values = (sys.response.curves.len() + set.spectral_bins.map_or(0, |b| b.2)) as u128;
+    crate::limits::check_bytes(
+        "sensor.crop_px",
+        &format!("the capture ({w}x{h} px, {values} channels and spectral bins)"),
+        pixels * values * 16,
     )
 }
 
@@ -521,6 +538,14 @@ fn render_row_with(
     }
 }
 
+/// The spectral bins of `render --spectral`: about 10 nm wide, tiling the sampled band exactly,
+/// as (start nm, width nm, count) for [`RenderSettings::spectral_bins`].
+pub fn spectral_bins(sm: &crate::scene::SamplingDesc) -> (f64, f64, usize) {
+    let band = sm.lambda_max_nm - sm.lambda_min_nm;
+    let n = (band / 10.0).round().max(1.0) as usize;
+    (sm.lambda_min_nm, band / n as f64, n)
+}
+
 /// Renders the capture of `sys`. Deterministic for a given seed, whatever the thread count.
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     render_with(sys, set, Estimator::Bragg)
@@ -532,18 +557,26 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
     let (w, h) = (cam.width_px, cam.height_px);
     let pb = row_progress(set.progress, h, "rendering rows");
     let rule = lattice_rule(set);
+    let cancel = crate::cancel::current();
+    let nch = sys.response.curves.len();
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
+            if cancel.is_cancelled() {
+                return RowResult {
+                    values: vec![0.0; w * nch],
+                    spectral: vec![0.0; w * nbins],
+                    stats: RenderStats::default(),
+                };
+            }
             let r = render_row(sys, set, estimator, rule, row);
             pb.inc(1);
             r
         })
         .collect();
     pb.finish_and_clear();
-    let nch = sys.response.curves.len();
     let mut channels = vec![vec![0f32; w * h]; nch];
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
     let mut spec = vec![vec![0f32; w * h]; nbins];
     let mut stats = RenderStats::default();
     for (row, r) in rows.iter().enumerate() {

@@ -10,6 +10,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use crate::numfmt::sig6;
+
 /// The paper's setup, compiled into the binary.
 pub const PAPER_SCENE_TOML: &str = include_str!("../scenes/paper-2022.toml");
 /// Name used in messages for the embedded scene.
@@ -352,6 +354,12 @@ impl LoadedScene {
         }
     }
 
+    /// An error about a relation between `keys`, blamed on the first of them that `--set`
+    /// changed (else on the first): the key the user set, not one derived from it.
+    pub fn relation_error(&self, keys: &[&str], message: impl Into<String>) -> SceneError {
+        self.key_error(blame(self, keys), message)
+    }
+
     /// A key error attributed to the right origin.
     pub fn key_error(&self, key: &str, message: impl Into<String>) -> SceneError {
         SceneError::Key {
@@ -423,12 +431,13 @@ fn merge(
             base.insert(k, v);
             continue;
         }
+        let unknown = (!base.contains_key(&k)).then(|| unknown_key_message(prefix, &k, base));
         match (base.get_mut(&k), v) {
             (None, _) => {
                 return Err(SceneError::Key {
                     file: file.to_string(),
                     key,
-                    message: "unknown key".into(),
+                    message: unknown.unwrap_or_default(),
                 });
             }
             (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o, &key, file)?,
@@ -443,6 +452,22 @@ fn merge(
         }
     }
     Ok(())
+}
+
+/// "unknown key", with the nearest key of `table` (the section `prefix`) as a suggestion.
+fn unknown_key_message(prefix: &str, key: &str, table: &toml::Table) -> String {
+    let full = |k: &str| {
+        if prefix.is_empty() {
+            k.to_string()
+        } else {
+            format!("{prefix}.{k}")
+        }
+    };
+    let names: Vec<String> = table.keys().map(|k| full(k)).collect();
+    format!(
+        "unknown key{}",
+        crate::suggest::did_you_mean(&full(key), names.iter().map(String::as_str))
+    )
 }
 
 /// Parses a `--set` value: TOML syntax if it parses (numbers, booleans, arrays, quoted
@@ -477,16 +502,14 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
     let unknown = || fail("unknown key".into());
     let parts: Vec<&str> = key.split('.').collect();
     let in_list = parts.len() > 2 && LIST_SECTIONS.contains(&parts[0]);
-    let mut cur: &mut toml::Value = match table.get_mut(parts[0]) {
-        Some(v) => v,
-        None if LIST_SECTIONS.contains(&parts[0]) => {
-            return Err(fail(format!(
-                "the scene has no [[{}]] elements to set",
-                parts[0]
-            )));
-        }
-        None => return Err(unknown()),
-    };
+    if !table.contains_key(parts[0]) {
+        return Err(if LIST_SECTIONS.contains(&parts[0]) {
+            fail(format!("the scene has no [[{}]] elements to set", parts[0]))
+        } else {
+            fail(unknown_key_message("", parts[0], table))
+        });
+    }
+    let mut cur: &mut toml::Value = table.get_mut(parts[0]).ok_or_else(unknown)?;
     for (depth, part) in parts.iter().enumerate().skip(1) {
         let last = depth + 1 == parts.len();
         cur = match cur {
@@ -501,7 +524,11 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
             toml::Value::Table(t) => {
                 if !t.contains_key(*part) {
                     if !in_list {
-                        return Err(unknown());
+                        return Err(fail(unknown_key_message(
+                            &parts[..depth].join("."),
+                            part,
+                            t,
+                        )));
                     }
                     let fill = if last {
                         toml::Value::Boolean(false)
@@ -529,9 +556,12 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
     let (source, base_dir) = match path {
         Some(p) => {
             let file = p.display().to_string();
-            let text = std::fs::read_to_string(p).map_err(|e| SceneError::Read {
+            let text = crate::io::read_text(p).map_err(|e| SceneError::Read {
                 file: file.clone(),
-                message: e.to_string(),
+                message: match e {
+                    crate::io::IoError::Io { source, .. } => source.to_string(),
+                    crate::io::IoError::Format { message, .. } => message,
+                },
             })?;
             let user = parse_table(&text, &file)?;
             merge(&mut table, user, "", &file)?;
@@ -612,13 +642,13 @@ fn check(
 
 fn positive(ls: &LoadedScene, v: f64, key: &str) -> Result<(), SceneError> {
     check(ls, v.is_finite() && v > 0.0, key, || {
-        format!("must be a positive finite number, got {v}")
+        format!("must be a positive finite number, got {}", sig6(v))
     })
 }
 
 fn in_range(ls: &LoadedScene, v: f64, lo: f64, hi: f64, key: &str) -> Result<(), SceneError> {
     check(ls, v.is_finite() && v >= lo && v <= hi, key, || {
-        format!("must be in [{lo}, {hi}], got {v}")
+        format!("must be in [{}, {}], got {}", sig6(lo), sig6(hi), sig6(v))
     })
 }
 
@@ -655,7 +685,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         || {
             format!(
                 "must be in (0, 90) degrees, got {}",
-                s.hoe.reference_angle_deg
+                sig6(s.hoe.reference_angle_deg)
             )
         },
     )?;
@@ -664,8 +694,14 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(
         ls,
         s.hoe.index_modulation >= 0.0 && s.hoe.index_modulation < s.hoe.mean_index,
-        "hoe.index_modulation",
-        || format!("must be in [0, mean_index), got {}", s.hoe.index_modulation),
+        blame(ls, &["hoe.index_modulation", "hoe.mean_index"]),
+        || {
+            format!(
+                "hoe.index_modulation must be in [0, hoe.mean_index = {}), got {}",
+                sig6(s.hoe.mean_index),
+                sig6(s.hoe.index_modulation)
+            )
+        },
     )?;
     in_range(
         ls,
@@ -686,11 +722,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         AutoOr::Value(v) => check(
             ls,
             v.is_finite() && *v > s.camera.focal_length_mm,
-            "camera.focus_distance_mm",
+            blame(ls, &["camera.focus_distance_mm", "camera.focal_length_mm"]),
             || {
                 format!(
-                    "must exceed the focal length ({} mm), got {v}",
-                    s.camera.focal_length_mm
+                    "camera.focus_distance_mm ({} mm) must exceed camera.focal_length_mm ({} mm)",
+                    sig6(*v),
+                    sig6(s.camera.focal_length_mm)
                 )
             },
         )?,
@@ -790,7 +827,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         ls,
         s.display.black_level >= 0.0 && s.display.black_level < 1.0,
         "display.black_level",
-        || format!("must be in [0, 1), got {}", s.display.black_level),
+        || format!("must be in [0, 1), got {}", sig6(s.display.black_level)),
     )?;
     check(ls, s.display.image.trim() != "", "display.image", || {
         "must name a file or a built-in target".into()
@@ -820,13 +857,13 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         ls,
         sm.uniform_fraction > 0.0 && sm.uniform_fraction <= 1.0,
         "sampling.uniform_fraction",
-        || format!("must be in (0, 1], got {}", sm.uniform_fraction),
+        || format!("must be in (0, 1], got {}", sig6(sm.uniform_fraction)),
     )?;
     check(
         ls,
         sm.min_guided_weight > 0.0 && sm.min_guided_weight < 1.0,
         "sampling.min_guided_weight",
-        || format!("must be in (0, 1), got {}", sm.min_guided_weight),
+        || format!("must be in (0, 1), got {}", sig6(sm.min_guided_weight)),
     )?;
     check(ls, sm.max_contacts >= 1, "sampling.max_contacts", || {
         "must be at least 1".into()
@@ -837,7 +874,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         ls,
         nz.exposure_fraction > 0.0 && nz.exposure_fraction <= 1.0,
         "noise.exposure_fraction",
-        || format!("must be in (0, 1], got {}", nz.exposure_fraction),
+        || format!("must be in (0, 1], got {}", sig6(nz.exposure_fraction)),
     )?;
     in_range(ls, nz.read_noise_e, 0.0, 1e6, "noise.read_noise_e")?;
     check(
@@ -850,11 +887,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(
         ls,
         nz.dark_offset_dn.is_finite() && nz.dark_offset_dn >= 0.0 && nz.dark_offset_dn < full_scale,
-        "noise.dark_offset_dn",
+        blame(ls, &["noise.dark_offset_dn", "noise.bit_depth"]),
         || {
             format!(
-                "must be in [0, {full_scale}) (the ADC range), got {}",
-                nz.dark_offset_dn
+                "noise.dark_offset_dn must be in [0, {full_scale}) (the ADC range of noise.bit_depth = {}), got {}",
+                nz.bit_depth,
+                sig6(nz.dark_offset_dn)
             )
         },
     )?;

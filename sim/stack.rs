@@ -157,11 +157,10 @@ pub fn is_stack(path: &Path) -> bool {
 /// count is depths × object pixels and that every offset has one value per row.
 pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoError> {
     let side_path = path.with_extension("json");
-    let text =
-        std::fs::read_to_string(&side_path).map_err(|e| IoError::Io {
-            path: side_path.clone(),
-            source: e,
-        })?;
+    let text = std::fs::read_to_string(&side_path).map_err(|e| IoError::Io {
+        path: side_path.clone(),
+        source: e,
+    })?;
     let side: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| IoError::format(&side_path, e))?;
     let bad = |key: &str, what: &str| IoError::format(&side_path, format!("{key}: {what}"));
@@ -174,7 +173,10 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
         .collect::<Option<_>>()
         .ok_or_else(|| bad("depths_mm", "every depth must be a positive number"))?;
     if depths_mm.is_empty() || depths_mm.windows(2).any(|w| w[0] >= w[1]) {
-        return Err(bad("depths_mm", "must be non-empty and strictly increasing"));
+        return Err(bad(
+            "depths_mm",
+            "must be non-empty and strictly increasing",
+        ));
     }
     let object = side
         .get("object_px")
@@ -240,13 +242,26 @@ mod tests {
     #[test]
     fn depth_lists_and_ranges() {
         assert_eq!(parse_depths("550").unwrap(), vec![550.0]);
-        assert_eq!(parse_depths("600, 400,500").unwrap(), vec![400.0, 500.0, 600.0]);
+        assert_eq!(
+            parse_depths("600, 400,500").unwrap(),
+            vec![400.0, 500.0, 600.0]
+        );
         assert_eq!(
             parse_depths("300:650:8").unwrap(),
             vec![300.0, 350.0, 400.0, 450.0, 500.0, 550.0, 600.0, 650.0]
         );
         assert_eq!(parse_depths("400:400:1").unwrap(), vec![400.0]);
-        for bad in ["", "a", "0", "-5", "400,400", "650:300:8", "300:650:1", "300:650", "1:2:x"] {
+        for bad in [
+            "",
+            "a",
+            "0",
+            "-5",
+            "400,400",
+            "650:300:8",
+            "300:650:1",
+            "300:650",
+            "1:2:x",
+        ] {
             assert!(parse_depths(bad).is_err(), "{bad}");
         }
         assert_eq!(depth_file_names(412.5)[0], "H_412.5mm.npz");

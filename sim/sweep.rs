@@ -971,29 +971,47 @@ pub fn run_sweep(
     let points = grid_points(axes);
     debug_assert_eq!(points.len(), total);
     let label = |p: &[f64]| point_overrides(axes, p).join(", ");
-    // Validate every point before computing anything expensive.
-    let mut systems = Vec::with_capacity(points.len());
-    for p in &points {
+    let build = |p: &[f64]| -> Result<System, SweepError> {
         let mut ov = base_overrides.to_vec();
         ov.extend(point_overrides(axes, p));
-        let sys = load_scene(scene, &ov)
+        load_scene(scene, &ov)
             .and_then(|ls| System::build(&ls))
             .map_err(|source| SweepError::GridPoint {
                 point: label(p),
-                source,
-            })?;
+                source: blame_vary(source, axes),
+            })
+    };
+    // Validate every point before computing anything expensive. The systems are built again
+    // one at a time below, so memory does not grow with the number of grid points.
+    for p in &points {
+        let sys = build(p)?;
         if let Some(ps) = &set.psnr {
             psnr_target(&sys, ps).map_err(|message| SweepError::Psnr {
                 point: label(p),
                 message,
             })?;
+            // H and one capture per point.
+            crate::render::check_limits(
+                &sys,
+                &crate::render::RenderSettings::lattice(ps.spp, 0, false),
+                2,
+                "--psnr-spp",
+            )
+            .map_err(|e| SweepError::Psnr {
+                point: label(p),
+                message: e.to_string(),
+            })?;
         }
-        systems.push(sys);
     }
-    let pb = crate::render::row_progress(set.progress, systems.len(), "sweep points");
-    let mut rows = Vec::with_capacity(systems.len());
-    let mut point_seconds = Vec::with_capacity(systems.len());
-    for (p, sys) in points.iter().zip(&systems) {
+    let pb = crate::render::row_progress(set.progress, points.len(), "sweep points");
+    let mut rows = Vec::with_capacity(points.len());
+    let mut point_seconds = Vec::with_capacity(points.len());
+    let cancel = crate::cancel::current();
+    for p in &points {
+        if cancel.is_cancelled() {
+            break;
+        }
+        let sys = &build(p)?;
         let t0 = Instant::now();
         let mut figures = design_figures(sys, set);
         if let Some(ps) = &set.psnr {
@@ -1024,6 +1042,23 @@ pub fn run_sweep(
         files,
         point_seconds,
     })
+}
+
+/// A grid point's scene error blamed on `--vary KEY` where the key is a swept one (the
+/// sweep passes its values as overrides, which the scene reports as `--set KEY`).
+fn blame_vary(e: SceneError, axes: &[VaryAxis]) -> SceneError {
+    match e {
+        SceneError::Key { file, key, message }
+            if axes.iter().any(|a| file == format!("--set {}", a.key)) =>
+        {
+            SceneError::Key {
+                file: file.replacen("--set", "--vary", 1),
+                key,
+                message,
+            }
+        }
+        other => other,
+    }
 }
 
 /// Definitions recorded in `sweep.json` (the module header in short).

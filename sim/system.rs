@@ -291,11 +291,17 @@ impl System {
         if !(camera.focus_distance_mm > camera.focal_length_mm
             && camera.sensor_distance_mm.is_finite())
         {
-            return Err(ls.key_error(
-                "camera.focus_distance_mm",
+            return Err(ls.relation_error(
+                &[
+                    "camera.focus_distance_mm",
+                    "camera.focal_length_mm",
+                    "display.distance_mm",
+                    "camera.distance_mm",
+                ],
                 format!(
-                    "the focus distance ({:.3} mm) must exceed the focal length ({} mm)",
-                    camera.focus_distance_mm, camera.focal_length_mm
+                    "the focus distance ({} mm) must exceed the focal length ({} mm)",
+                    crate::numfmt::sig6(camera.focus_distance_mm),
+                    crate::numfmt::sig6(camera.focal_length_mm)
                 ),
             ));
         }
@@ -311,9 +317,17 @@ impl System {
             })
             .collect();
         if inv_integral.contains(&0.0) {
-            return Err(ls.key_error(
-                "sensor.response",
-                format!("has no sensitivity in the band {lo}-{hi} nm"),
+            return Err(ls.relation_error(
+                &[
+                    "sensor.response",
+                    "sampling.lambda_min_nm",
+                    "sampling.lambda_max_nm",
+                ],
+                format!(
+                    "sensor.response has no sensitivity in the band {}-{} nm",
+                    crate::numfmt::sig6(lo),
+                    crate::numfmt::sig6(hi)
+                ),
             ));
         }
         let response = Response {

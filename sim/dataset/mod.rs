@@ -29,9 +29,12 @@
 //! `shard.json` instead of `dataset.json`; [`merge`] joins shards, checking recipe, coverage and
 //! every checksum, and writes exactly what one unsharded run writes.
 
+pub mod depth;
+pub mod meshes;
 pub mod objects;
 pub mod recipe;
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -50,7 +53,9 @@ use crate::sparse::CsrMatrix;
 use crate::system::System;
 
 use objects::{ObjectDraw, draw, list_images};
-use recipe::{CaptureMode, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe};
+use recipe::{
+    CaptureMode, DEPTH_KEY, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe,
+};
 
 /// Format tag of the dataset card.
 pub const FORMAT: &str = "stscam-dataset/1";
@@ -62,9 +67,11 @@ const SCENE_TAG: u64 = 0x5343_454E;
 const VARY_TAG: u64 = 0x5641_5259;
 const NOISE_TAG: u64 = 0x4E4F_4953;
 const WHITE_TAG: u64 = 0x5748_4954;
+const DEPTH_TAG: u64 = 0x4445_5054;
 
-/// A dataset error. Every variant is the user's to fix (recipe, images, output folder,
-/// shards), so the CLI reports it on one line with exit code 2.
+/// A dataset error, reported on one line. [`DatasetError::Write`] is a failed write (exit
+/// code 1 in the CLI); every other variant is the user's to fix (recipe, images, output
+/// folder, shards, a concurrent run: exit code 2).
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
     /// A recipe key (or the recipe file) is wrong.
@@ -77,9 +84,16 @@ pub enum DatasetError {
         /// What is wrong.
         message: String,
     },
-    /// A file could not be read or written.
+    /// A file could not be read (or an input is malformed).
     #[error(transparent)]
     Io(#[from] IoError),
+    /// A file or folder of the output could not be written (full disk, permissions): not
+    /// the recipe's fault, so the CLI exits with code 1 for it.
+    #[error(transparent)]
+    Write(IoError),
+    /// Another run is working in the output folder.
+    #[error(transparent)]
+    Locked(crate::io::LockError),
     /// The output folder or the shards are not usable as asked.
     #[error("{path}: {message}")]
     Output {
@@ -88,6 +102,14 @@ pub enum DatasetError {
         /// What is wrong.
         message: String,
     },
+    /// The run was cancelled ([`crate::cancel`]); what was finished is kept for `--resume`.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// A failed write of `path`.
+fn write_err(path: &Path, e: std::io::Error) -> DatasetError {
+    DatasetError::Write(IoError::io(path, e))
 }
 
 fn out_err(path: &Path, message: impl Into<String>) -> DatasetError {
@@ -127,8 +149,10 @@ pub struct Plan {
     base_overrides: Vec<String>,
     /// Distinct discrete scenes (index 0 is the reference scene).
     pub scenes: Vec<PlannedScene>,
-    /// Image files per source.
+    /// Image files (mesh files for `meshes`) per source.
     images: Vec<Vec<(PathBuf, String)>>,
+    /// The `[depth]` grid in mm (empty without one).
+    pub depths_mm: Vec<f64>,
     /// True if every sample's scene is one of `scenes` (no ranged keys): H is written.
     pub has_matrix: bool,
     /// Samples per split.
@@ -152,6 +176,11 @@ pub struct SampleSpec {
     pub scene: usize,
     /// Values of every varied key.
     pub params: BTreeMap<String, f64>,
+}
+
+/// The recipe key of a sample's object source.
+fn source_key(s: &SampleSpec) -> String {
+    format!("objects.sources[{}]", s.object.source)
 }
 
 fn recipe_err(file: &Path, key: impl Into<String>, message: impl Into<String>) -> DatasetError {
@@ -183,13 +212,88 @@ fn load_system(
     Ok((ls, sys))
 }
 
+/// The ground-truth files of a 3-D sample after its capture: `ID_frontal.npy`,
+/// `ID_frontal.png`, `ID_depth.npy`, `ID_mask.png`.
+pub const MESH_FILES: [&str; 4] = ["frontal.npy", "frontal.png", "depth.npy", "mask.png"];
+
+/// The depth index of the sample with seed `seed` among `n` depths: `rand`'s `Uniform` over a
+/// ChaCha12 generator seeded from `NoiseRng([seed, DEPTH_TAG])`.
+fn depth_index(seed: u64, n: usize) -> usize {
+    use rand::SeedableRng;
+    use rand::distr::{Distribution, Uniform};
+    let mut rng =
+        rand::rngs::ChaCha12Rng::seed_from_u64(NoiseRng::new(&[seed, DEPTH_TAG]).next_u64());
+    Uniform::new(0, n.max(1)).map_or(0, |d| d.sample(&mut rng))
+}
+
+/// The mesh files of a `meshes` source's folder, each loaded once so that a broken file stops
+/// the run before anything is written.
+fn mesh_files(
+    recipe_path: &Path,
+    base: &Path,
+    i: usize,
+    folder: &str,
+    m: &recipe::MeshSource,
+    scene: &LoadedScene,
+) -> Result<Vec<(PathBuf, String)>, DatasetError> {
+    let key = format!("objects.sources[{i}].folder");
+    let files = folder_files(
+        recipe_path,
+        &base.join(folder),
+        &key,
+        ".gltf, .glb or .obj",
+        |d| meshes::list_meshes(d, folder),
+    )?;
+    files
+        .par_iter()
+        .try_for_each(|(p, name)| {
+            let o = crate::world::desc::ObjectDesc {
+                mesh: p.display().to_string(),
+                name: Some(name.clone()),
+                position_mm: [0.0; 3],
+                rotation_deg: [0.0; 3],
+                scale: crate::world::desc::ScaleSpec::Uniform(1.0),
+                units: m.units.clone(),
+                material: None,
+                pose: None,
+            };
+            crate::world::placed_object(scene, 0, &o).map(|_| ())
+        })
+        .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
+    Ok(files)
+}
+
+/// The files `list` finds in the folder `dir` of recipe key `key`; an error if `dir` is not a
+/// folder or holds none (`what`: the kinds of file, for the message).
+fn folder_files(
+    recipe_path: &Path,
+    dir: &Path,
+    key: &str,
+    what: &str,
+    list: impl FnOnce(&Path) -> Result<Vec<(PathBuf, String)>, String>,
+) -> Result<Vec<(PathBuf, String)>, DatasetError> {
+    if !dir.is_dir() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("{} is not a folder", dir.display()),
+        ));
+    }
+    let files = list(dir).map_err(|m| recipe_err(recipe_path, key, m))?;
+    if files.is_empty() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            format!("no {what} files in {}", dir.display()),
+        ));
+    }
+    Ok(files)
+}
+
 /// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
 /// scene, image folders), without writing anything.
 pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
-    let text = std::fs::read_to_string(recipe_path).map_err(|e| IoError::Io {
-        path: recipe_path.to_path_buf(),
-        source: e,
-    })?;
+    let text = crate::io::read_text(recipe_path)?;
     let recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
     let base = recipe_path
         .parent()
@@ -213,7 +317,10 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
     let mut scenes = Vec::new();
     for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
         let key = if params.is_empty() { "scene" } else { "vary" };
-        let (loaded, system) = load(&overrides, key)?;
+        let (loaded, mut system) = load(&overrides, key)?;
+        if let Some(&d) = params.get(DEPTH_KEY) {
+            system = depth::at_depth(&system, d);
+        }
         scenes.push(PlannedScene {
             id: format!("scene_{k:03}"),
             overrides,
@@ -239,24 +346,14 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
             folder, recursive, ..
         } = src
         {
-            let dir = base.join(folder);
             let key = format!("objects.sources[{i}].folder");
-            if !dir.is_dir() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("{} is not a folder", dir.display()),
-                ));
-            }
-            let files = list_images(&dir, folder, *recursive)
-                .map_err(|m| recipe_err(recipe_path, &key, m))?;
-            if files.is_empty() {
-                return Err(recipe_err(
-                    recipe_path,
-                    key,
-                    format!("no .png, .jpg or .jpeg files in {}", dir.display()),
-                ));
-            }
+            let files = folder_files(
+                recipe_path,
+                &base.join(folder),
+                &key,
+                ".png, .jpg or .jpeg",
+                |d| list_images(d, folder, *recursive),
+            )?;
             // Every header is read now, so that a file that is not an image stops the run
             // before anything is written (pixel data is decoded when a sample draws it).
             files
@@ -264,13 +361,43 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
                 .try_for_each(|(p, _)| crate::io::image_load::probe_image(p).map(|_| ()))
                 .map_err(|e| recipe_err(recipe_path, &key, e.to_string()))?;
             images.push(files);
+        } else if let Source::Meshes(m) = src {
+            let files = match &m.folder {
+                Some(folder) => mesh_files(recipe_path, &base, i, folder, m, &scenes[0].loaded)?,
+                None => Vec::new(),
+            };
+            images.push(files);
         } else {
             images.push(Vec::new());
         }
     }
-    let has_matrix = recipe.vary.iter().all(|v| v.values.is_some());
+    // 3-D datasets have no H (the display's H says nothing of a mesh).
+    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
+    // Run time: one H per scene, the white capture and, in render mode, one render per sample.
+    let renders = scenes.len() as u64
+        + 1
+        + if recipe.mode == CaptureMode::Render {
+            recipe.samples as u64
+        } else {
+            0
+        };
+    for ps in &scenes {
+        crate::render::check_limits(
+            &ps.system,
+            &RenderSettings::lattice(recipe.spp, 0, false),
+            renders,
+            "spp",
+        )
+        .map_err(|e| recipe_err(recipe_path, "spp", e.message))?;
+    }
     let counts = recipe.split_counts();
     let id_width = (recipe.samples - 1).to_string().len().max(6);
+    let depths_mm = match &recipe.depth {
+        Some(d) => d
+            .depths_mm()
+            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
+        None => Vec::new(),
+    };
     Ok(Plan {
         recipe,
         recipe_path: recipe_path.to_path_buf(),
@@ -279,6 +406,7 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
         base_overrides,
         scenes,
         images,
+        depths_mm,
         has_matrix,
         counts,
         id_width,
@@ -313,6 +441,11 @@ impl Plan {
                 params.insert(v.key.clone(), lo + (hi - lo) * rng.uniform());
             }
         }
+        if !self.depths_mm.is_empty() {
+            let k = depth_index(seed, self.depths_mm.len());
+            scene = scene * self.depths_mm.len() + k;
+            params.insert(DEPTH_KEY.to_string(), self.depths_mm[k]);
+        }
         SampleSpec {
             id,
             split,
@@ -328,15 +461,46 @@ impl Plan {
         format!("{id:0width$}", width = self.id_width)
     }
 
-    /// The four files of a sample, relative to the dataset root.
-    pub fn sample_files(&self, s: &SampleSpec) -> [String; 4] {
+    /// The files of a sample, relative to the dataset root: object `.npy` and `.png`, capture
+    /// `.npy` and `.png`; for `meshes` capture `.npy` and `.png`, then [`MESH_FILES`].
+    pub fn sample_files(&self, s: &SampleSpec) -> Vec<String> {
         let (d, stem) = (SPLITS[s.split], self.stem(s.id));
-        [
-            format!("{d}/{stem}_object.npy"),
-            format!("{d}/{stem}_object.png"),
-            format!("{d}/{stem}_capture.npy"),
-            format!("{d}/{stem}_capture.png"),
-        ]
+        let kinds: &[&str] = if self.recipe.is_meshes() {
+            &[
+                "capture.npy",
+                "capture.png",
+                MESH_FILES[0],
+                MESH_FILES[1],
+                MESH_FILES[2],
+                MESH_FILES[3],
+            ]
+        } else {
+            &["object.npy", "object.png", "capture.npy", "capture.png"]
+        };
+        kinds.iter().map(|k| format!("{d}/{stem}_{k}")).collect()
+    }
+
+    /// The 3-D draw of a sample, settled on the user side, and the mesh's world bounds.
+    fn mesh_draw(
+        &self,
+        s: &SampleSpec,
+        src: &recipe::MeshSource,
+        files: &[(PathBuf, String)],
+        ls: &LoadedScene,
+    ) -> Result<(meshes::MeshDraw, [[f64; 3]; 2]), DatasetError> {
+        let mut d = meshes::draw(src, files, s.seed);
+        let b = d
+            .settle(ls, src.units.as_deref())
+            .map_err(|e| recipe_err(&self.recipe_path, source_key(s), e.to_string()))?;
+        Ok((d, b))
+    }
+
+    /// The `meshes` source of a 3-D sample and its mesh files.
+    fn mesh_source(&self, s: &SampleSpec) -> Option<(&recipe::MeshSource, &[(PathBuf, String)])> {
+        match &self.recipe.objects.sources[s.object.source] {
+            Source::Meshes(m) => Some((m, &self.images[s.object.source])),
+            _ => None,
+        }
     }
 
     fn resize_of(&self, source: usize) -> Resize {
@@ -346,7 +510,10 @@ impl Plan {
         }
     }
 
+    /// The seed of H of distinct scene `k`; the depths of one scene share it (their H see the
+    /// same camera rays, as in a one-pass depth stack).
     fn scene_seed(&self, k: usize) -> u64 {
+        let k = k / self.depths_mm.len().max(1);
         NoiseRng::new(&[self.recipe.seed, SCENE_TAG, k as u64]).next_u64() >> 11
     }
 
@@ -363,23 +530,28 @@ impl Plan {
     }
 
     /// The scene of a sample: its discrete scene, or with ranged keys one built for it.
-    fn sample_scene(&self, s: &SampleSpec) -> Result<std::borrow::Cow<'_, System>, DatasetError> {
-        if self.has_matrix {
-            return Ok(std::borrow::Cow::Borrowed(&self.scenes[s.scene].system));
+    #[allow(clippy::type_complexity)]
+    fn sample_scene(
+        &self,
+        s: &SampleSpec,
+    ) -> Result<(Cow<'_, LoadedScene>, Cow<'_, System>), DatasetError> {
+        if self.recipe.vary.iter().all(|v| v.values.is_some()) {
+            let ps = &self.scenes[s.scene];
+            return Ok((Cow::Borrowed(&ps.loaded), Cow::Borrowed(&ps.system)));
         }
         let extra: Vec<String> = s
             .params
             .iter()
             .map(|(k, v)| format!("{k}={}", fmt_value(*v)))
             .collect();
-        let (_, sys) = load_system(
+        let (ls, sys) = load_system(
             self.scene_file.as_deref(),
             &self.base_overrides,
             &extra,
             &self.recipe_path,
             "vary",
         )?;
-        Ok(std::borrow::Cow::Owned(sys))
+        Ok((Cow::Owned(ls), Cow::Owned(sys)))
     }
 }
 
@@ -576,10 +748,7 @@ fn remove_temporaries(root: &Path) -> Result<usize, DatasetError> {
             if p.is_dir() {
                 dirs.push(p);
             } else if name.starts_with('.') && name.contains(".tmp-") {
-                std::fs::remove_file(&p).map_err(|e| IoError::Io {
-                    path: p.clone(),
-                    source: e,
-                })?;
+                std::fs::remove_file(&p).map_err(|e| write_err(&p, e))?;
                 n += 1;
             }
         }
@@ -587,7 +756,17 @@ fn remove_temporaries(root: &Path) -> Result<usize, DatasetError> {
     Ok(n)
 }
 
-fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
+/// Locks `out` for this run (see [`crate::io::lock`]): a second run in the same folder is
+/// refused while this one works.
+fn lock_out(out: &Path) -> Result<crate::io::FolderLock, DatasetError> {
+    crate::io::FolderLock::acquire(out).map_err(|e| match e {
+        crate::io::LockError::Io(e) => DatasetError::Write(e),
+        held => DatasetError::Locked(held),
+    })
+}
+
+/// Checks and prepares the output folder and locks it for the run.
+fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, DatasetError> {
     let out = &opts.out;
     let marker = RunMarker {
         recipe_sha256: plan.recipe_sha256.clone(),
@@ -604,14 +783,15 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
     if out.exists() && !out.is_dir() {
         return Err(out_err(out, "exists and is not a folder"));
     }
-    if nonempty {
+    let lock = if nonempty {
         if !opts.resume {
             return Err(out_err(
                 out,
                 "is not empty: pass --resume to continue the run that wrote it, or choose another --out",
             ));
         }
-        let found: Option<RunMarker> = std::fs::read(out.join(RUN_MARKER))
+        let lock = lock_out(out)?;
+        let found: Option<RunMarker> = crate::io::read_input(&out.join(RUN_MARKER), 1 << 20)
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .or_else(|| {
@@ -620,7 +800,7 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
                 } else {
                     "dataset.json"
                 };
-                let b = std::fs::read(out.join(card)).ok()?;
+                let b = crate::io::read_input(&out.join(card), crate::io::MAX_BINARY_BYTES).ok()?;
                 if let Some(s) = opts.shard {
                     let c: ShardCard = serde_json::from_slice(&b).ok()?;
                     Some(RunMarker {
@@ -651,18 +831,20 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<(), DatasetError> {
             }
         }
         remove_temporaries(out)?;
+        lock
     } else {
-        std::fs::create_dir_all(out)
-            .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
-    }
+        std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+        lock_out(out)?
+    };
     let bytes = serde_json::to_vec_pretty(&marker).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), &bytes)?;
-    Ok(())
+    crate::io::write_atomic(&out.join(RUN_MARKER), &bytes).map_err(DatasetError::Write)?;
+    Ok(lock)
 }
 
 /// Writes a file of a sample: temporary name, rename (no fsync per file; the card is synced).
 fn put(root: &Path, rel: &str, bytes: &[u8]) -> Result<(), DatasetError> {
-    crate::io::atomic::write_atomic_unsynced(&root.join(rel), bytes)?;
+    crate::io::atomic::write_atomic_unsynced(&root.join(rel), bytes)
+        .map_err(DatasetError::Write)?;
     Ok(())
 }
 
@@ -677,14 +859,73 @@ struct Exposure {
     noise: Option<SensorNoise>,
 }
 
+impl Exposure {
+    /// The stored capture of a clean one: measured by the sensor model (pixel i with
+    /// `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, or as it is.
+    fn measure(&self, clean: &[f64], seed: u64) -> Vec<f32> {
+        match &self.noise {
+            Some(n) => {
+                let dark = n.dark_offset_units();
+                clean
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        (n.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark)
+                            as f32
+                    })
+                    .collect()
+            }
+            None => clean.iter().map(|&v| v as f32).collect(),
+        }
+    }
+}
+
+/// H of the incomplete depth scenes among `used`, one [`depth::depth_matrices`] call per
+/// discrete scene (its depths share the seed); empty without `[depth]`.
+fn depth_stack(
+    plan: &Plan,
+    root: &Path,
+    used: &BTreeSet<usize>,
+    progress: bool,
+) -> BTreeMap<usize, SystemMatrix> {
+    let n = plan.depths_mm.len();
+    let mut out = BTreeMap::new();
+    if n == 0 || !plan.has_matrix {
+        return out;
+    }
+    let todo: Vec<usize> = used
+        .iter()
+        .copied()
+        .filter(|&k| !plan.scene_files(k).iter().all(|f| root.join(f).is_file()))
+        .collect();
+    let groups: BTreeSet<usize> = todo.iter().map(|k| k / n).collect();
+    for g in groups {
+        let ks: Vec<usize> = todo.iter().copied().filter(|k| k / n == g).collect();
+        let depths: Vec<f64> = ks.iter().map(|k| plan.depths_mm[k % n]).collect();
+        let settings = RenderSettings::lattice(plan.recipe.spp, plan.scene_seed(ks[0]), progress);
+        let ms = depth::depth_matrices(&plan.scenes[ks[0]].system, &depths, &settings);
+        out.extend(ks.into_iter().zip(ms));
+    }
+    out
+}
+
 /// Generates a dataset (or one shard of it) into `opts.out`.
 pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
     let recipe = &plan.recipe;
     let ids = opts
         .shard
         .map_or(0..recipe.samples, |s| s.range(recipe.samples));
-    prepare_out(plan, opts)?;
+    // Held until the run ends (dropped on return, also on an error).
+    let _lock = prepare_out(plan, opts)?;
     let root = &opts.out;
+    let cancel = crate::cancel::current();
+    let check_cancel = || {
+        if cancel.is_cancelled() {
+            Err(DatasetError::Cancelled)
+        } else {
+            Ok(())
+        }
+    };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
     let done = |s: &SampleSpec| plan.sample_files(s).iter().all(|f| root.join(f).is_file());
@@ -704,6 +945,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let object = (recipe.objects.size_px, recipe.objects.size_px);
     let mut crop = (0, 0);
     let mut channel_names: Vec<String> = Vec::new();
+    let mut stack = depth_stack(plan, root, &used, opts.progress);
     for &k in &used {
         let ps = &plan.scenes[k];
         let sys = &ps.system;
@@ -725,10 +967,13 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
                 .map_err(|e| out_err(&dir, e.to_string()))?;
             if plan.has_matrix {
-                let m: SystemMatrix = compute_matrix(
-                    sys,
-                    &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
-                );
+                let m: SystemMatrix = stack.remove(&k).unwrap_or_else(|| {
+                    compute_matrix(
+                        sys,
+                        &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
+                    )
+                });
+                check_cancel()?;
                 let sidecar = serde_json::json!({
                     "object_px": [object.0, object.1],
                     "crop_px": [m.crop.0, m.crop.1],
@@ -738,11 +983,13 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     "spp": recipe.spp,
                     "seed": plan.scene_seed(k),
                     "overrides": ps.overrides,
+                    "depth_mm": ps.params.get(DEPTH_KEY),
                     "units": crate::matrix::MATRIX_UNITS,
                     "stscam_version": crate::VERSION,
                 });
-                crate::output::write_matrix(&dir, &m, &sidecar)?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+                crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                    .map_err(DatasetError::Write)?;
                 matrices.insert(
                     k,
                     SceneMatrix {
@@ -751,11 +998,9 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                     },
                 );
             } else {
-                std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
-                    path: dir.clone(),
-                    source: e,
-                })?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)?;
+                std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
+                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                    .map_err(DatasetError::Write)?;
             }
         }
     }
@@ -770,10 +1015,16 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     } else {
         let white = vec![1.0; object.0 * object.1];
         let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
-        render_object(ref_sys, &white, recipe.spp, seed)
+        // 3-D datasets: display white on the scene's display plane, without the scene's objects.
+        let mut flat = ref_sys.clone();
+        if recipe.is_meshes() {
+            flat.world = None;
+        }
+        render_object(&flat, &white, recipe.spp, seed)
             .into_iter()
             .fold(0.0f64, f64::max)
     };
+    check_cancel()?;
     let noise_desc = &ref_sys.scene.noise;
     let exposure = Exposure {
         white_peak,
@@ -795,13 +1046,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 gamma,
                 plan.resize_of(s.object.source),
             )
-            .map_err(|m| {
-                recipe_err(
-                    &plan.recipe_path,
-                    format!("objects.sources[{}]", s.object.source),
-                    m,
-                )
-            })?;
+            .map_err(|m| recipe_err(&plan.recipe_path, source_key(s), m))?;
         let clean: Vec<f64> = match recipe.mode {
             CaptureMode::Matrix => {
                 let m = &matrices[&s.scene];
@@ -813,20 +1058,8 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             }
             CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
         };
-        let capture: Vec<f32> = match &exposure.noise {
-            Some(n) => {
-                let dark = n.dark_offset_units();
-                clean
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &v)| {
-                        (n.measure(v, &mut NoiseRng::new(&[s.seed, NOISE_TAG, i as u64])) - dark)
-                            as f32
-                    })
-                    .collect()
-            }
-            None => clean.iter().map(|&v| v as f32).collect(),
-        };
+        check_cancel()?;
+        let capture = exposure.measure(&clean, s.seed);
         write_sample(
             plan,
             root,
@@ -847,14 +1080,32 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
             todo.par_iter()
                 .try_for_each(|s| one(s, &plan.scenes[s.scene].system))?;
         }
+        CaptureMode::Render if recipe.is_meshes() => {
+            for s in &todo {
+                let (ls, sys) = plan.sample_scene(s)?;
+                let Some((src, files)) = plan.mesh_source(s) else {
+                    continue;
+                };
+                let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
+                let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
+                    .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
+                let (clean, frontal) =
+                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed);
+                let capture = exposure.measure(&clean, s.seed);
+                write_mesh_sample(plan, root, s, &capture, &frontal, crop, exposure.full_scale)?;
+                counter.fetch_add(1, Ordering::Relaxed);
+                bar.inc(1);
+            }
+        }
         CaptureMode::Render => {
             for s in &todo {
-                let sys = plan.sample_scene(s)?;
+                let (_, sys) = plan.sample_scene(s)?;
                 one(s, &sys)?;
             }
         }
     }
     bar.finish_and_clear();
+    check_cancel()?;
     let samples_s = t1.elapsed().as_secs_f64();
     let generated = counter.load(Ordering::Relaxed);
     // Finish: metadata, checksums, card.
@@ -878,7 +1129,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         }),
     };
     let metadata: Vec<(usize, String)> = specs
-        .iter()
+        .par_iter()
         .map(|s| Ok((s.split, metadata_line(plan, s)?)))
         .collect::<Result<_, DatasetError>>()?;
     let scene_ids: Vec<usize> = used.into_iter().collect();
@@ -891,18 +1142,18 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 card,
             };
             let bytes = serde_json::to_vec_pretty(&sc).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("shard.json"), &bytes)?;
+            crate::io::write_atomic(&root.join("shard.json"), &bytes)
+                .map_err(DatasetError::Write)?;
         }
         None => {
             let bytes =
                 serde_json::to_vec_pretty(&card).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("dataset.json"), &bytes)?;
+            crate::io::write_atomic(&root.join("dataset.json"), &bytes)
+                .map_err(DatasetError::Write)?;
         }
     }
-    std::fs::remove_file(root.join(RUN_MARKER)).map_err(|e| IoError::Io {
-        path: root.join(RUN_MARKER),
-        source: e,
-    })?;
+    std::fs::remove_file(root.join(RUN_MARKER))
+        .map_err(|e| write_err(&root.join(RUN_MARKER), e))?;
     let finish_s = t2.elapsed().as_secs_f64();
     Ok(RunSummary {
         samples: specs.len(),
@@ -930,17 +1181,8 @@ fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64) -> Vec<f64> {
         .collect()
 }
 
-fn progress_bar(show: bool, len: usize) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len as u64);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "samples {bar:30} {pos}/{len}  {per_sec}  ETA {eta}",
-    ) {
-        bar.set_style(style);
-    }
-    bar
+fn progress_bar(show: bool, len: usize) -> crate::progress::Progress {
+    crate::progress::Progress::new(show, len as u64, "samples")
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -956,50 +1198,125 @@ fn write_sample(
     full_scale: f64,
 ) -> Result<(), DatasetError> {
     let n = plan.recipe.objects.size_px;
-    let [on, op, cn, cp] = plan.sample_files(s);
+    let files = plan.sample_files(s);
+    let (on, op, cn, cp) = (&files[0], &files[1], &files[2], &files[3]);
+    split_dir(root, s)?;
+    let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
+    put(root, on, &npy(on, &[n, n], &f32s)?)?;
+    let png =
+        crate::output::encode_object_png(f, n, n, gamma).map_err(|m| out_err(&root.join(op), m))?;
+    put(root, op, &png)?;
+    put_image(root, [cn, cp], capture, crop, channels, full_scale)
+}
+
+/// Creates the split folder of a sample.
+fn split_dir(root: &Path, s: &SampleSpec) -> Result<(), DatasetError> {
     let dir = root.join(SPLITS[s.split]);
     if !dir.is_dir() {
-        std::fs::create_dir_all(&dir).map_err(|e| IoError::Io {
-            path: dir.clone(),
-            source: e,
-        })?;
+        std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
     }
-    let f32s: Vec<f32> = f.iter().map(|&v| v as f32).collect();
-    put(root, &on, &npy(&on, &[n, n], &f32s)?)?;
-    let png = crate::output::encode_object_png(f, n, n, gamma)
-        .map_err(|m| out_err(&root.join(&op), m))?;
-    put(root, &op, &png)?;
+    Ok(())
+}
+
+/// Writes an image `v` (channel-major, `size` = (w, h)) as float32 `.npy` ([h, w], or
+/// [c, h, w] for several channels) and 16-bit linear PNG, round(65535·clamp(v / full_scale)).
+fn put_image(
+    root: &Path,
+    [rel_npy, rel_png]: [&str; 2],
+    v: &[f32],
+    size: (usize, usize),
+    channels: usize,
+    full_scale: f64,
+) -> Result<(), DatasetError> {
     let shape: Vec<usize> = if channels == 1 {
-        vec![crop.1, crop.0]
+        vec![size.1, size.0]
     } else {
-        vec![channels, crop.1, crop.0]
+        vec![channels, size.1, size.0]
     };
-    put(root, &cn, &npy(&cn, &shape, capture)?)?;
+    put(root, rel_npy, &npy(rel_npy, &shape, v)?)?;
     // PNG: pixel-major, channels interleaved.
-    let p = crop.0 * crop.1;
-    let q = |v: f32| ((f64::from(v) / full_scale).clamp(0.0, 1.0) * 65535.0).round() as u16;
+    let p = size.0 * size.1;
+    let q = |x: f32| ((f64::from(x) / full_scale).clamp(0.0, 1.0) * 65535.0).round() as u16;
     let samples: Vec<u16> = if channels == 1 {
-        capture.iter().map(|&v| q(v)).collect()
+        v.iter().map(|&x| q(x)).collect()
     } else {
         (0..p)
-            .flat_map(|i| (0..channels).map(move |c| q(capture[c * p + i])))
+            .flat_map(|i| (0..channels).map(move |c| q(v[c * p + i])))
             .collect()
     };
-    let png = crate::io::encode_png16(crop.0, crop.1, channels.min(3), &samples)
-        .map_err(|m| out_err(&root.join(&cp), m))?;
-    put(root, &cp, &png)?;
-    Ok(())
+    let png = crate::io::encode_png16(
+        size.0,
+        size.1,
+        channels.min(3),
+        &samples,
+        crate::io::PngTransfer::Linear,
+    )
+    .map_err(|m| out_err(&root.join(rel_png), m))?;
+    put(root, rel_png, &png)
+}
+
+/// Writes the six files of a 3-D sample: capture (`.npy`, `.png` as for 2-D samples), frontal
+/// (`.npy` in capture units, `.png` with full scale [`meshes::FRONTAL_PNG_FULL_SCALE`]),
+/// depth (`.npy`, mm, +inf where nothing is hit) and mask (16-bit `.png`).
+fn write_mesh_sample(
+    plan: &Plan,
+    root: &Path,
+    s: &SampleSpec,
+    capture: &[f32],
+    frontal: &crate::world::frontal::Frontal,
+    crop: (usize, usize),
+    full_scale: f64,
+) -> Result<(), DatasetError> {
+    let files = plan.sample_files(s);
+    split_dir(root, s)?;
+    let nch = frontal.channels.len();
+    let size = (frontal.width, frontal.height);
+    put_image(root, [&files[0], &files[1]], capture, crop, nch, full_scale)?;
+    let fv: Vec<f32> = frontal.channels.concat();
+    put_image(
+        root,
+        [&files[2], &files[3]],
+        &fv,
+        size,
+        nch,
+        meshes::FRONTAL_PNG_FULL_SCALE,
+    )?;
+    put(
+        root,
+        &files[4],
+        &npy(&files[4], &[size.1, size.0], &frontal.depth_mm)?,
+    )?;
+    let png = crate::io::encode_png16(
+        size.0,
+        size.1,
+        1,
+        &frontal.mask,
+        crate::io::PngTransfer::Labels,
+    )
+    .map_err(|m| out_err(&root.join(&files[5]), m))?;
+    put(root, &files[5], &png)
 }
 
 /// One `metadata.jsonl` line (Hugging Face imagefolder: `file_name` is the capture PNG).
 fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
-    let [on, op, cn, cp] = plan.sample_files(s);
+    let files = plan.sample_files(s);
     let base = |p: &str| p.rsplit('/').next().unwrap_or(p).to_string();
     let mut m = serde_json::Map::new();
-    m.insert("file_name".into(), base(&cp).into());
-    m.insert("object_file_name".into(), base(&op).into());
-    m.insert("capture_npy".into(), base(&cn).into());
-    m.insert("object_npy".into(), base(&on).into());
+    let names: &[&str] = if plan.recipe.is_meshes() {
+        &[
+            "capture_npy",
+            "file_name",
+            "frontal_npy",
+            "frontal_file_name",
+            "depth_npy",
+            "mask_file_name",
+        ]
+    } else {
+        &["object_npy", "object_file_name", "capture_npy", "file_name"]
+    };
+    for (k, f) in names.iter().zip(&files) {
+        m.insert((*k).into(), base(f).into());
+    }
     m.insert("id".into(), s.id.into());
     m.insert("split".into(), SPLITS[s.split].into());
     m.insert("seed".into(), s.seed.into());
@@ -1018,6 +1335,25 @@ fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
     for (k, v) in &s.params {
         m.insert(k.clone(), (*v).into());
     }
+    if let Some((src, files)) = plan.mesh_source(s) {
+        let (ls, _) = plan.sample_scene(s)?;
+        let (d, bounds) = plan.mesh_draw(s, src, files, &ls)?;
+        let mut drawn =
+            serde_json::to_value(&d).map_err(|e| out_err(&plan.recipe_path, e.to_string()))?;
+        if let Some(o) = drawn.as_object_mut() {
+            o.insert("bounds_mm".into(), serde_json::json!(bounds));
+            o.insert(
+                "mask_value".into(),
+                ls.scene
+                    .object
+                    .len()
+                    .saturating_add(1)
+                    .min(usize::from(u16::MAX - 1))
+                    .into(),
+            );
+            m.append(o);
+        }
+    }
     serde_json::to_string(&m).map_err(|e| out_err(&plan.recipe_path, e.to_string()))
 }
 
@@ -1030,10 +1366,7 @@ struct CardContext<'a> {
 
 fn file_entry(root: &Path, rel: &str) -> Result<FileEntry, DatasetError> {
     let p = root.join(rel);
-    let bytes = std::fs::read(&p).map_err(|e| IoError::Io {
-        path: p.clone(),
-        source: e,
-    })?;
+    let bytes = crate::io::read_input(&p, crate::io::MAX_BINARY_BYTES)?;
     Ok(FileEntry {
         sha256: sha256_hex(&bytes),
         bytes: bytes.len() as u64,
@@ -1114,12 +1447,22 @@ fn build_card(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
+    let mut units = units;
+    let mut loading_3d = Vec::new();
+    if r.is_meshes() {
+        units.remove("object_npy");
+        units.remove("object_png");
+        units.remove("matrix");
+        units.extend(meshes::units().into_iter().map(|(k, v)| (k.to_string(), v)));
+        loading_3d.push(("metadata_3d", meshes::METADATA_3D));
+    }
     let loading: BTreeMap<String, String> = [
         ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),
         ("huggingface", "datasets.load_dataset('imagefolder', data_dir=DIR): column 'image' is the capture PNG, 'object' the object PNG (datasets 5.2, the version CI tests, reads *_file_name columns as images; older versions give the file name), the rest from metadata.jsonl; the split 'val' is named 'validation'; Pillow reads 16-bit RGB PNGs (colour sensors) as 8-bit, the .npy files are exact"),
-        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key"),
+        ("metadata", "SPLIT/metadata.jsonl: one JSON object per sample: file_name (capture PNG), object_file_name (object PNG), capture_npy, object_npy, id, split, seed, source (generator), object_draw (its random parameters), scene, matrix, and every varied scene key (depth_mm with [depth])"),
     ]
     .into_iter()
+    .chain(loading_3d)
     .map(|(k, v)| (k.to_string(), v.to_string()))
     .collect();
     Card {
@@ -1161,12 +1504,13 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     let mut cards: Vec<(PathBuf, ShardCard)> = Vec::new();
     for d in shards {
         let p = d.join("shard.json");
-        let bytes = std::fs::read(&p).map_err(|_| {
-            out_err(
+        if !p.is_file() {
+            return Err(out_err(
                 d,
                 "has no shard.json (not a finished shard; finish it with --resume)",
-            )
-        })?;
+            ));
+        }
+        let bytes = crate::io::read_input(&p, crate::io::MAX_BINARY_BYTES)?;
         let c: ShardCard = serde_json::from_slice(&bytes)
             .map_err(|e| out_err(&p, format!("not a shard card: {e}")))?;
         cards.push((d.clone(), c));
@@ -1248,23 +1592,18 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     if nonempty || (out.exists() && !out.is_dir()) {
         return Err(out_err(out, "exists and is not empty"));
     }
-    std::fs::create_dir_all(out)
-        .map_err(|e| out_err(out, format!("cannot create the output folder: {e}")))?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")?;
+    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+    let _lock = lock_out(out)?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
+        .map_err(DatasetError::Write)?;
     origin
         .par_iter()
         .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
             let dst = out.join(rel);
             if let Some(parent) = dst.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| IoError::Io {
-                    path: parent.to_path_buf(),
-                    source: e,
-                })?;
+                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
             }
-            let bytes = std::fs::read(d.join(rel)).map_err(|e| IoError::Io {
-                path: d.join(rel),
-                source: e,
-            })?;
+            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
             put(out, rel, &bytes)
         })?;
     // Metadata: concatenate per split in shard (= id) order.
@@ -1311,11 +1650,8 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     card.scenes = scenes.into_values().collect();
     card.files = files;
     let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join("dataset.json"), &bytes)?;
-    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| IoError::Io {
-        path: out.join(RUN_MARKER),
-        source: e,
-    })?;
+    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
+    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
     Ok(RunSummary {
         samples: card.samples,
         generated: 0,

@@ -82,6 +82,8 @@ pub enum ObjectSpec {
         /// Mirrored left–right.
         flip: bool,
     },
+    /// A 3-D scene (`meshes`): drawn by `meshes.rs`, it has no 2-D object.
+    Mesh,
 }
 
 /// A draw with the index of its source and its levels.
@@ -195,6 +197,10 @@ pub fn draw(objects: &Objects, images: &[Vec<(PathBuf, String)>], sample_seed: u
                 flip: *flip && rng.uniform() < 0.5,
             }
         }
+        Source::Meshes(_) => {
+            binary = false;
+            ObjectSpec::Mesh
+        }
     };
     let levels = (binary && objects.random_levels)
         .then(|| [between(&mut rng, 0.0, 0.3), between(&mut rng, 0.6, 1.0)]);
@@ -233,6 +239,7 @@ impl ObjectDraw {
             ),
             ObjectSpec::Smooth { seed } => format!("smooth seed={seed}"),
             ObjectSpec::Image { name, flip, .. } => format!("images file={name} flip={flip}"),
+            ObjectSpec::Mesh => "meshes".to_string(),
         };
         if let Some([d, b]) = self.levels {
             s.push_str(&format!(" levels=({d:.4},{b:.4})"));
@@ -298,6 +305,7 @@ impl ObjectDraw {
             ObjectSpec::Image { path, flip, .. } => {
                 return load_resized(path, size, gamma, resize, *flip);
             }
+            ObjectSpec::Mesh => return Err("a 3-D scene has no 2-D object".to_string()),
         };
         let code: Vec<f32> = match self.levels {
             Some([d, b]) => code

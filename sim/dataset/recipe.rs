@@ -27,7 +27,13 @@
 //! [[vary]]                      # optional per-sample scene variation
 //! key = "display.distance_mm"
 //! values = [450.0, 550.0, 650.0]   # or range = [450.0, 650.0] (render mode only)
+//!
+//! [depth]                       # optional, matrix mode: planar objects at random depths
+//! values_mm = [300.0, 450.0]    # or grid_mm = "300:600:4" (START:STOP:STEPS, ends included)
 //! ```
+//!
+//! 3-D scenes (render mode): every source is `generator = "meshes"` (see [`MeshSource`] for
+//! its keys and defaults); `objects.size_px` is then the side of the frontal ground truth.
 
 use std::collections::BTreeMap;
 
@@ -156,6 +162,9 @@ pub enum Source {
         #[serde(default = "one")]
         weight: f64,
     },
+    /// 3-D scenes (render mode only): a mesh with a random pose, placement, material and
+    /// lighting per sample.
+    Meshes(Box<MeshSource>),
     /// Images (PNG or JPEG) from a folder, chosen at random per sample, converted to
     /// luminance in linear light (Rec. 709 weights after the display gamma) and resized.
     Images {
@@ -202,6 +211,7 @@ impl Source {
             Source::Bars { .. } => "bars",
             Source::Smooth { .. } => "smooth",
             Source::Images { .. } => "images",
+            Source::Meshes(_) => "meshes",
         }
     }
 
@@ -214,12 +224,201 @@ impl Source {
             | Source::Bars { weight, .. }
             | Source::Smooth { weight }
             | Source::Images { weight, .. } => *weight,
+            Source::Meshes(m) => m.weight,
         }
     }
 }
 
 /// Names of the generators, for messages.
-pub const GENERATORS: &[&str] = &["glyphs", "shapes", "siemens", "bars", "smooth", "images"];
+pub const GENERATORS: &[&str] = &[
+    "glyphs", "shapes", "siemens", "bars", "smooth", "images", "meshes",
+];
+
+/// A source of 3-D scenes (`generator = "meshes"`). Ranges `[lo, hi]` are drawn uniformly
+/// (ends included; `lo = hi` fixes a value) per sample with `rand`'s distributions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSource {
+    /// Relative weight.
+    #[serde(default = "one")]
+    pub weight: f64,
+    /// Built-in meshes to draw from (`head`, `hand`, `sphere`, `box`, `cylinder`, `quad`).
+    #[serde(default = "default_builtins")]
+    pub builtin: Vec<String>,
+    /// Folder of `.gltf`, `.glb` and `.obj` files (relative to the recipe), drawn from too.
+    #[serde(default)]
+    pub folder: Option<String>,
+    /// What one OBJ file unit is (`mm`, `cm`, `m`, `in`); glTF is metres.
+    #[serde(default)]
+    pub units: Option<String>,
+    /// Distance of the mesh origin from the plate along −z, mm.
+    #[serde(default = "default_distance")]
+    pub distance_mm: [f64; 2],
+    /// Horizontal position of the mesh origin, mm.
+    #[serde(default = "default_lateral")]
+    pub x_mm: [f64; 2],
+    /// Vertical position of the mesh origin, mm.
+    #[serde(default = "default_lateral")]
+    pub y_mm: [f64; 2],
+    /// Largest rotation about x, y and z, degrees (each drawn in ±max).
+    #[serde(default = "default_rotation")]
+    pub rotation_deg: [f64; 3],
+    /// Uniform scale.
+    #[serde(default = "default_scale")]
+    pub scale: [f64; 2],
+    /// Hand: flexion of each finger, degrees (drawn per finger, within [−30, 120]).
+    #[serde(default = "default_bend")]
+    pub bend_deg: [f64; 2],
+    /// Hand: finger spread, degrees (within [−20, 30]).
+    #[serde(default = "default_spread")]
+    pub spread_deg: [f64; 2],
+    /// Linear RGB base colour, each channel (within [0, 1]).
+    #[serde(default = "default_albedo")]
+    pub albedo: [f64; 2],
+    /// GGX roughness (within [0, 1]).
+    #[serde(default = "default_roughness")]
+    pub roughness: [f64; 2],
+    /// Probability that the material is a metal (metallic = 1) instead of a dielectric.
+    #[serde(default)]
+    pub metallic_probability: f64,
+    /// Radiance scale of the key light (a 400 × 400 mm D65-to-tungsten panel toward the mesh).
+    #[serde(default = "default_key")]
+    pub key_light: [f64; 2],
+    /// Colour temperature of the key light, kelvin (a black body).
+    #[serde(default = "default_cct")]
+    pub key_light_kelvin: [f64; 2],
+    /// Radiance scale of the screen's glow (white LED, 518 × 324 mm at the plate).
+    #[serde(default = "default_glow")]
+    pub screen_glow: [f64; 2],
+    /// Radiance scale of a uniform D65 environment (0: none, a black background).
+    #[serde(default = "default_environment")]
+    pub environment: [f64; 2],
+}
+
+fn default_builtins() -> Vec<String> {
+    vec!["head".into(), "hand".into()]
+}
+fn default_distance() -> [f64; 2] {
+    [250.0, 600.0]
+}
+fn default_lateral() -> [f64; 2] {
+    [-30.0, 30.0]
+}
+fn default_rotation() -> [f64; 3] {
+    [15.0, 30.0, 10.0]
+}
+fn default_scale() -> [f64; 2] {
+    [0.9, 1.1]
+}
+fn default_bend() -> [f64; 2] {
+    [0.0, 70.0]
+}
+fn default_spread() -> [f64; 2] {
+    [-5.0, 20.0]
+}
+fn default_albedo() -> [f64; 2] {
+    [0.1, 0.8]
+}
+fn default_roughness() -> [f64; 2] {
+    [0.3, 1.0]
+}
+fn default_key() -> [f64; 2] {
+    [0.5, 3.0]
+}
+fn default_cct() -> [f64; 2] {
+    [2700.0, 6500.0]
+}
+fn default_glow() -> [f64; 2] {
+    [0.1, 0.5]
+}
+fn default_environment() -> [f64; 2] {
+    [0.0, 0.05]
+}
+
+/// `[depth]`: the depths of a planar-object dataset (matrix mode), each with its own H.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthGrid {
+    /// Depths in mm (distance of the object plane from the plate).
+    #[serde(default)]
+    pub values_mm: Option<Vec<f64>>,
+    /// `START:STOP:STEPS` in mm, STEPS values with both ends included.
+    #[serde(default)]
+    pub grid_mm: Option<String>,
+}
+
+/// Largest number of depths.
+pub const MAX_DEPTHS: usize = 1000;
+
+impl DepthGrid {
+    /// The depths in mm, checked (finite, positive, distinct, at most [`MAX_DEPTHS`]); the
+    /// error is (key, message).
+    pub fn depths_mm(&self) -> Result<Vec<f64>, (String, String)> {
+        let e = |k: &str, m: String| Err((format!("depth.{k}"), m));
+        let v = match (&self.values_mm, &self.grid_mm) {
+            (Some(v), None) => v.clone(),
+            (None, Some(g)) => {
+                let parts: Vec<&str> = g.split(':').map(str::trim).collect();
+                let bad = || format!("{g:?} is not START:STOP:STEPS (mm, mm, count >= 1)");
+                if parts.len() != 3 {
+                    return e("grid_mm", bad());
+                }
+                let (Ok(a), Ok(b), Ok(n)) = (
+                    parts[0].parse::<f64>(),
+                    parts[1].parse::<f64>(),
+                    parts[2].parse::<usize>(),
+                ) else {
+                    return e("grid_mm", bad());
+                };
+                if n == 0 || n > MAX_DEPTHS {
+                    return e(
+                        "grid_mm",
+                        format!("STEPS must be in 1..={MAX_DEPTHS}, got {n}"),
+                    );
+                }
+                if n == 1 {
+                    vec![a]
+                } else {
+                    (0..n)
+                        .map(|i| a + (b - a) * i as f64 / (n - 1) as f64)
+                        .collect()
+                }
+            }
+            _ => {
+                return e(
+                    "values_mm",
+                    "give exactly one of `values_mm` or `grid_mm`".into(),
+                );
+            }
+        };
+        let key = if self.values_mm.is_some() {
+            "values_mm"
+        } else {
+            "grid_mm"
+        };
+        if v.is_empty() || v.len() > MAX_DEPTHS {
+            return e(
+                key,
+                format!("needs 1..={MAX_DEPTHS} depths, got {}", v.len()),
+            );
+        }
+        if let Some(d) = v
+            .iter()
+            .find(|d| !(d.is_finite() && **d > 0.0 && **d < 1e7))
+        {
+            return e(
+                key,
+                format!("depths must be positive distances in mm, got {d}"),
+            );
+        }
+        let mut sorted = v.clone();
+        sorted.sort_by(f64::total_cmp);
+        if sorted.windows(2).any(|w| w[0] == w[1]) {
+            return e(key, "depths must be distinct".into());
+        }
+        Ok(v)
+    }
+}
 
 /// `[objects]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -280,6 +479,9 @@ pub struct Recipe {
     /// Per-sample scene variation.
     #[serde(default)]
     pub vary: Vec<Vary>,
+    /// Planar objects at random depths (matrix mode).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth: Option<DepthGrid>,
 }
 
 fn default_spp() -> u32 {
@@ -291,8 +493,12 @@ fn default_noise() -> NoiseModel {
 
 /// Largest object side accepted.
 pub const MAX_OBJECT_PX: usize = 1024;
-/// Largest sample count accepted (ids are written with at least six digits).
-pub const MAX_SAMPLES: usize = 100_000_000;
+/// Largest sample count accepted: a run keeps a few KiB of bookkeeping per sample (its
+/// spec, metadata line and the card's checksums), so 2·10⁶ samples need up to about 6 GiB of
+/// memory (and about 2.4 TB of files at the paper's size); larger sets are several recipes.
+pub const MAX_SAMPLES: usize = 2_000_000;
+/// Most distinct scenes (combinations of the `vary` `values` lists) accepted.
+pub const MAX_SCENES: usize = 256;
 
 /// Parses a recipe; the error is (key, message). Unknown keys and generators are refused with
 /// the list of valid ones.
@@ -434,7 +640,40 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             Source::Images { folder, .. } if folder.is_empty() => {
                 return err(&key("folder"), "must name a folder".into());
             }
+            Source::Meshes(m) => check_meshes(m, r.mode).map_err(|(k, m)| (key(&k), m))?,
             _ => {}
+        }
+    }
+    let meshes = o
+        .sources
+        .iter()
+        .filter(|s| matches!(s, Source::Meshes(_)))
+        .count();
+    if meshes > 0 && meshes < o.sources.len() {
+        return err(
+            "objects.sources",
+            "`meshes` (3-D scenes) cannot be mixed with 2-D generators in one dataset".into(),
+        );
+    }
+    if meshes > 0 && o.size_px > MAX_FRONTAL_PX {
+        return err(
+            "objects.size_px",
+            format!(
+                "is the frontal ground truth's side for `meshes`: must be in 2..={MAX_FRONTAL_PX}, got {}",
+                o.size_px
+            ),
+        );
+    }
+    if let Some(d) = &r.depth {
+        d.depths_mm()?;
+        if r.mode != CaptureMode::Matrix {
+            return err(
+                "depth",
+                "planar objects at random depths need mode = \"matrix\" (one H per depth)".into(),
+            );
+        }
+        if meshes > 0 {
+            return err("depth", "does not apply to `meshes` sources".into());
         }
     }
     let mut seen = std::collections::BTreeSet::new();
@@ -474,10 +713,103 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             }
         }
     }
+    let scenes = r.vary.iter().try_fold(1usize, |n, v| {
+        n.checked_mul(v.values.as_ref().map_or(1, Vec::len))
+    });
+    if scenes.is_none_or(|n| n > MAX_SCENES) {
+        return err(
+            "vary",
+            format!(
+                "the `values` lists give more than {MAX_SCENES} distinct scenes (one H each, all held in memory); vary fewer keys or values"
+            ),
+        );
+    }
+    Ok(())
+}
+
+/// Largest frontal side of a 3-D dataset (objects.size_px with `meshes`).
+pub const MAX_FRONTAL_PX: usize = 1024;
+
+fn check_range(k: &str, r: [f64; 2], lo: f64, hi: f64) -> Result<(), (String, String)> {
+    if r.iter().all(|v| v.is_finite() && *v >= lo && *v <= hi) && r[0] <= r[1] {
+        Ok(())
+    } else {
+        Err((
+            k.to_string(),
+            format!(
+                "must be [lo, hi] with {lo} <= lo <= hi <= {hi}, got [{}, {}]",
+                r[0], r[1]
+            ),
+        ))
+    }
+}
+
+/// Checks a `meshes` source; the error is (key within the source, message).
+fn check_meshes(m: &MeshSource, mode: CaptureMode) -> Result<(), (String, String)> {
+    let err = |k: &str, msg: String| Err((k.to_string(), msg));
+    if mode != CaptureMode::Render {
+        return err(
+            "generator",
+            "`meshes` makes 3-D scenes, which need mode = \"render\"".into(),
+        );
+    }
+    let names = crate::world::shapes::builtin_names();
+    if let Some(b) = m.builtin.iter().find(|b| !names.contains(&b.as_str())) {
+        return err(
+            "builtin",
+            format!("unknown built-in mesh {b:?}; expected some of {names:?}"),
+        );
+    }
+    if m.builtin.is_empty() && m.folder.is_none() {
+        return err(
+            "builtin",
+            "give built-in meshes, a `folder` of mesh files, or both".into(),
+        );
+    }
+    if crate::world::desc::unit_mm(m.units.as_deref()).is_none() {
+        return err(
+            "units",
+            format!("unknown unit {:?}; expected mm, cm, m or in", m.units),
+        );
+    }
+    check_range("distance_mm", m.distance_mm, 1.0, 1e5)?;
+    check_range("x_mm", m.x_mm, -1e5, 1e5)?;
+    check_range("y_mm", m.y_mm, -1e5, 1e5)?;
+    for (i, v) in m.rotation_deg.iter().enumerate() {
+        if !(v.is_finite() && (0.0..=180.0).contains(v)) {
+            return err(
+                "rotation_deg",
+                format!("entry {i} must be a largest angle in [0, 180], got {v}"),
+            );
+        }
+    }
+    check_range("scale", m.scale, 1e-6, 1e6)?;
+    check_range("bend_deg", m.bend_deg, -30.0, 120.0)?;
+    check_range("spread_deg", m.spread_deg, -20.0, 30.0)?;
+    check_range("albedo", m.albedo, 0.0, 1.0)?;
+    check_range("roughness", m.roughness, 0.0, 1.0)?;
+    if !(0.0..=1.0).contains(&m.metallic_probability) {
+        return err(
+            "metallic_probability",
+            format!("must be in [0, 1], got {}", m.metallic_probability),
+        );
+    }
+    check_range("key_light", m.key_light, 0.0, 1e6)?;
+    check_range("key_light_kelvin", m.key_light_kelvin, 1000.0, 40000.0)?;
+    check_range("screen_glow", m.screen_glow, 0.0, 1e6)?;
+    check_range("environment", m.environment, 0.0, 1e6)?;
     Ok(())
 }
 
 impl Recipe {
+    /// True for a 3-D dataset (`meshes` sources).
+    pub fn is_meshes(&self) -> bool {
+        self.objects
+            .sources
+            .iter()
+            .any(|s| matches!(s, Source::Meshes(_)))
+    }
+
     /// Sample counts per split: train and val rounded to the nearest integer, test the rest.
     pub fn split_counts(&self) -> [usize; 3] {
         let n = self.samples as f64;
@@ -487,7 +819,8 @@ impl Recipe {
     }
 
     /// The distinct discrete scenes: every combination of the `values` lists (first key
-    /// slowest), each as (overrides, params). Keys with a `range` are not part of it.
+    /// slowest) and, last, of the `[depth]` grid (param [`DEPTH_KEY`], no override), each as
+    /// (overrides, params). Keys with a `range` are not part of it.
     pub fn discrete_scenes(&self) -> Vec<(Vec<String>, BTreeMap<String, f64>)> {
         let mut out: Vec<(Vec<String>, BTreeMap<String, f64>)> =
             vec![(Vec::new(), BTreeMap::new())];
@@ -507,9 +840,32 @@ impl Recipe {
                     .collect();
             }
         }
+        if let Some(d) = &self.depth {
+            let depths = d.depths_mm().unwrap_or_default();
+            out = out
+                .into_iter()
+                .flat_map(|(o, p)| {
+                    depths.iter().map(move |&x| {
+                        let mut p = p.clone();
+                        p.insert(DEPTH_KEY.to_string(), x);
+                        (o.clone(), p)
+                    })
+                })
+                .collect();
+        }
         out
     }
+
+    /// Number of depths (1 without `[depth]`).
+    pub fn depth_count(&self) -> usize {
+        self.depth
+            .as_ref()
+            .map_or(1, |d| d.depths_mm().map_or(1, |v| v.len()))
+    }
 }
+
+/// The parameter (and metadata column) holding a sample's depth in mm.
+pub const DEPTH_KEY: &str = "depth_mm";
 
 /// A value as written into an override (shortest round-trip form).
 pub fn fmt_value(x: f64) -> String {

@@ -51,9 +51,11 @@ pub fn spectral_channel_name(lambda_nm: f64) -> String {
 ///
 /// Channels are stored sorted by name, as OpenEXR requires. `attrs` become
 /// custom header attributes. If any channel name starts with `S0.`, the
-/// spectral-EXR attributes `spectralLayoutVersion = "1.0"` and
-/// `emissiveUnits = "W.m^-2.sr^-1"` are added (entries in `attrs` with the same
-/// names take precedence). The output contains no timestamps and its header
+/// spectral-EXR attribute `spectralLayoutVersion = "1.0"` is added. No
+/// `emissiveUnits` is written: the layout reserves it for absolute radiance
+/// (W·m⁻²·sr⁻¹·nm⁻¹), and stscam's values are relative (their unit is in the
+/// `stscam.units` attribute); entries in `attrs` with the same names take
+/// precedence. The output contains no timestamps and its header
 /// attributes are stored in name order, so identical inputs give identical bytes.
 pub fn encode_exr(
     width: usize,
@@ -92,10 +94,7 @@ pub fn encode_exr(
 
     let mut attributes = LayerAttributes::default();
     if names.iter().any(|n| n.starts_with(SPECTRAL_PREFIX)) {
-        for (key, value) in [
-            ("spectralLayoutVersion", "1.0"),
-            ("emissiveUnits", "W.m^-2.sr^-1"),
-        ] {
+        for (key, value) in [("spectralLayoutVersion", "1.0")] {
             attributes
                 .other
                 .insert(Text::from(key), AttributeValue::Text(Text::from(value)));
@@ -182,7 +181,7 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), String> {
 /// Returns `(width, height, channels)` with every channel converted to `f32`,
 /// row-major with row 0 at the top, in the file's (name-sorted) channel order.
 pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<ExrChannel>), IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     decode_exr(path, bytes)
 }
 
@@ -299,10 +298,8 @@ mod tests {
             other.get(&Text::from("spectralLayoutVersion")),
             Some(&AttributeValue::Text(Text::from("1.0")))
         );
-        assert_eq!(
-            other.get(&Text::from("emissiveUnits")),
-            Some(&AttributeValue::Text(Text::from("W.m^-2.sr^-1")))
-        );
+        // The values are relative: no absolute-radiance unit is claimed.
+        assert_eq!(other.get(&Text::from("emissiveUnits")), None);
     }
 
     #[test]

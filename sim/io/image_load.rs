@@ -92,7 +92,7 @@ fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {
             ));
         }
     };
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     let image = decode(path, bytes)?;
     if image.width == 0 || image.height == 0 {
         return Err(IoError::format(path, "image is empty"));
@@ -171,6 +171,7 @@ fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
 /// pixel data is not decoded).
 pub fn probe_image(path: &Path) -> Result<(usize, usize), IoError> {
     use std::io::BufReader;
+    super::input::check_input_file(path, super::input::MAX_BINARY_BYTES)?;
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     let ext = path
         .extension()
@@ -361,7 +362,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("rgb.png");
         let rgb: [u16; 6] = [65535, 0, 0, 1000, 30000, 65535];
-        write_atomic(&path, &encode_png16(2, 1, 3, &rgb).unwrap()).unwrap();
+        write_atomic(
+            &path,
+            &encode_png16(2, 1, 3, &rgb, crate::io::PngTransfer::Srgb).unwrap(),
+        )
+        .unwrap();
         let img = load_image(&path).unwrap();
         assert_eq!((img.width, img.height, img.channels), (2, 1, 3));
         let expect: Vec<f32> = rgb

@@ -112,7 +112,7 @@ pub fn encode_csr_npz(
 /// gives [`IoError::Io`]; any problem with its contents gives
 /// [`IoError::Format`].
 pub fn read_csr_npz(path: &Path) -> Result<CsrParts, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     decode_csr_npz(path, &bytes)
 }
 
@@ -166,7 +166,7 @@ pub fn encode_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<Vec<
 /// gives [`IoError::Io`]; any problem with its contents gives
 /// [`IoError::Format`].
 pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
     decode_npy_f32(path, &bytes)
 }
 
@@ -366,13 +366,19 @@ fn validate_csr(
 const OTHER_SPARSE_FORMATS: [&str; 3] = ["csc", "coo", "bsr"];
 
 /// [`decode_csr_npz`] with plain-string errors.
+///
+/// No member is inflated before its declared size has been checked: `format` and `shape`
+/// against [`SMALL_MEMBER_BYTES`], `indptr` against `rows + 1` integers of 8 bytes, and
+/// `data` and `indices` against the `nnz` that `indptr` announces (8 bytes each at most),
+/// all against [`MAX_MEMBER_BYTES`]; inflation itself stops at the declared size, so an
+/// archive whose headers lie cannot exceed it either.
 fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
     let mut archive = ZipArchive::new(Cursor::new(bytes))
         .map_err(|e| format!("not a valid npz (zip) archive: {e}"))?;
 
     // format
     let name = "format.npy";
-    let raw = read_entry(&mut archive, name)?
+    let raw = read_entry(&mut archive, name, SMALL_MEMBER_BYTES, "a format string")?
         .ok_or_else(|| format!("missing entry {name} (not a scipy.sparse save_npz file?)"))?;
     let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
     let fmt = decode_text(&arr).map_err(|m| format!("{name}: {m}"))?;
@@ -386,7 +392,7 @@ fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
 
     // shape
     let name = "shape.npy";
-    let raw = read_required(&mut archive, name)?;
+    let raw = read_required(&mut archive, name, SMALL_MEMBER_BYTES, "two integers")?;
     let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
     if arr.shape.len() != 1 || arr.shape[0] != 2 {
         return Err(format!(
@@ -400,9 +406,38 @@ fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
     .map_err(|m| format!("{name}: {m}"))?;
     let (rows, cols) = (dims[0], dims[1]);
 
+    // indptr: its size follows from the shape.
+    let name = "indptr.npy";
+    let most = member_bytes_for(rows as u128 + 1).ok_or_else(|| {
+        format!(
+            "shape.npy: {rows} rows need an indptr.npy of more than the {MAX_MEMBER_BYTES} bytes accepted"
+        )
+    })?;
+    let raw = read_required(
+        &mut archive,
+        name,
+        most,
+        &format!("rows + 1 = {} integers (shape.npy)", rows as u128 + 1),
+    )?;
+    let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
+    require_1d(&arr).map_err(|m| format!("{name}: {m}"))?;
+    let indptr = decode_ints(&arr, |k, v| {
+        u64::try_from(v).map_err(|_| format!("negative row pointer {v} at position {k}"))
+    })
+    .map_err(|m| format!("{name}: {m}"))?;
+    drop(raw);
+    // The stored entries indptr announces (checked in full by validate_csr below).
+    let nnz = indptr.last().copied().unwrap_or(0);
+    let most = member_bytes_for(u128::from(nnz)).ok_or_else(|| {
+        format!(
+            "{name}: announces {nnz} stored entries, more than the {MAX_MEMBER_BYTES} bytes accepted per member allow"
+        )
+    })?;
+    let why = format!("nnz = {nnz} values (the last entry of indptr.npy)");
+
     // data
     let name = "data.npy";
-    let raw = read_required(&mut archive, name)?;
+    let raw = read_required(&mut archive, name, most, &why)?;
     let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
     require_1d(&arr).map_err(|m| format!("{name}: {m}"))?;
     let data = decode_floats(&arr).map_err(|m| format!("{name}: {m}"))?;
@@ -410,7 +445,7 @@ fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
 
     // indices
     let name = "indices.npy";
-    let raw = read_required(&mut archive, name)?;
+    let raw = read_required(&mut archive, name, most, &why)?;
     let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
     require_1d(&arr).map_err(|m| format!("{name}: {m}"))?;
     let indices = decode_ints(&arr, |k, v| {
@@ -420,17 +455,6 @@ fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
             u32::try_from(v)
                 .map_err(|_| format!("column index {v} at position {k} exceeds the u32 range"))
         }
-    })
-    .map_err(|m| format!("{name}: {m}"))?;
-    drop(raw);
-
-    // indptr
-    let name = "indptr.npy";
-    let raw = read_required(&mut archive, name)?;
-    let arr = parse_npy(&raw).map_err(|m| format!("{name}: {m}"))?;
-    require_1d(&arr).map_err(|m| format!("{name}: {m}"))?;
-    let indptr = decode_ints(&arr, |k, v| {
-        u64::try_from(v).map_err(|_| format!("negative row pointer {v} at position {k}"))
     })
     .map_err(|m| format!("{name}: {m}"))?;
     drop(raw);
@@ -445,27 +469,64 @@ fn decode_csr_inner(bytes: &[u8]) -> Result<CsrParts, String> {
     })
 }
 
-/// Reads the whole (decompressed) entry `name`, or `None` if the archive has
-/// no such entry. The buffer grows with the data actually decompressed, never
-/// with the size the archive declares.
+/// Largest npz member inflated: 4 GiB.
+pub const MAX_MEMBER_BYTES: u64 = 4 << 30;
+
+/// Largest `format.npy` or `shape.npy` member: the npy preamble and a few values.
+const SMALL_MEMBER_BYTES: u64 = NPY_PREAMBLE_BYTES + 1024;
+
+/// Most bytes of an npy preamble (magic, version, header) accepted in an npz member.
+const NPY_PREAMBLE_BYTES: u64 = 1 << 16;
+
+/// Most bytes a 1-D npy member of `count` numbers of at most 8 bytes may hold, if within
+/// [`MAX_MEMBER_BYTES`].
+fn member_bytes_for(count: u128) -> Option<u64> {
+    let bytes = count * 8 + u128::from(NPY_PREAMBLE_BYTES);
+    u64::try_from(bytes).ok().filter(|&b| b <= MAX_MEMBER_BYTES)
+}
+
+/// Reads the whole (decompressed) entry `name`, or `None` if the archive has no such entry.
+/// The entry's declared size is checked against `max_bytes` (what `why` allows) before it
+/// is inflated, and inflation stops there whatever the archive declares.
 fn read_entry(
     archive: &mut ZipArchive<Cursor<&[u8]>>,
     name: &str,
+    max_bytes: u64,
+    why: &str,
 ) -> Result<Option<Vec<u8>>, String> {
-    let mut file = match archive.by_name(name) {
+    let file = match archive.by_name(name) {
         Ok(file) => file,
         Err(zip::result::ZipError::FileNotFound) => return Ok(None),
         Err(e) => return Err(format!("{name}: cannot open zip entry: {e}")),
     };
+    let declared = file.size();
+    if declared > max_bytes {
+        return Err(format!(
+            "{name}: declares {declared} bytes uncompressed, more than the {max_bytes} that {why} can take; refused before inflating"
+        ));
+    }
     let mut buf = Vec::new();
-    file.read_to_end(&mut buf)
+    buf.try_reserve_exact(usize::try_from(declared).unwrap_or(usize::MAX))
+        .map_err(|_| format!("{name}: cannot allocate {declared} bytes"))?;
+    file.take(declared.saturating_add(1))
+        .read_to_end(&mut buf)
         .map_err(|e| format!("{name}: cannot read zip entry: {e}"))?;
+    if buf.len() as u64 > declared {
+        return Err(format!(
+            "{name}: inflates to more than the {declared} bytes it declares"
+        ));
+    }
     Ok(Some(buf))
 }
 
 /// [`read_entry`] for an entry that must be present.
-fn read_required(archive: &mut ZipArchive<Cursor<&[u8]>>, name: &str) -> Result<Vec<u8>, String> {
-    read_entry(archive, name)?.ok_or_else(|| format!("missing entry {name}"))
+fn read_required(
+    archive: &mut ZipArchive<Cursor<&[u8]>>,
+    name: &str,
+    max_bytes: u64,
+    why: &str,
+) -> Result<Vec<u8>, String> {
+    read_entry(archive, name, max_bytes, why)?.ok_or_else(|| format!("missing entry {name}"))
 }
 
 /// Requires a 1-D array.

@@ -3,14 +3,30 @@
 
 use png::{BitDepth, ColorType, Encoder};
 
+/// How a PNG's samples encode light, written as the colour chunks viewers read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PngTransfer {
+    /// sRGB-encoded previews: an `sRGB` chunk (perceptual) and its fallback `gAMA` 1/2.2
+    /// (45455).
+    Srgb,
+    /// Linear values (e.g. dataset captures scaled to full scale): `gAMA` 1.0 (100000).
+    Linear,
+    /// Display code values of a display with this gamma (object targets): `gAMA` 1/γ.
+    DisplayGamma(f64),
+    /// Integer labels (masks), not light: no colour chunk.
+    Labels,
+}
+
 /// Encodes a 16-bit grayscale (`channels == 1`) or RGB (`channels == 3`) PNG in
-/// memory. `samples` are interleaved pixel-major, row 0 at the top. The output
-/// has no time or other optional chunks, so it is deterministic.
+/// memory. `samples` are interleaved pixel-major, row 0 at the top; `transfer` says how they
+/// encode light (`sRGB`/`gAMA` chunks). The output has no time or other optional chunks, so it
+/// is deterministic.
 pub fn encode_png16(
     width: usize,
     height: usize,
     channels: usize,
     samples: &[u16],
+    transfer: PngTransfer,
 ) -> Result<Vec<u8>, String> {
     let color = match channels {
         1 => ColorType::Grayscale,
@@ -40,6 +56,18 @@ pub fn encode_png16(
     let mut encoder = Encoder::new(&mut out, w, h);
     encoder.set_color(color);
     encoder.set_depth(BitDepth::Sixteen);
+    match transfer {
+        PngTransfer::Srgb => {
+            encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+            encoder.set_source_gamma(png::ScaledFloat::from_scaled(45455));
+        }
+        PngTransfer::Linear => encoder.set_source_gamma(png::ScaledFloat::from_scaled(100_000)),
+        PngTransfer::DisplayGamma(g) if g.is_finite() && g > 0.0 => {
+            // gAMA stores round(100000 / γ).
+            encoder.set_source_gamma(png::ScaledFloat::from_scaled((1e5 / g).round() as u32));
+        }
+        PngTransfer::DisplayGamma(_) | PngTransfer::Labels => {}
+    }
     // fdeflate: several times faster than the default level (datasets write a 440×440 capture
     // PNG per sample) for files about 10–20 % larger.
     encoder.set_compression(png::Compression::Fast);
@@ -133,8 +161,11 @@ mod tests {
         let rgb: Vec<u16> = (0..4 * 3 * 3)
             .map(|i| (i as u16).wrapping_mul(7919) ^ 0x8001)
             .collect();
-        let bytes = encode_png16(4, 3, 3, &rgb).unwrap();
-        assert_eq!(encode_png16(4, 3, 3, &rgb).unwrap(), bytes);
+        let bytes = encode_png16(4, 3, 3, &rgb, PngTransfer::Srgb).unwrap();
+        assert_eq!(
+            encode_png16(4, 3, 3, &rgb, PngTransfer::Srgb).unwrap(),
+            bytes
+        );
         let (info, back) = decode(bytes);
         assert_eq!(
             (info.width, info.height, info.color_type, info.bit_depth),
@@ -143,16 +174,51 @@ mod tests {
         assert_eq!(back, rgb);
 
         let gray = [0, 1, 256, 65535, 40000, 12345];
-        let (info, back) = decode(encode_png16(3, 2, 1, &gray).unwrap());
+        let (info, back) = decode(encode_png16(3, 2, 1, &gray, PngTransfer::Linear).unwrap());
         assert_eq!(info.color_type, ColorType::Grayscale);
         assert_eq!(back, gray);
     }
 
+    /// (chunk type, data) of every chunk, read from the raw bytes (independent of the decoder).
+    fn chunks(bytes: &[u8]) -> Vec<(String, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut i = 8;
+        while i + 8 <= bytes.len() {
+            let len = u32::from_be_bytes(bytes[i..i + 4].try_into().unwrap()) as usize;
+            let kind = String::from_utf8_lossy(&bytes[i + 4..i + 8]).into_owned();
+            out.push((kind, bytes[i + 8..i + 8 + len].to_vec()));
+            i += 12 + len;
+        }
+        out
+    }
+
+    /// Each transfer writes the colour chunks that describe it, before the image data.
+    #[test]
+    fn colour_chunks_describe_the_encoding() {
+        let gama = |t: PngTransfer| {
+            let c = chunks(&encode_png16(2, 1, 1, &[0, 65535], t).unwrap());
+            let idat = c.iter().position(|(k, _)| k == "IDAT").unwrap();
+            let find = |name: &str| c.iter().position(|(k, _)| k == name);
+            if let Some(p) = find("gAMA").or(find("sRGB")) {
+                assert!(p < idat);
+            }
+            (
+                find("sRGB").map(|p| c[p].1.clone()),
+                find("gAMA").map(|p| u32::from_be_bytes(c[p].1[..4].try_into().unwrap())),
+            )
+        };
+        assert_eq!(gama(PngTransfer::Srgb), (Some(vec![0]), Some(45455)));
+        assert_eq!(gama(PngTransfer::Linear), (None, Some(100_000)));
+        assert_eq!(gama(PngTransfer::DisplayGamma(2.2)), (None, Some(45455)));
+        assert_eq!(gama(PngTransfer::DisplayGamma(1.8)), (None, Some(55556)));
+        assert_eq!(gama(PngTransfer::Labels), (None, None));
+    }
+
     #[test]
     fn encode_rejects_bad_arguments() {
-        assert!(encode_png16(2, 2, 2, &[0; 8]).is_err());
-        assert!(encode_png16(2, 2, 1, &[0; 3]).is_err());
-        assert!(encode_png16(0, 2, 1, &[]).is_err());
+        assert!(encode_png16(2, 2, 2, &[0; 8], PngTransfer::Labels).is_err());
+        assert!(encode_png16(2, 2, 1, &[0; 3], PngTransfer::Labels).is_err());
+        assert!(encode_png16(0, 2, 1, &[], PngTransfer::Labels).is_err());
     }
 
     #[test]

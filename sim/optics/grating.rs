@@ -14,6 +14,15 @@
 //!   c_R = |ρ_z|/β, c_S = k_d,z/β (signed relative to the incident direction); reflection
 //!   geometry when c_S < 0. In the lossy case ϑ_β = c_S·Δk_z enters Kogelnik's general form.
 //! - Polarisation (§1.5): κ_s = κ, κ_p = κ·(ρ̂·k̂_d); s and p do not cross-couple.
+//! - Grazing orders: coupled-wave theory drops d²S/dz² against 2iβc_S·dS/dz (slowly varying
+//!   envelopes). With dS/dz ~ (κ/c_S)·R the neglected term is ε = κ/(2βc_S²) = n1/(4 n c_S²)
+//!   of the kept one, and likewise for R with c_R; the smaller of |c_S| and c_R decides, so
+//!   the weight is reciprocal. Toward a diffracted order's grazing cut-off (c_S → 0) the on-shell form
+//!   has ν ∝ 1/√|c_S| → ∞ with ξ finite, so η → 1: an artefact of the approximation, not
+//!   physics. Criterion: full η while ε ≤ 0.1, none once ε ≥ 1 (the dropped term as large as the
+//!   kept one), a C¹ smoothstep in ε between ([`svea_taper`]). For the paper's film (n1 = 0.015,
+//!   n = 1.50) η is cut below |c_S| = 0.050 and tapered below 0.158 (9.1° from grazing inside the
+//!   film); the guided orders the camera uses have |c_S| ≥ 0.38 and are untouched.
 //!
 //! Assumptions: the film (thickness d, mean index n_film, no dispersion of n_film) and the
 //! fringes are unchanged since recording (no shrinkage); reflections at the glass–film boundary
@@ -26,6 +35,20 @@ use num_complex::Complex64;
 use std::f64::consts::PI;
 
 use super::kogelnik::{self, CoupledWave};
+
+/// Weight in [0, 1] applied to a diffracted order's Kogelnik efficiency for the validity of the
+/// slowly-varying-envelope approximation (module notes): `c` is the smaller obliquity factor of
+/// the incident and diffracted waves; with ε = n1/(4 n_film c²), 1 for
+/// ε ≤ 0.1, 0 for ε ≥ 1, and the smoothstep 3t² − 2t³ of t = (1 − ε)/0.9 between.
+pub fn svea_taper(n1: f64, n_film: f64, c: f64) -> f64 {
+    let eps = n1.abs() / (4.0 * n_film * c * c);
+    if !(eps > 0.1) {
+        // ε ≤ 0.1, or NaN-free zero modulation (ε = 0).
+        return if eps.is_nan() { 0.0 } else { 1.0 };
+    }
+    let t = ((1.0 - eps) / 0.9).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
 
 /// A volume grating recorded by two plane waves, ready for playback at any wavelength.
 #[derive(Clone, Copy, Debug)]
@@ -181,10 +204,12 @@ impl VolumeGrating {
                 kogelnik::transmission_lossless(nu_s * cos_pp, xi) * att,
             ]
         };
+        // Both envelopes must vary slowly: the smaller obliquity decides (reciprocal).
+        let taper = svea_taper(self.n1, self.n_film, c_r.min(c_s.abs()));
         Some(Diffraction {
             u: kd_t / k_vac,
             z_sign: kd_z.signum(),
-            eta,
+            eta: eta.map(|e| e * taper),
             reflection,
         })
     }
@@ -247,6 +272,54 @@ mod tests {
 
     fn paper(n1: f64) -> VolumeGrating {
         VolumeGrating::from_recording(532.0, 61.2, 1.50, 16.0, n1, 0.0)
+    }
+
+    /// Toward a diffracted order's grazing cut-off the raw on-shell Kogelnik efficiency tends
+    /// to 1 (ν ∝ 1/√|c_S|); the SVEA taper brings it to 0 there and leaves the camera's guided
+    /// orders unchanged.
+    #[test]
+    fn grazing_orders_are_cut() {
+        let g = paper(0.015);
+        let lam = 532.0;
+        let k_vac = 2.0 * PI / lam;
+        let beta = k_vac * g.n_film;
+        // In-plane incidence from the user side (+z) whose first order leaves at |c_S| = c:
+        // k_d,y = k_vac u_y − K_y = β√(1 − c²).
+        let order_at = |c: f64| {
+            let u_y = (g.k_rad_per_nm.y + beta * (1.0 - c * c).sqrt()) / k_vac;
+            let d = g.diffract(DVec2::new(0.0, u_y), 1.0, lam, 1).unwrap();
+            let c_s = (1.0 - d.u.length_squared() / (g.n_film * g.n_film)).sqrt();
+            assert!((c_s - c).abs() < 1e-6, "{c_s} vs {c}");
+            (d, u_y)
+        };
+        // The raw coupled-wave value at c_S = 1e-5 is close to 1 (ν ≈ 450 ≫ ξ ≈ 80): what the
+        // taper removes.
+        let c = 1e-5;
+        let (d, u_y) = order_at(c);
+        let c_r = (1.0 - u_y * u_y / (g.n_film * g.n_film)).sqrt();
+        let nu = PI * g.n1 * g.thickness_nm / (lam * (c_r * c).sqrt());
+        let rho_z = beta * c_r;
+        let sigma_z = rho_z - g.k_rad_per_nm.z;
+        let xi = 0.5 * (-beta * c - sigma_z).abs() * g.thickness_nm;
+        let raw = kogelnik::reflection_lossless(nu, xi);
+        assert!(raw > 0.9, "raw on-shell efficiency near grazing {raw}");
+        assert_eq!(d.eta, [0.0, 0.0]);
+        // Monotone taper between the cut (|c_S| = 0.050) and full weight (0.158).
+        let w: Vec<f64> = [0.04, 0.06, 0.1, 0.15, 0.16, 0.5]
+            .iter()
+            .map(|&c| svea_taper(g.n1, g.n_film, c))
+            .collect();
+        assert_eq!(w[0], 0.0);
+        assert!(
+            w[1] > 0.0 && w[1] < w[2] && w[2] < w[3] && w[3] < 1.0,
+            "{w:?}"
+        );
+        assert_eq!(w[4], 1.0);
+        assert_eq!(w[5], 1.0);
+        // The guided order at the centre of the field (|c_S| ≈ 0.5) is untouched.
+        let (d, _) = order_at(0.5);
+        assert!(d.eta[0] > 0.0);
+        assert_eq!(svea_taper(g.n1, g.n_film, 0.38), 1.0);
     }
 
     #[test]

@@ -20,6 +20,7 @@
 use num_complex::Complex64;
 
 /// G(x) of physics.md §1.2: √x·coth√x for x > 0, √−x·cot√−x for x < 0, with a series near 0.
+#[inline]
 pub fn g_unified(x: f64) -> f64 {
     if x.abs() < 1e-3 {
         // 1 + x/3 − x²/45 + 2x³/945 (Taylor series of √x coth √x).
@@ -38,6 +39,7 @@ pub fn g_unified(x: f64) -> f64 {
 /// Lossless reflection-grating diffraction efficiency η(ν, ξ) (Kogelnik Eq. 57, unified form).
 ///
 /// Finite and in [0, 1] for all finite ν ≥ 0 and ξ; η = tanh²ν at Bragg (ξ = 0).
+#[inline]
 pub fn reflection_lossless(nu: f64, xi: f64) -> f64 {
     if nu <= 0.0 {
         return 0.0;
@@ -65,6 +67,7 @@ pub fn transmission_lossless(nu: f64, xi: f64) -> f64 {
 /// Bragg (ξ ≫ ν) both arguments √(ν² + ξ²) = ξ + δ lie close to ξ, so one `sin_cos(ξ)` and the
 /// angle-addition formula with series for sin δ and cos δ (|δ| < 0.05, truncation < 1e-13)
 /// replace two `sin` calls; otherwise each is evaluated directly.
+#[inline]
 pub fn transmission_lossless_pair(nu_s: f64, nu_p: f64, xi: f64) -> [f64; 2] {
     let xi = xi.abs();
     let delta = |nu: f64| nu * nu / ((nu * nu + xi * xi).sqrt() + xi);

@@ -12,6 +12,7 @@ pub mod admm;
 pub mod cg;
 pub mod depth;
 pub mod joint;
+pub mod layered;
 pub mod metrics;
 
 use rayon::prelude::*;
@@ -58,6 +59,29 @@ pub struct Problem {
 
 /// Rows of G per parallel task.
 const GRAM_CHUNK: usize = 64;
+
+/// An upper bound on the memory [`Problem::new`] needs for `h` with `threads` workers, in
+/// bytes, computed in O(rows) before any allocation: G has at most min(Σₘ nnzₘ², N²)
+/// entries (row m of H couples each pair of its columns), each held about three times
+/// during the set-up (row lists, offsets, final layout: 32 bytes), plus Hᵀ and two length-N
+/// work rows per thread.
+pub fn setup_bytes_bound(h: &CsrMatrix, threads: usize) -> u128 {
+    setup_bytes_bound_blocks(&[h], threads)
+}
+
+/// [`setup_bytes_bound`] of the block matrix [H₁ … H_N] (same rows), from the blocks.
+pub fn setup_bytes_bound_blocks(blocks: &[&CsrMatrix], threads: usize) -> u128 {
+    let n: u128 = blocks.iter().map(|b| b.cols as u128).sum();
+    let rows = blocks.first().map_or(0, |b| b.rows);
+    let pairs: u128 = (0..rows)
+        .map(|m| {
+            let k: u128 = blocks.iter().map(|b| b.row_range(m).len() as u128).sum();
+            k * k
+        })
+        .sum();
+    let nnz: u128 = blocks.iter().map(|b| b.nnz() as u128).sum();
+    pairs.min(n * n) * 32 + nnz * 8 + n * 9 * threads as u128
+}
 
 impl Problem {
     /// Prepares H (rows = captures values, columns = object pixels, object `width`×`height`).
@@ -226,4 +250,63 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
         t += a[i] * b[i];
     }
     t
+}
+
+/// The solver of [`solve`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Conjugate gradients on HᵀHf = Hᵀg from f = 0 ([`cg::cg_normal`]).
+    Cg,
+    /// ADMM for ½‖Hf − g‖² + τ·TV(f) ([`admm::admm_tv`]).
+    AdmmTv,
+}
+
+/// Options of [`solve`] (the `stscam reconstruct` flags).
+#[derive(Clone, Copy, Debug)]
+pub struct SolveOptions {
+    /// The solver.
+    pub method: Method,
+    /// Iterations (default: [`cg::DEFAULT_CG_ITERS`] for CG, 50 for ADMM-TV).
+    pub iters: Option<usize>,
+    /// ADMM-TV: τ relative to ‖Hᵀg‖∞.
+    pub tau_rel: f64,
+    /// ADMM-TV: isotropic or anisotropic TV.
+    pub tv: admm::TvKind,
+}
+
+/// A reconstruction with what the solver reports (`recon.json`'s `solver`).
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// The object, linear intensities, row-major.
+    pub f: Vec<f64>,
+    /// Method, iterations and residuals.
+    pub info: serde_json::Value,
+}
+
+/// Reconstructs the object from `g` (offset already subtracted) for a set-up `problem`: one
+/// back-projection, then CG or ADMM-TV. The CLI's `reconstruct` and the Python module call this.
+pub fn solve(problem: &Problem, g: &[f64], opts: &SolveOptions) -> Solution {
+    let htg = problem.back_project(g);
+    match opts.method {
+        Method::Cg => {
+            let set = cg::CgSettings {
+                iters: opts.iters.unwrap_or(cg::DEFAULT_CG_ITERS),
+                tol: 0.0,
+            };
+            let r = cg::cg_normal(problem, &htg, &set);
+            let info = serde_json::json!({"method": "cg", "iterations": r.iterations, "relative_residual": r.relative_residual});
+            Solution { f: r.f, info }
+        }
+        Method::AdmmTv => {
+            let set = admm::AdmmSettings {
+                iters: opts.iters.unwrap_or(50),
+                tau_rel: opts.tau_rel,
+                tv: opts.tv,
+                ..Default::default()
+            };
+            let r = admm::admm_tv(problem, &htg, &set);
+            let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": opts.tau_rel, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
+            Solution { f: r.f, info }
+        }
+    }
 }

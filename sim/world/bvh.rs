@@ -252,6 +252,7 @@ impl Accel {
     }
 
     /// True if nothing lies on the ray for t in (tmin, tmax) (skipping triangle `skip`).
+    #[inline]
     pub fn unoccluded(
         &self,
         origin: DVec3,

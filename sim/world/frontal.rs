@@ -137,6 +137,7 @@ pub fn render_frontal(
     let origin = DVec3::ZERO;
     let table = ResponseTable::new(sys, lo, hi);
     let rule = LatticeRule::korobov(u64::from(spp));
+    let cancel = crate::cancel::current();
     let rows: Vec<FrontalRow> = (0..height)
         .into_par_iter()
         .map(|r| {
@@ -144,7 +145,8 @@ pub fn render_frontal(
             let mut depth = vec![f32::INFINITY; width];
             let mut mask = vec![0u16; width];
             let mut counts = PathCounts::default();
-            for c in 0..width {
+            let cols = if cancel.is_cancelled() { 0 } else { width };
+            for c in 0..cols {
                 let pixel = (r * width + c) as u64;
                 let sampler = PixelSampler::new(SamplerKind::Lattice, seed ^ 0xF80_17A1, pixel)
                     .with_rule(rule);

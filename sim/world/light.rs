@@ -225,6 +225,7 @@ impl SphRect {
 
     /// A direction (unit) uniformly distributed over the spherical rectangle, and the distance
     /// to the rectangle along it.
+    #[inline]
     fn sample(&self, u: [f64; 2]) -> (DVec3, f64) {
         let au = u[0] * (self.g0g1 - 2.0 * std::f64::consts::PI)
             + (u[0] - 1.0) * (2.0 * std::f64::consts::PI - self.k);
@@ -330,6 +331,7 @@ impl Light {
     }
 
     /// Samples a direction from shading point `p` toward the light.
+    #[inline]
     pub fn sample(&self, p: DVec3, u: [f64; 2], lambda_nm: f64) -> Option<LightSample> {
         match self {
             Light::Rect {

@@ -154,6 +154,37 @@ fn load_object(ls: &LoadedScene, i: usize, o: &ObjectDesc) -> Result<mesh::Asset
     load::load_asset_with(&path, &options).map_err(|e| ls.key_error(&key, e.to_string()))
 }
 
+/// Object `i` of a scene loaded (file or built-in shape, with normals) and placed in world mm.
+pub fn placed_object(
+    ls: &LoadedScene,
+    i: usize,
+    o: &ObjectDesc,
+) -> Result<mesh::Asset, SceneError> {
+    let mut asset = load_object(ls, i, o)?;
+    if asset.mesh.normals.len() != asset.mesh.positions_mm.len() {
+        asset.mesh.compute_normals();
+    }
+    asset.mesh.transform(&object_transform(o));
+    if let Some(v) = asset.mesh.first_nonfinite_vertex() {
+        return Err(ls.key_error(
+            &format!("object.{i}.mesh"),
+            format!("vertex {v} is not finite after placement"),
+        ));
+    }
+    Ok(asset)
+}
+
+/// Axis-aligned bounds [min, max] of a mesh's vertices, mm.
+pub fn bounds_mm(mesh: &Mesh) -> [[f64; 3]; 2] {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for p in &mesh.positions_mm {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    [lo.to_array(), hi.to_array()]
+}
+
 fn load_texture(ls: &LoadedScene, key: &str, p: &str) -> Result<Arc<Texture>, SceneError> {
     let path = resolve(&ls.base_dir, p);
     if path.is_dir() {
@@ -299,17 +330,7 @@ impl World {
         let mut materials = Vec::new();
         let mut objects = Vec::new();
         for (i, o) in s.object.iter().enumerate() {
-            let mut asset = load_object(ls, i, o)?;
-            if asset.mesh.normals.len() != asset.mesh.positions_mm.len() {
-                asset.mesh.compute_normals();
-            }
-            asset.mesh.transform(&object_transform(o));
-            if let Some(v) = asset.mesh.first_nonfinite_vertex() {
-                return Err(ls.key_error(
-                    &format!("object.{i}.mesh"),
-                    format!("vertex {v} is not finite after placement"),
-                ));
-            }
+            let mut asset = placed_object(ls, i, o)?;
             let n = asset.mesh.triangles.len();
             if mesh.triangles.len() + n > MAX_TRIANGLES {
                 return Err(ls.key_error(
@@ -317,12 +338,7 @@ impl World {
                     format!("the scene would exceed {MAX_TRIANGLES} triangles"),
                 ));
             }
-            let mut lo = DVec3::splat(f64::INFINITY);
-            let mut hi = DVec3::splat(f64::NEG_INFINITY);
-            for p in &asset.mesh.positions_mm {
-                lo = lo.min(*p);
-                hi = hi.max(*p);
-            }
+            let [lo, hi] = bounds_mm(&asset.mesh);
             let offset = materials.len() as u32;
             let mut names = Vec::new();
             if asset.materials.is_empty() {
@@ -338,7 +354,7 @@ impl World {
                 name: o.name.clone().unwrap_or_else(|| o.mesh.clone()),
                 mask_value: (i + 1).min(usize::from(u16::MAX - 1)) as u16,
                 triangles: n,
-                bounds_mm: [lo.to_array(), hi.to_array()],
+                bounds_mm: [lo, hi],
                 materials: names,
             });
         }

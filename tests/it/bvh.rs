@@ -105,6 +105,28 @@ struct MtMesh {
     v0: Vec<DVec3>,
     e1: Vec<DVec3>,
     e2: Vec<DVec3>,
+    /// Padded bounds of each run of `CHUNK` consecutive triangles: a flat, one-level cull
+    /// independent of any BVH (a wrong cull makes the reference miss, which the test reports).
+    chunks: Vec<(DVec3, DVec3)>,
+}
+
+const CHUNK: usize = 32;
+
+/// Ray-box slab test: the entry distance, or None if the ray (t > 0) misses the box.
+fn slab_entry(o: DVec3, d: DVec3, (lo, hi): (DVec3, DVec3)) -> Option<f64> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    (t0 <= t1).then_some(t0)
 }
 
 impl MtMesh {
@@ -121,35 +143,56 @@ impl MtMesh {
             e1.push(b - a);
             e2.push(c - a);
         }
-        MtMesh { v0, e1, e2 }
+        let chunks = (0..n.div_ceil(CHUNK))
+            .map(|c| {
+                let (mut lo, mut hi) =
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                    for p in tri(m, i) {
+                        lo = lo.min(p);
+                        hi = hi.max(p);
+                    }
+                }
+                let pad = DVec3::splat(1e-6 * (1.0 + (hi - lo).length()));
+                (lo - pad, hi + pad)
+            })
+            .collect();
+        MtMesh { v0, e1, e2, chunks }
     }
 
-    /// Nearest (t, triangle) with t in (0, ∞), or None.
+    /// Nearest (t, triangle) with t in (0, ∞), or None. Runs of `CHUNK` triangles whose
+    /// bounds the ray misses, or enters beyond the nearest hit so far, are skipped whole.
     fn nearest(&self, o: DVec3, d: DVec3) -> Option<(f64, u32)> {
         let mut best_t = f64::INFINITY;
         let mut best = None;
-        for i in 0..self.v0.len() {
-            let (e1, e2) = (self.e1[i], self.e2[i]);
-            let p = d.cross(e2);
-            let det = e1.dot(p);
-            if det == 0.0 {
+        let n = self.v0.len();
+        for (c, &bounds) in self.chunks.iter().enumerate() {
+            if slab_entry(o, d, bounds).is_none_or(|t| t > best_t) {
                 continue;
             }
-            let inv = 1.0 / det;
-            let s = o - self.v0[i];
-            let u = s.dot(p) * inv;
-            if !(0.0..=1.0).contains(&u) {
-                continue;
-            }
-            let q = s.cross(e1);
-            let v = d.dot(q) * inv;
-            if v < 0.0 || u + v > 1.0 {
-                continue;
-            }
-            let t = e2.dot(q) * inv;
-            if t > 0.0 && t < best_t {
-                best_t = t;
-                best = Some((t, i as u32));
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let (e1, e2) = (self.e1[i], self.e2[i]);
+                let p = d.cross(e2);
+                let det = e1.dot(p);
+                if det == 0.0 {
+                    continue;
+                }
+                let inv = 1.0 / det;
+                let s = o - self.v0[i];
+                let u = s.dot(p) * inv;
+                if !(0.0..=1.0).contains(&u) {
+                    continue;
+                }
+                let q = s.cross(e1);
+                let v = d.dot(q) * inv;
+                if v < 0.0 || u + v > 1.0 {
+                    continue;
+                }
+                let t = e2.dot(q) * inv;
+                if t > 0.0 && t < best_t {
+                    best_t = t;
+                    best = Some((t, i as u32));
+                }
             }
         }
         best

@@ -1,7 +1,6 @@
 //! Bad input gives one line naming the file (or `--set`) and the key, exit code 2, and nothing
 //! written to `--out`.
 
-
 use crate::common::{files_in, stscam};
 
 /// Runs a render expected to fail; returns its single stderr line.
@@ -48,7 +47,7 @@ fn bad_scenes_and_overrides() {
     std::fs::write(&scene, "[plate]\nthicknes_mm = 2.0\n").unwrap();
     assert_eq!(
         fails(&[s], &out),
-        format!("error: {s}: plate.thicknes_mm: unknown key")
+        format!("error: {s}: plate.thicknes_mm: unknown key; did you mean plate.thickness_mm?")
     );
 
     std::fs::write(&scene, "[plate]\nthickness_mm = -2.0\n").unwrap();
@@ -74,7 +73,7 @@ fn bad_scenes_and_overrides() {
     let e = fails(&["--set", "plate.thicknes_mm=3"], &out);
     assert_eq!(
         e,
-        "error: --set plate.thicknes_mm: plate.thicknes_mm: unknown key"
+        "error: --set plate.thicknes_mm: plate.thicknes_mm: unknown key; did you mean plate.thickness_mm?"
     );
     let e = fails(&["--set", "camera.f_number=0"], &out);
     assert!(
@@ -104,10 +103,13 @@ fn bad_scenes_and_overrides() {
         e.starts_with("error: --set sensor.crop_offset_px: sensor.crop_offset_px:"),
         "{e}"
     );
-    // A focal length beyond the auto focus distance would flip the image: refused.
+    // A focal length beyond the auto focus distance would flip the image: refused, and
+    // blamed on the key the user set (not on the focus distance derived from it).
     let e = fails(&["--set", "camera.focal_length_mm=1000"], &out);
     assert!(
-        e.contains("camera.focus_distance_mm: the focus distance"),
+        e.starts_with(
+            "error: --set camera.focal_length_mm: camera.focal_length_mm: the focus distance"
+        ),
         "{e}"
     );
     let e = fails(&[dir.path().join("nope.toml").to_str().unwrap()], &out);

@@ -2,8 +2,9 @@
 
 #![allow(dead_code)]
 
-use std::path::Path;
-use std::process::{Command, Output};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
 
 /// Runs `stscam` with `args`.
 pub fn stscam(args: &[&str]) -> Output {
@@ -48,4 +49,79 @@ pub fn vec3(v: &serde_json::Value) -> [f64; 3] {
         a[1].as_f64().unwrap(),
         a[2].as_f64().unwrap(),
     ]
+}
+
+/// Writes `text` to `dir/name` and returns the path.
+pub fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Every file under `root` (relative path → bytes).
+pub fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                out.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+/// Asserts that two folders hold the same files with the same bytes.
+pub fn assert_same_tree(a: &Path, b: &Path) {
+    let (ta, tb) = (tree(a), tree(b));
+    assert_eq!(
+        ta.keys().collect::<Vec<_>>(),
+        tb.keys().collect::<Vec<_>>(),
+        "different file lists"
+    );
+    for (k, v) in &ta {
+        assert!(v == &tb[k], "{k} differs");
+    }
+}
+
+/// Starts `stscam dataset RECIPE --out OUT`, waits until `OUT/train` holds at least
+/// `min_files` files (at most 120 s), SIGKILLs it and asserts that it had not finished.
+pub fn dataset_killed_midway(recipe: &Path, out: &Path, min_files: usize) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stscam"))
+        .args([
+            "dataset",
+            recipe.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    loop {
+        let n = files_in(&out.join("train")).len();
+        if n >= min_files || t0.elapsed().as_secs() > 120 {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap(); // SIGKILL on Unix
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "the run finished before it was killed");
+    assert!(out.join(".stscam-run.json").is_file());
+    assert!(!out.join("dataset.json").exists());
+}
+
+/// `stscam dataset merge SHARDS... --out OUT`, asserted to succeed.
+pub fn merge_shards(shards: &[PathBuf], out: &Path) {
+    let mut args = vec!["dataset", "merge"];
+    args.extend(shards.iter().map(|d| d.to_str().unwrap()));
+    args.extend(["--out", out.to_str().unwrap()]);
+    stscam_ok(&args);
 }

@@ -2,13 +2,10 @@
 //! an uninterrupted one, captures equal H·f + offset when noiseless, image folders (PNG, JPEG)
 //! are read, and bad recipes are refused with one line, exit code 2 and nothing written.
 
+use std::path::Path;
+use std::process::Command;
 
-
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-
-use crate::common::stscam;
+use crate::common::{assert_same_tree, stscam, write};
 
 /// A small scene: 48×48 crop with the paper's field of view, so runs take a fraction of a
 /// second.
@@ -17,7 +14,8 @@ const SMALL_SCENE: &str = r#"
 set = ["sensor.crop_px=[48,48]", "sensor.pitch_um=44.0"]
 "#;
 
-fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
+/// A recipe of the small scene (also used by `hostile.rs`).
+pub(crate) fn recipe(name: &str, samples: usize, mode: &str, noise: &str, extra: &str) -> String {
     format!(
         r#"name = "{name}"
 seed = 7
@@ -53,42 +51,6 @@ max_period_px = 3
 generator = "smooth"
 {extra}"#
     )
-}
-
-fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
-    let p = dir.join(name);
-    std::fs::write(&p, text).unwrap();
-    p
-}
-
-/// Every file under `root` (relative path → bytes).
-fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
-}
-
-fn assert_same_tree(a: &Path, b: &Path) {
-    let (ta, tb) = (tree(a), tree(b));
-    assert_eq!(
-        ta.keys().collect::<Vec<_>>(),
-        tb.keys().collect::<Vec<_>>(),
-        "different file lists"
-    );
-    for (k, v) in &ta {
-        assert!(v == &tb[k], "{k} differs");
-    }
 }
 
 fn ok(args: &[&str]) {
@@ -146,10 +108,7 @@ fn three_shards_merged_equal_one_run_byte_for_byte() {
         shards.push(d);
     }
     let merged = dir.path().join("merged");
-    let mut args = vec!["dataset", "merge"];
-    args.extend(shards.iter().map(|d| d.to_str().unwrap()));
-    args.extend(["--out", merged.to_str().unwrap()]);
-    ok(&args);
+    crate::common::merge_shards(&shards, &merged);
     assert_same_tree(&whole, &merged);
     // The card lists every file with its checksum; both scenes have their H.
     let card: serde_json::Value =
@@ -214,31 +173,8 @@ fn sigkill_and_resume_give_the_uninterrupted_files() {
         whole.to_str().unwrap(),
     ]);
     let killed = dir.path().join("killed");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_stscam"))
-        .args([
-            "dataset",
-            r.to_str().unwrap(),
-            "--out",
-            killed.to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
     // Wait until some samples are finished, then SIGKILL.
-    let t0 = std::time::Instant::now();
-    loop {
-        let n = crate::common::files_in(&killed.join("train")).len();
-        if n >= 12 || t0.elapsed().as_secs() > 120 {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    child.kill().unwrap(); // SIGKILL on Unix
-    let status = child.wait().unwrap();
-    assert!(!status.success(), "the run finished before it was killed");
-    assert!(killed.join(".stscam-run.json").is_file());
-    assert!(!killed.join("dataset.json").exists());
+    crate::common::dataset_killed_midway(&r, &killed, 12);
     let n_before = crate::common::files_in(&killed.join("train")).len();
     assert!((12..4 * 24).contains(&n_before), "{n_before} files");
     // Without --resume the folder is refused.
@@ -530,11 +466,21 @@ fn bad_recipes_are_refused_with_one_line_and_nothing_written() {
         |_| {},
         "smaples",
     );
-    // An unwritable output: its parent is a regular file.
+    // An unwritable output: its parent is a regular file. A failed write, not bad input:
+    // exit code 1 (issue 13), one line naming the folder.
     let dir = tempfile::tempdir().unwrap();
     let r = write(dir.path(), "r.toml", &good);
     std::fs::write(dir.path().join("file"), b"x").unwrap();
-    fails_with_one_line(&r, &dir.path().join("file/out"), "file/out");
+    let out = stscam(&[
+        "dataset",
+        r.to_str().unwrap(),
+        "--out",
+        dir.path().join("file/out").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("file/out"), "{err}");
     assert_eq!(std::fs::read(dir.path().join("file")).unwrap(), b"x");
     // A bad --shard.
     let out = stscam(&["dataset", r.to_str().unwrap(), "--shard", "3/3"]);

@@ -2,11 +2,15 @@
 
 mod analytic_field;
 mod bvh;
+mod cancel;
 mod cli_errors;
 mod common;
+mod coverage;
 mod dataset;
+mod dataset3d;
 mod depth;
 mod estimators;
+mod hostile;
 mod invariants;
 mod matrix_calibration;
 mod mesh_scenes;

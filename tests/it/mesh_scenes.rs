@@ -6,8 +6,6 @@
 //!
 //! Every fixture is written into a temporary folder by the test itself.
 
-
-
 use std::path::{Path, PathBuf};
 
 use crate::common::{files_in, stscam, stscam_json, vec3};

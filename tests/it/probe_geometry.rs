@@ -2,7 +2,6 @@
 //! object-side directions equal to the camera ray (periscope), and the Bragg colour of
 //! physics.md §3.2–3.3 along the vertical midline.
 
-
 use crate::common::{stscam_json, vec3};
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

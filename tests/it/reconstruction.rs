@@ -1,7 +1,5 @@
 //! CGM and ADMM-TV on a synthetic replica-blur problem, and `reconstruct` on bad input.
 
-
-
 use stscam::noise::NoiseRng;
 use stscam::recon::Problem;
 use stscam::recon::admm::{AdmmSettings, TvKind, admm_tv};

@@ -1,7 +1,6 @@
 //! End-to-end renders: determinism across thread counts, finite and bounded values, the
 //! output files, and the replicas of a single bright target pixel against `info`.
 
-
 use crate::common::{stscam, stscam_json};
 use stscam::io::read_exr;
 
@@ -228,7 +227,14 @@ fn png_target_file_equals_builtin_target() {
         .iter()
         .map(|&v| (v * 65535.0).round() as u16)
         .collect();
-    let png = stscam::io::encode_png16(t.width, t.height, 1, &samples).unwrap();
+    let png = stscam::io::encode_png16(
+        t.width,
+        t.height,
+        1,
+        &samples,
+        stscam::io::PngTransfer::Srgb,
+    )
+    .unwrap();
     std::fs::write(dir.path().join("checker.png"), png).unwrap();
     // A scene file next to the image refers to it by a relative path.
     let scene = dir.path().join("scene.toml");

@@ -128,7 +128,8 @@ fn emissive_quad_matches_the_display() {
         .map(|v| (v * 65535.0).round() as u16)
         .collect();
     assert!(t.values.iter().all(|v| *v == 0.0 || *v == 1.0));
-    let png = stscam::io::encode_png16(t.width, t.height, 1, &codes).unwrap();
+    let png = stscam::io::encode_png16(t.width, t.height, 1, &codes, stscam::io::PngTransfer::Srgb)
+        .unwrap();
     std::fs::write(dir.path().join("target.png"), png).unwrap();
     let size = t.width as f64 * 0.27 * 10.0;
     let sets = [

@@ -1,7 +1,5 @@
 //! Extreme scenes finish in bounded time, stay finite and physical, and say what they dropped.
 
-
-
 fn render(dir: &std::path::Path, sets: &[&str]) -> (serde_json::Value, String) {
     let mut args = vec![
         "render",

@@ -324,7 +324,7 @@ fn invalid_values_name_the_key_and_value_before_any_work() {
     let e = run_sweep(None, &[], &[axis("sensor.crop_px=10.5:20.5:2")], &set).expect_err("type");
     assert!(
         e.to_string()
-            .starts_with("grid point sensor.crop_px=10.5: --set sensor.crop_px"),
+            .starts_with("grid point sensor.crop_px=10.5: --vary sensor.crop_px"),
         "{e}"
     );
     // A bad base override is the scene's error, not a grid point's.

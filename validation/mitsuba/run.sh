@@ -42,7 +42,11 @@ variant=${MITSUBA_VARIANT:-$(cd "$here" && "$py" -c "import scenes; v, _ = scene
 if [[ "$variant" == llvm_ad_spectral ]] && [[ -e /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 ]]; then
     export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 fi
-echo "mitsuba: variant $variant"
+if [[ "$variant" == llvm_ad_spectral ]]; then
+    echo "mitsuba: variant llvm_ad_spectral (libLLVM 19); every tolerance must be at most 10 % (binned 5 %)"
+else
+    echo "mitsuba: variant scalar_spectral (no usable libLLVM 19): CPU fallback at low spp, tolerances printed, not limited"
+fi
 
 stscam=${CARGO_TARGET_DIR:-target}/release/stscam
 info="$work/info.json"
@@ -50,17 +54,31 @@ info="$work/info.json"
 focus=$("$py" -c "import json; print(json.load(open('$info'))['focus_distance_mm'])")
 d0=$("$py" -c "import json; print(json.load(open('$info'))['sensor_distance_mm'])")
 
-# Sample counts (Mitsuba spp and passes per scene). scalar_spectral (2 cores): plain glass
-# ~0.14 s/spp, waveguide ~1 s/spp, mesh-plain-glass ~0.11 s/spp, mesh-waveguide ~1.2 s/spp;
-# llvm_ad_spectral: mesh-plain-glass ~0.01 s/spp, mesh-waveguide ~0.04 s/spp.
-declare -A spp passes
+# Sample counts (Mitsuba spp and passes per scene, stscam spp). scalar_spectral (2 cores): plain
+# glass ~0.14 s/spp, waveguide ~1 s/spp, mesh-plain-glass ~0.11 s/spp, mesh-waveguide
+# ~1.2 s/spp; llvm_ad_spectral: plain glass ~0.005 s/spp, waveguide ~0.026 s/spp,
+# mesh-plain-glass ~0.008 s/spp, mesh-waveguide ~0.038 s/spp.
+# The llvm_ad_spectral counts make every tolerance 2·sqrt(eps_s² + eps_m²) + delta at most 10 %
+# at full resolution and 5 % binned (checked: --max-tolerance); measured at 2048 and 1024 spp,
+# the waveguide's Mitsuba noise is 8.8 % (3.2 % binned) and the mesh waveguide's 8.3 % (2.2 %),
+# falling as 1/sqrt(spp). The scalar fallback (no libLLVM 19) cannot afford such counts: its
+# tolerances (up to 65 %) are printed, not limited.
+declare -A spp passes sspp
+sspp=([plain-glass]=128 [waveguide]=128 [mesh-plain-glass]=128 [mesh-waveguide]=128)
+limits=()
 if [[ "$mode" == update ]]; then
     spp=([plain-glass]=4096 [waveguide]=8192 [mesh-plain-glass]=4096 [mesh-waveguide]=8192)
     passes=([plain-glass]=16 [waveguide]=32 [mesh-plain-glass]=16 [mesh-waveguide]=32)
     dest="$here/reference"
 elif [[ "$variant" == llvm_ad_spectral ]]; then
-    spp=([plain-glass]=1024 [waveguide]=2048 [mesh-plain-glass]=1024 [mesh-waveguide]=1024)
-    passes=([plain-glass]=4 [waveguide]=8 [mesh-plain-glass]=4 [mesh-waveguide]=4)
+    # The waveguide at 16384 spp (about 7 min) rather than the 32768 that keep its binned
+    # tolerance clearly under 5 %: .ci/run must finish in 40 min on 2 cores. CI reports a
+    # tolerance above the limits (MITSUBA_LIMITS=warn, set by .ci/run) instead of failing on it.
+    spp=([plain-glass]=1024 [waveguide]=16384 [mesh-plain-glass]=1024 [mesh-waveguide]=8192)
+    passes=([plain-glass]=4 [waveguide]=16 [mesh-plain-glass]=4 [mesh-waveguide]=16)
+    sspp=([plain-glass]=128 [waveguide]=1024 [mesh-plain-glass]=128 [mesh-waveguide]=256)
+    limits=(--max-tolerance 0.10 0.05)
+    if [[ "${MITSUBA_LIMITS:-fail}" == warn ]]; then limits+=(--limits-warn); fi
     dest="$work"
 else
     spp=([plain-glass]=256 [waveguide]=160 [mesh-plain-glass]=128 [mesh-waveguide]=64)
@@ -79,11 +97,11 @@ for scene in $scenes; do
     test -s "$dest/$scene.npy"
     echo "mitsuba: $scene rendered in $(( $(date +%s) - t0 )) s ($variant, ${spp[$scene]} spp)"
     for seed in 1 2; do
-        "$stscam" render "$here/$scene.toml" --out "$work/stscam-$scene-$seed" --spp 128 --seed "$seed" >/dev/null
+        "$stscam" render "$here/$scene.toml" --out "$work/stscam-$scene-$seed" --spp "${sspp[$scene]}" --seed "$seed" 2>/dev/null
     done
     if "$py" "$here/compare.py" --scene "$scene" --mitsuba "$dest/$scene.npy" \
         --stscam "$work/stscam-$scene-1/capture.exr" "$work/stscam-$scene-2/capture.exr" \
-        --json "$work/$scene-compare.json"; then
+        --json "$work/$scene-compare.json" "${limits[@]}" >/dev/null; then
         echo "mitsuba: $scene agrees with stscam"
     else
         echo "mitsuba: $scene DISAGREES with stscam (see $work/$scene-compare.json)" >&2

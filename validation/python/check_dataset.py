@@ -13,8 +13,16 @@ With numpy (always):
 With scipy (always): each scene's H.npz loads with scipy.sparse.load_npz and, with --noiseless,
   H @ object.ravel() + offset equals the capture to float32 rounding (relative 1e-5 of the
   capture's peak); otherwise the capture minus H f - offset has mean ~0 (noise only).
+3-D datasets (`meshes`, detected by the `frontal_npy` column): instead of the object, the
+  frontal .npy is float32 with the card's object_shape (and channels), the depth .npy float32
+  [h, w], the mask 16-bit PNG [h, w]; the frontal PNG equals round(65535 * clamp(frontal / 1));
+  aligned: the mask is nonzero only where the depth is finite, the drawn mesh's mask value
+  (metadata mask_value) lies within its world bounds (metadata bounds_mm, -z) and is in view
+  in at least one sample, and with a black background (environment 0, display off) the frontal is 0 wherever the
+  mask and its 8 neighbours are 0.
 With --hf: datasets.load_dataset("imagefolder", data_dir=DIR) gives the splits with the card's
-  counts, an `image` column (the capture PNG, 16-bit, capture size) and the metadata columns.
+  counts, an `image` column (the capture PNG, 16-bit, capture size) and the metadata columns
+  (for 3-D datasets also the frontal and mask PNGs as images of the frontal size).
 
 Prints one line per check group and exits 0, or prints the failures and exits 1.
 """
@@ -90,6 +98,36 @@ def load_png16(path: Path) -> np.ndarray:
     return read_png16(path)
 
 
+def check_3d(d: Path, x: dict, obj_shape: tuple, black: bool, check) -> bool:
+    """Files and alignment of one 3-D sample (see the module docstring); True if its mesh is in view."""
+    fr = np.load(d / x["frontal_npy"])
+    z = np.load(d / x["depth_npy"])
+    m = load_png16(d / x["mask_file_name"])
+    check(fr.dtype == np.float32 and fr.shape[-2:] == obj_shape, f"{x['frontal_npy']}: {fr.dtype} {fr.shape}")
+    check(z.dtype == np.float32 and z.shape == obj_shape, f"{x['depth_npy']}: {z.dtype} {z.shape}")
+    check(m.shape == obj_shape, f"{x['mask_file_name']}: {m.shape}")
+    check(bool(np.all(np.isfinite(fr)) and np.all(fr >= 0)), f"{x['frontal_npy']}: not finite or negative")
+    check(bool(np.all(np.isfinite(z[m > 0]))), f"{x['mask_file_name']}: nonzero where the depth is +inf")
+    check(bool(np.all(np.isnan(z) == False)), f"{x['depth_npy']}: NaN")  # noqa: E712
+    mine = m == x["mask_value"]
+    lo, hi = -x["bounds_mm"][1][2], -x["bounds_mm"][0][2]
+    zs = z[mine].astype(np.float64)
+    tol = 1e-5 * hi
+    check(bool(np.all((zs >= lo - tol) & (zs <= hi + tol))), f"{x['depth_npy']}: mesh depths outside [{lo:.1f}, {hi:.1f}] mm")
+    png = load_png16(d / x["frontal_file_name"])
+    want = np.round(65535 * np.clip(fr.astype(np.float64), 0, 1))
+    if fr.ndim == 3:
+        want = np.moveaxis(want, 0, -1)
+    check(np.abs(png.astype(np.float64) - want).max() <= 1, f"{x['frontal_file_name']}: PNG differs from the npy")
+    if black:
+        empty = np.pad(m == 0, 1, constant_values=True)
+        h, w = obj_shape
+        far = np.all([empty[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+        lum = fr if fr.ndim == 2 else fr.sum(axis=0)
+        check(bool(np.all(lum[far] == 0)), f"{x['frontal_npy']}: light outside the mask on a black background")
+    return bool(mine.any())
+
+
 def main(argv: list[str]) -> int:
     args = [a for a in argv[1:] if not a.startswith("--")]
     noiseless = "--noiseless" in argv
@@ -123,7 +161,7 @@ def main(argv: list[str]) -> int:
     full_scale = card["exposure"]["capture_full_scale"]
     cap_shape = tuple(card["capture_shape"])
     obj_shape = tuple(card["object_shape"])
-    n_seen, worst, resid = 0, 0.0, []
+    n_seen, worst, resid, n_3d, in_view = 0, 0.0, [], 0, 0
     for split in SPLITS:
         meta = root / split / "metadata.jsonl"
         if card["counts"].get(split, 0) == 0:
@@ -135,14 +173,23 @@ def main(argv: list[str]) -> int:
         check(ids == sorted(ids), f"{split}: ids not in order")
         for x in lines:
             d = root / split
-            for k in ("file_name", "object_file_name", "capture_npy", "object_npy"):
+            is_3d = "frontal_npy" in x
+            keys = ("file_name", "capture_npy") + (
+                ("frontal_npy", "frontal_file_name", "depth_npy", "mask_file_name") if is_3d else ("object_file_name", "object_npy")
+            )
+            for k in keys:
                 check(f"{split}/{x[k]}" in card["files"], f"{split}/{x[k]} not in the card")
-            f = np.load(d / x["object_npy"])
             g = np.load(d / x["capture_npy"])
-            check(f.dtype == np.float32 and f.shape == obj_shape, f"{x['object_npy']}: {f.dtype} {f.shape}")
             check(g.dtype == np.float32 and g.shape == cap_shape, f"{x['capture_npy']}: {g.dtype} {g.shape}")
-            check(bool(np.all((f >= 0) & (f <= 1))), f"{x['object_npy']}: outside [0, 1]")
             check(bool(np.all(np.isfinite(g))), f"{x['capture_npy']}: not finite")
+            if is_3d:
+                display_off = "display.enabled=false" in card["recipe"]["scene"]["set"]
+                in_view += check_3d(d, x, obj_shape, display_off and x["environment"] == 0, check)
+                n_3d += 1
+            else:
+                f = np.load(d / x["object_npy"])
+                check(f.dtype == np.float32 and f.shape == obj_shape, f"{x['object_npy']}: {f.dtype} {f.shape}")
+                check(bool(np.all((f >= 0) & (f <= 1))), f"{x['object_npy']}: outside [0, 1]")
             if n_seen < 24:  # PNG decoding in pure Python is slow: a sample of them
                 png = load_png16(d / x["file_name"])
                 want = np.round(65535 * np.clip(g.astype(np.float64) / full_scale, 0, 1))
@@ -167,6 +214,10 @@ def main(argv: list[str]) -> int:
             m = abs(float(np.mean(resid)))
             check(m < 1e-2, f"mean noise {m:.3g} of the peak is not ~0")
             print(f"check_dataset: {n_seen} noisy captures scatter around H @ object + offset (mean {m:.2e} of the peak)")
+    if n_3d:
+        check(in_view > 0, "no 3-D sample shows its mesh")
+        print(f"check_dataset: the drawn mesh is in view in {in_view} of {n_3d} 3-D samples")
+        print(f"check_dataset: {n_3d} 3-D samples: frontal, depth and mask {obj_shape} aligned (mask only where the depth is finite, mesh depths within its bounds)")
     print(f"check_dataset: {n_seen} samples load with numpy (object {obj_shape}, capture {cap_shape}, float32)")
 
     if hf:
@@ -184,6 +235,10 @@ def main(argv: list[str]) -> int:
             check(img.size == (cap_shape[-1], cap_shape[-2]), f"HF image size {img.size}")
             for col in ("id", "seed", "scene", "object_draw", "capture_npy"):
                 check(col in row, f"HF column {col} missing")
+            for col in ("frontal_file_name", "mask_file_name"):
+                if col in row or col.removesuffix("_file_name") in row:
+                    im = row.get(col.removesuffix("_file_name"), row.get(col))
+                    check(getattr(im, "size", None) == (obj_shape[-1], obj_shape[-2]), f"HF {col}: {im!r}")
             a = np.array(img).astype(np.float64)
             g = np.load(root / split / row["capture_npy"]).astype(np.float64)
             want = np.round(65535 * np.clip(g / full_scale, 0, 1))

@@ -1,0 +1,277 @@
+"""stscam: the see-through-screen camera simulator (holographic waveguide, Optics Express 2022).
+
+A thin Python front end over the same Rust library as the ``stscam`` command line: for the same
+inputs every function returns the numbers the CLI writes, bit for bit (``render`` ↔
+``capture.exr``, ``matrix`` ↔ ``H.npz`` and ``offset.npy``, ``info``/``probe`` ↔ ``--json``).
+Bad input raises ``ValueError`` with the CLI's one-line message. Long calls release the GIL
+and stop on Ctrl-C (``KeyboardInterrupt``). Millimetres throughout; images have row 0 at the top
+and column 0 at the left as seen from the camera.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+import scipy.sparse
+
+from . import _native
+from .dataset import Dataset, load_dataset
+
+__all__ = [
+    "Scene", "Render", "Frontal", "render", "matrix", "info", "probe", "reconstruct",
+    "calibrate", "sweep", "build_dataset", "merge_dataset", "load_dataset", "Dataset",
+    "read_exr", "__version__",
+]
+__version__: str = _native.VERSION
+
+
+def _toml_value(v: Any) -> str:
+    """A Python value as a TOML literal for a ``--set KEY=VALUE`` override."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float, np.integer, np.floating)):
+        return repr(float(v)) if isinstance(v, (float, np.floating)) else str(int(v))
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise ValueError(f"--set: cannot express {v!r} ({type(v).__name__}) as a TOML value")
+
+
+class Scene:
+    """A scene: the embedded paper scene (``path=None``) or a TOML file merged over it, with
+    ``overrides`` (a dict of ``--set`` keys to values, e.g. ``{"sensor.crop_px": [96, 96],
+    "display.image": "letter:F@32"}``). Checked on construction (``ValueError``)."""
+
+    def __init__(self, path: Optional[str | os.PathLike] = None,
+                 overrides: Optional[Mapping[str, Any]] = None):
+        self.path: Optional[str] = None if path is None else os.fspath(path)
+        self.overrides: dict[str, Any] = dict(overrides or {})
+        self._sets = [f"{k}={_toml_value(v)}" for k, v in self.overrides.items()]
+        self._arg = (self.path, self._sets)
+        self._json = _native.scene_json(self._arg)
+
+    @property
+    def sets(self) -> list[str]:
+        """The overrides as the CLI's ``--set KEY=VALUE`` arguments."""
+        return list(self._sets)
+
+    def to_dict(self) -> dict:
+        """The full scene after overrides (as ``capture.json``'s ``scene``)."""
+        return json.loads(self._json)
+
+    def __repr__(self) -> str:
+        return f"Scene(path={self.path!r}, overrides={self.overrides!r})"
+
+
+def _scene(scene: Optional[Scene]) -> Scene:
+    if scene is None:
+        return Scene()
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene: expected stscam.Scene, got {type(scene).__name__}")
+    return scene
+
+
+def _f32(b: bytes, shape) -> np.ndarray:
+    return np.frombuffer(b, dtype="<f4").reshape(shape).astype(np.float32, copy=True)
+
+
+def _image(b: bytes, nch: int, h: int, w: int) -> np.ndarray:
+    return _f32(b, (h, w) if nch == 1 else (nch, h, w))
+
+
+def _csr(d: dict) -> scipy.sparse.csr_matrix:
+    rows, cols = d["rows"], d["cols"]
+    data = np.frombuffer(d["data"], dtype="<f4").astype(np.float32)
+    nnz = data.size
+    # The index type of H.npz: int32 while nnz and the column count fit (scipy's own rule).
+    idx = np.int32 if max(nnz, cols) <= np.iinfo(np.int32).max else np.int64
+    indptr = np.frombuffer(d["indptr"], dtype="<u8").astype(idx)
+    indices = np.frombuffer(d["indices"], dtype="<u4").astype(idx)
+    return scipy.sparse.csr_matrix((data, indices, indptr), shape=(rows, cols))
+
+
+@dataclass
+class Frontal:
+    """Ground truth of a 3-D scene: what an ideal pinhole at the screen sees."""
+    image: np.ndarray  #: float32 [h, w] (mono) or [c, h, w], as ``frontal.exr``
+    depth: np.ndarray  #: float32 [h, w], mm from the plate along -z (inf: nothing), ``depth.exr``
+    mask: np.ndarray   #: uint16 [h, w]: object index + 1, 65535 the display, 0 nothing
+
+
+@dataclass
+class Render:
+    """What :func:`render` returns."""
+    image: np.ndarray  #: float32 [h, w] (mono) or [c, h, w] (colour): ``capture.exr``'s values
+    channels: list[str]  #: channel names (``Y`` or ``R``, ``G``, ``B``)
+    stats: dict  #: path counters, as ``capture.json``'s ``stats``
+    render_time_s: float
+    spectral: Optional[np.ndarray] = None  #: float32 [bins, h, w] with ``spectral=True``
+    spectral_bins_nm: list[float] = field(default_factory=list)
+    frontal_result: Optional[Frontal] = None
+
+    @property
+    def frontal(self) -> Optional[np.ndarray]:
+        """The frontal image (3-D scenes), else None."""
+        return None if self.frontal_result is None else self.frontal_result.image
+
+    @property
+    def depth(self) -> Optional[np.ndarray]:
+        """Depth in mm (3-D scenes), else None."""
+        return None if self.frontal_result is None else self.frontal_result.depth
+
+    @property
+    def mask(self) -> Optional[np.ndarray]:
+        """Object mask (3-D scenes), else None."""
+        return None if self.frontal_result is None else self.frontal_result.mask
+
+
+def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+           threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
+           frontal_px: Optional[tuple[int, int]] = None) -> Render:
+    """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed`` and ``sampler``
+    give the values of ``capture.exr`` (for any ``threads``)."""
+    s = _scene(scene)
+    d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
+                       None if frontal_px is None else tuple(frontal_px))
+    w, h, names = d["width"], d["height"], d["channels"]
+    nb = len(d["spectral_bins_nm"])
+    out = Render(
+        image=_image(d["image"], len(names), h, w),
+        channels=list(names),
+        stats=json.loads(d["stats"]),
+        render_time_s=d["render_time_s"],
+        spectral=_f32(d["spectral"], (nb, h, w)) if nb else None,
+        spectral_bins_nm=list(d["spectral_bins_nm"]),
+    )
+    f = d.get("frontal")
+    if f is not None:
+        fw, fh = f["width"], f["height"]
+        out.frontal_result = Frontal(
+            image=_image(f["image"], len(f["channels"]), fh, fw),
+            depth=_f32(f["depth"], (fh, fw)),
+            mask=np.frombuffer(f["mask"], dtype="<u2").reshape(fh, fw).astype(np.uint16),
+        )
+    return out
+
+
+def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+           depth_mm: Optional[float] = None,
+           threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+    """The system matrix H (rows: crop pixels, channel-major; columns: object pixels) and the
+    offset (capture of an all-black object), equal to ``stscam matrix``'s ``H.npz`` and
+    ``offset.npy``. ``depth_mm`` moves the object plane, keeping the focus."""
+    s = _scene(scene)
+    d = _native.matrix(s._arg, int(spp), int(seed),
+                       None if depth_mm is None else float(depth_mm), threads)
+    h = _csr(d)
+    return h, np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)
+
+
+def info(scene: Optional[Scene] = None) -> dict:
+    """Design summary, equal to ``stscam info --json``."""
+    s = _scene(scene)
+    return json.loads(_native.info(s._arg))
+
+
+def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dict:
+    """The chief ray of pixel ``(col, row)``, equal to ``stscam probe --pixel COL,ROW --json``."""
+    s = _scene(scene)
+    try:
+        col, row = (int(v) for v in pixel)
+    except (TypeError, ValueError):
+        raise ValueError(f"--pixel {pixel!r}: expected COL,ROW with non-negative integers") from None
+    if col < 0 or row < 0:
+        raise ValueError(f"--pixel {col},{row}: expected COL,ROW with non-negative integers")
+    return json.loads(_native.probe(s._arg, col, row))
+
+
+def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None,
+                tau: Optional[float] = None, offset=None, tv: str = "iso",
+                object_shape: Optional[tuple[int, int]] = None,
+                threads: Optional[int] = None, return_info: bool = False):
+    """Reconstructs the object from ``capture`` (any shape, flattened in H's row order) with
+    CG (``method="cg"``) or ADMM-TV, as ``stscam reconstruct``. ``H`` is any scipy sparse
+    matrix (stored as float32, like ``H.npz``); ``offset`` (float32, like ``offset.npy``) is
+    subtracted first; ``tau`` is relative to ‖Hᵀg‖∞ (default 0.001). Returns the object as a
+    float64 array [h, w] (``object_shape=(w, h)``; default: square), and with
+    ``return_info=True`` also the solver's report (``recon.json``'s ``solver``)."""
+    if not scipy.sparse.issparse(H):
+        raise ValueError(f"H: expected a scipy sparse matrix, got {type(H).__name__}")
+    h = scipy.sparse.csr_matrix(H, dtype=np.float32, copy=True)
+    h.sum_duplicates()
+    h.sort_indices()
+    rows, cols = h.shape
+    if object_shape is None:
+        side = int(round(cols ** 0.5))
+        if side * side != cols:
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+        object_shape = (side, side)
+    w, hh = (int(v) for v in object_shape)
+    g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
+    off = None if offset is None else np.ascontiguousarray(
+        np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
+    f, solver = _native.reconstruct(
+        rows, cols, h.indptr.astype("<i8").tobytes(), h.indices.astype("<i8").tobytes(),
+        h.data.astype("<f4").tobytes(), (w, hh), g.astype("<f8").tobytes(), off, method, iters,
+        0.001 if tau is None else float(tau), tv, threads)
+    obj = np.frombuffer(f, dtype="<f8").reshape(hh, w).astype(np.float64)
+    return (obj, json.loads(solver)) if return_info else obj
+
+
+def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+              matrix: Optional[str | os.PathLike] = None,
+              object_shape: Optional[tuple[int, int]] = None, noise: str = "sensor",
+              dark_frame: bool = False, render: bool = False, threshold_sigma: float = 5.0,
+              threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
+    """The paper's Hadamard calibration, simulated (``stscam calibrate``): returns H_est (as
+    ``H_est.npz``) and the report (``calibration.json``'s ``report``). ``matrix`` is an
+    ``H.npz`` path (default: H computed from the scene)."""
+    if noise not in ("sensor", "none"):
+        raise ValueError(f"noise {noise!r}: expected \"sensor\" or \"none\"")
+    s = _scene(scene)
+    d = _native.calibrate(s._arg, int(spp), int(seed),
+                          None if matrix is None else os.fspath(matrix),
+                          None if object_shape is None else tuple(object_shape),
+                          noise == "sensor", bool(dark_frame), bool(render),
+                          float(threshold_sigma), threads)
+    return _csr(d), json.loads(d["report"])
+
+
+def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tuple] = (),
+          fov_fraction: float = 0.1, psnr: Optional[str] = None, psnr_spp: int = 64,
+          threads: Optional[int] = None) -> list[dict]:
+    """A design sweep, equal to ``stscam sweep --json``: ``vary`` is a list of
+    ``KEY=START:STOP:STEPS`` or a dict ``{KEY: (start, stop, steps)}``; one dict per grid point."""
+    if isinstance(vary, Mapping):
+        vary = [f"{k}={a}:{b}:{n}" for k, (a, b, n) in vary.items()]
+    s = _scene(scene)
+    return json.loads(_native.sweep(s._arg, list(vary), float(fov_fraction), psnr,
+                                    int(psnr_spp), threads))
+
+
+def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
+                  shard: Optional[str | tuple[int, int]] = None, resume: bool = False,
+                  threads: Optional[int] = None) -> dict:
+    """Builds a dataset (``stscam dataset RECIPE --out OUT [--shard I/N] [--resume]``); the
+    files are byte-identical to the CLI's. Returns the run summary."""
+    if isinstance(shard, tuple):
+        shard = f"{shard[0]}/{shard[1]}"
+    return json.loads(_native.build_dataset(os.fspath(recipe), os.fspath(out), shard,
+                                            bool(resume), threads))
+
+
+def merge_dataset(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
+                  threads: Optional[int] = None) -> dict:
+    """Joins finished shards (``stscam dataset merge``)."""
+    return json.loads(_native.merge_dataset([os.fspath(p) for p in shards], os.fspath(out),
+                                            threads))
+
+
+def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The channels of an EXR file written by stscam, float32 [h, w] each, by name."""
+    w, h, chans = _native.read_exr(os.fspath(path))
+    return {name: _f32(b, (h, w)) for name, b in chans}

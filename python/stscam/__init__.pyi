@@ -1,0 +1,70 @@
+"""Type stubs of the stscam Python package (see __init__.py for the documentation)."""
+import os
+from dataclasses import dataclass
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+import scipy.sparse
+
+from .dataset import Dataset as Dataset, load_dataset as load_dataset
+
+__version__: str
+
+class Scene:
+    path: Optional[str]
+    overrides: dict[str, Any]
+    def __init__(self, path: Optional[str | os.PathLike[str]] = None,
+                 overrides: Optional[Mapping[str, Any]] = None) -> None: ...
+    @property
+    def sets(self) -> list[str]: ...
+    def to_dict(self) -> dict[str, Any]: ...
+
+@dataclass
+class Frontal:
+    image: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+
+@dataclass
+class Render:
+    image: np.ndarray
+    channels: list[str]
+    stats: dict[str, Any]
+    render_time_s: float
+    spectral: Optional[np.ndarray]
+    spectral_bins_nm: list[float]
+    frontal_result: Optional[Frontal]
+    @property
+    def frontal(self) -> Optional[np.ndarray]: ...
+    @property
+    def depth(self) -> Optional[np.ndarray]: ...
+    @property
+    def mask(self) -> Optional[np.ndarray]: ...
+
+def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+           threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
+           frontal_px: Optional[tuple[int, int]] = None) -> Render: ...
+def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+           depth_mm: Optional[float] = None,
+           threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]: ...
+def info(scene: Optional[Scene] = None) -> dict[str, Any]: ...
+def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dict[str, Any]: ...
+def reconstruct(H: Any, capture: Any, method: str = "admm-tv", iters: Optional[int] = None,
+                tau: Optional[float] = None, offset: Any = None, tv: str = "iso",
+                object_shape: Optional[tuple[int, int]] = None, threads: Optional[int] = None,
+                return_info: bool = False) -> Any: ...
+def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
+              matrix: Optional[str | os.PathLike[str]] = None,
+              object_shape: Optional[tuple[int, int]] = None, noise: str = "sensor",
+              dark_frame: bool = False, render: bool = False, threshold_sigma: float = 5.0,
+              threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, dict[str, Any]]: ...
+def sweep(scene: Optional[Scene] = None,
+          vary: Sequence[str] | Mapping[str, tuple[float, float, int]] = (),
+          fov_fraction: float = 0.1, psnr: Optional[str] = None, psnr_spp: int = 64,
+          threads: Optional[int] = None) -> list[dict[str, Any]]: ...
+def build_dataset(recipe: str | os.PathLike[str], out: str | os.PathLike[str],
+                  shard: Optional[str | tuple[int, int]] = None, resume: bool = False,
+                  threads: Optional[int] = None) -> dict[str, Any]: ...
+def merge_dataset(shards: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
+                  threads: Optional[int] = None) -> dict[str, Any]: ...
+def read_exr(path: str | os.PathLike[str]) -> dict[str, np.ndarray]: ...

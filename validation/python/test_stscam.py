@@ -1,0 +1,252 @@
+"""pytest of the Python package against the CLI (run by .ci/run after `pip install .`).
+
+Every equality is bit for bit: the CLI (the binary in $STSCAM, default target/release/stscam)
+writes its files into a temporary folder in the same run and the Python call with the same
+inputs must give the same float32 bits, the same sparse arrays, the same JSON, the same dataset
+bytes. The error tests check that bad input raises ValueError with the CLI's one-line message.
+"""
+import _thread
+import filecmp
+import json
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse
+
+import stscam
+
+ROOT = Path(__file__).resolve().parents[2]
+CLI = os.environ.get("STSCAM", str(ROOT / "target" / "release" / "stscam"))
+# A small scene: a 64x48 crop of the paper camera looking at a 32x32 glyph.
+SETS = {"sensor.crop_px": [64, 48], "display.image": "letter:F@32"}
+SPP = 4
+
+
+def cli(*args, check=True):
+    r = subprocess.run([CLI, *map(str, args)], capture_output=True, text=True)
+    if check and r.returncode != 0:
+        raise AssertionError(f"stscam {' '.join(map(str, args))}: {r.stderr}")
+    return r
+
+
+def set_args(sets):
+    return [a for k, v in sets.items() for a in ("--set", f"{k}={stscam._toml_value(v)}")]
+
+
+def same_bits(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return stscam.Scene(overrides=SETS)
+
+
+def test_scene_to_dict_has_the_overrides(scene):
+    d = scene.to_dict()
+    assert d["sensor"]["crop_px"] == [64, 48]
+    assert d["display"]["image"] == "letter:F@32"
+    assert stscam.Scene().to_dict()["sensor"]["crop_px"] != [64, 48]
+
+
+def test_render_equals_cli_capture_exr(scene, tmp_path):
+    cli("render", "--out", tmp_path, "--spp", SPP, "--seed", 3, *set_args(SETS))
+    exr = stscam.read_exr(tmp_path / "capture.exr")
+    r = stscam.render(scene, spp=SPP, seed=3)
+    assert r.image.shape == (48, 64) and r.image.dtype == np.float32
+    assert same_bits(r.image, exr["Y"])
+    assert r.stats == json.load(open(tmp_path / "capture.json"))["stats"]
+    assert r.frontal is None and r.depth is None and r.mask is None
+    # Another seed gives other numbers: the equality above can fail.
+    assert not same_bits(stscam.render(scene, spp=SPP, seed=4).image, exr["Y"])
+
+
+def test_render_is_the_same_for_any_thread_count(scene):
+    a = stscam.render(scene, spp=SPP, seed=5, threads=1).image
+    b = stscam.render(scene, spp=SPP, seed=5, threads=2).image
+    assert same_bits(a, b)
+
+
+def test_colour_render_is_channel_first_and_equals_cli(tmp_path):
+    sets = dict(SETS, **{"sensor.response": "rgb-bayer"})
+    cli("render", "--out", tmp_path, "--spp", 2, *set_args(sets))
+    exr = stscam.read_exr(tmp_path / "capture.exr")
+    r = stscam.render(stscam.Scene(overrides=sets), spp=2)
+    assert r.channels == ["R", "G", "B"] and r.image.shape == (3, 48, 64)
+    assert same_bits(r.image, np.stack([exr[c] for c in "RGB"]))
+
+
+def test_3d_scene_gives_frontal_depth_and_mask_equal_to_cli(tmp_path):
+    path = ROOT / "scenes" / "gesture.toml"
+    sets = {"sensor.crop_px": [24, 24], "sensor.pitch_um": 40.0}
+    cli("render", path, "--out", tmp_path, "--spp", 1, "--frontal-px", "16x12", *set_args(sets))
+    r = stscam.render(stscam.Scene(path, sets), spp=1, frontal_px=(16, 12))
+    assert same_bits(r.image, stscam.read_exr(tmp_path / "capture.exr")["Y"])
+    assert r.frontal.shape == (12, 16) and r.depth.shape == (12, 16) and r.mask.dtype == np.uint16
+    assert same_bits(r.frontal, stscam.read_exr(tmp_path / "frontal.exr")["Y"])
+    assert same_bits(r.depth, stscam.read_exr(tmp_path / "depth.exr")["Z"])
+    assert np.isfinite(r.depth).any() and (r.mask > 0).any()
+
+
+def test_matrix_equals_cli_npz_and_offset(scene, tmp_path):
+    cli("matrix", "--out", tmp_path, "--spp", SPP, "--depth-mm", 480, *set_args(SETS))
+    h_cli = scipy.sparse.load_npz(tmp_path / "H.npz")
+    off_cli = np.load(tmp_path / "offset.npy")
+    h, off = stscam.matrix(scene, spp=SPP, depth_mm=480)
+    assert isinstance(h, scipy.sparse.csr_matrix) and h.shape == h_cli.shape == (48 * 64, 32 * 32)
+    for name in ("data", "indices", "indptr"):
+        assert same_bits(getattr(h, name), getattr(h_cli, name)), name
+    assert same_bits(off, off_cli)
+    # The default depth is another matrix.
+    h2, _ = stscam.matrix(scene, spp=SPP)
+    assert not (h2.nnz == h.nnz and same_bits(h2.data, h.data))
+
+
+def test_info_and_probe_equal_cli_json(scene):
+    assert stscam.info(scene) == json.loads(cli("info", "--json", *set_args(SETS)).stdout)
+    p = stscam.probe(scene, pixel=(10, 20))
+    assert p == json.loads(cli("probe", "--pixel", "10,20", "--json", *set_args(SETS)).stdout)
+    assert p != stscam.probe(scene, pixel=(10, 21))
+
+
+@pytest.mark.parametrize("method", ["admm-tv", "cg"])
+def test_reconstruct_equals_cli(scene, tmp_path, method):
+    cli("matrix", "--out", tmp_path / "m", "--spp", SPP, *set_args(SETS))
+    cli("render", "--out", tmp_path / "r", "--spp", SPP, "--seed", 9, *set_args(SETS))
+    cli("reconstruct", "--matrix", tmp_path / "m" / "H.npz", "--capture",
+        tmp_path / "r" / "capture.exr", "--method", method, "--iters", 12, "--out", tmp_path / "o")
+    h = scipy.sparse.load_npz(tmp_path / "m" / "H.npz")
+    g = stscam.read_exr(tmp_path / "r" / "capture.exr")["Y"]
+    off = np.load(tmp_path / "m" / "offset.npy")
+    # Any scipy sparse format is accepted.
+    f = stscam.reconstruct(h.tocoo(), g, method=method, iters=12, offset=off)
+    assert f.shape == (32, 32) and f.dtype == np.float64
+    want = stscam.read_exr(tmp_path / "o" / "recon.exr")["Y"]
+    assert same_bits(f.astype(np.float32), want)
+    assert not same_bits(stscam.reconstruct(h, g, method=method, iters=12).astype(np.float32), want)
+
+
+def test_calibrate_equals_cli(scene, tmp_path):
+    cli("calibrate", "--out", tmp_path, "--spp", SPP, *set_args(SETS))
+    h_est, report = stscam.calibrate(scene, spp=SPP)
+    h_cli = scipy.sparse.load_npz(tmp_path / "H_est.npz")
+    for name in ("data", "indices", "indptr"):
+        assert same_bits(getattr(h_est, name), getattr(h_cli, name)), name
+    assert report == json.load(open(tmp_path / "calibration.json"))["report"]
+
+
+def test_sweep_equals_cli_json(scene, tmp_path):
+    vary = ["bottom_hoe.height_mm=10:30:2"]
+    rows = stscam.sweep(scene, vary=vary)
+    assert len(rows) == 2 and rows[0] != rows[1]
+    want = json.loads(cli("sweep", "--vary", vary[0], "--json", "--out", tmp_path,
+                          *set_args(SETS)).stdout)
+    assert rows == want
+    assert stscam.sweep(scene, vary={"bottom_hoe.height_mm": (10, 30, 2)}) == want
+
+
+def test_build_dataset_equals_cli_and_loads(tmp_path):
+    recipe = ROOT / "validation" / "python" / "noiseless.toml"
+    cli("dataset", recipe, "--out", tmp_path / "cli")
+    summary = stscam.build_dataset(recipe, tmp_path / "py")
+    assert summary["samples"] == 30
+    cmp = filecmp.dircmp(tmp_path / "cli", tmp_path / "py")
+    def same_tree(c):
+        assert not c.left_only and not c.right_only and not c.diff_files, (c.left, c.diff_files)
+        for f in c.common_files:
+            assert filecmp.cmp(os.path.join(c.left, f), os.path.join(c.right, f), shallow=False), f
+        for sub in c.subdirs.values():
+            same_tree(sub)
+    same_tree(cmp)
+    # The loader against the files.
+    total = 0
+    for split in ("train", "val", "test"):
+        ds = stscam.load_dataset(tmp_path / "cli", split)
+        lines = (tmp_path / "cli" / split / "metadata.jsonl").read_text().splitlines()
+        assert len(ds) == len(lines)
+        total += len(ds)
+        for i in (0, len(ds) - 1):
+            m = json.loads(lines[i])
+            item = ds[i]
+            assert same_bits(item["object"], np.load(tmp_path / "cli" / split / m["object_npy"]))
+            assert same_bits(item["capture"], np.load(tmp_path / "cli" / split / m["capture_npy"]))
+            assert item["object"].shape == (32, 32) and item["capture"].shape == (96, 96)
+        h, off = ds.matrix(0)
+        obj, cap = ds[0]["object"], ds[0]["capture"]
+        # Noiseless matrix mode: capture = H f + offset (float32 rounding).
+        pred = h @ obj.reshape(-1).astype(np.float64) + off
+        assert np.max(np.abs(pred - cap.reshape(-1))) <= 1e-5 * np.max(np.abs(cap))
+    assert total == 30
+    with pytest.raises(IndexError):
+        stscam.load_dataset(tmp_path / "cli", "train")[10_000]
+    with pytest.raises(ValueError, match="split"):
+        stscam.load_dataset(tmp_path / "cli", "dev")
+
+
+def cli_error(*args):
+    r = cli(*args, check=False)
+    assert r.returncode == 2, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: ")
+    return line[len("error: "):]
+
+
+def test_bad_input_raises_value_error_with_the_cli_message(tmp_path):
+    with pytest.raises(ValueError) as e:
+        stscam.Scene(overrides={"plate.thickness_mmm": 3})
+    assert str(e.value) == cli_error("info", "--set", "plate.thickness_mmm=3")
+    with pytest.raises(ValueError) as e:
+        stscam.Scene(overrides={"plate.thickness_mm": -1})
+    assert str(e.value) == cli_error("info", "--set", "plate.thickness_mm=-1")
+    with pytest.raises(ValueError) as e:
+        stscam.Scene(tmp_path / "missing.toml")
+    assert str(e.value) == cli_error("info", tmp_path / "missing.toml")
+    with pytest.raises(ValueError) as e:
+        stscam.render(spp=0)
+    assert str(e.value) == cli_error("render", "--spp", "0", "--out", tmp_path / "r")
+    with pytest.raises(ValueError) as e:
+        stscam.matrix(depth_mm=-5)
+    assert str(e.value) == cli_error("matrix", "--depth-mm=-5", "--out", tmp_path / "m")
+    with pytest.raises(ValueError) as e:
+        stscam.probe(pixel=(100000, 3))
+    assert str(e.value) == cli_error("probe", "--pixel", "100000,3")
+    with pytest.raises(ValueError) as e:
+        stscam.build_dataset(tmp_path / "nope.toml", tmp_path / "d")
+    assert str(e.value) == cli_error("dataset", tmp_path / "nope.toml", "--out", tmp_path / "d")
+    with pytest.raises(ValueError, match="rows"):
+        stscam.reconstruct(scipy.sparse.eye(16, format="csr"), np.zeros(15))
+    with pytest.raises(ValueError):
+        stscam.render(threads=0)
+
+
+def test_ctrl_c_stops_a_long_render():
+    # Python's own Ctrl-C handler, as in an interactive session: a process started in the
+    # background by a non-interactive shell inherits SIGINT ignored, and then
+    # _thread.interrupt_main() does nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        check_ctrl_c_stops_a_long_render()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def check_ctrl_c_stops_a_long_render():
+    big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
+    t0 = time.monotonic()
+    stscam.render(big, spp=1)
+    one = time.monotonic() - t0  # one sample per pixel; 400 would take ~400x as long
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    timer.start()
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        stscam.render(big, spp=400)
+    elapsed = time.monotonic() - t0
+    timer.cancel()
+    assert elapsed < 0.5 + max(2.0, 5 * one), (elapsed, one)
