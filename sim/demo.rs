@@ -10,6 +10,15 @@
 //!    frame subtracted, giving H_est.
 //! 4. CGM and ADMM-TV with H and with H_est; PSNR and SSIM against the object (`metrics.rs`:
 //!    linear intensities in [0, 1], reconstruction clipped, not rescaled).
+//! 5. Several depths (the paper's limitation: its H holds at one distance). H is computed as
+//!    part of a depth stack of 8 planes from 6/11 to 13/11 of the scene's distance D₀ (300,
+//!    350, …, 650 mm for the paper's 550 mm) in one pass; H at D₀ is bit-identical to a plain
+//!    `matrix`. The same targets are moved to the third plane (400 mm for the paper) and
+//!    captured through an independently seeded H there (seed s + 1: H·f + o equals the
+//!    tracer's render with that seed to float rounding, `matrix --check`), with the same noise.
+//!    Each capture is reconstructed with the H of D₀ (what a camera calibrated at one distance
+//!    does) and with the H of the depth estimated from the capture itself over the stack
+//!    (`recon::depth`), each depth's model offset subtracted.
 //!
 //! Outputs: a Markdown and JSON table (like the paper's Table 1), a figure (object, capture,
 //! CGM and ADMM-TV per row, for H and H_est), every image, H, H_est and the calibration report.
@@ -17,7 +26,7 @@
 use std::time::Instant;
 
 use crate::hadamard::{CalibrationReport, CalibrationSettings, FrameSource, calibrate};
-use crate::matrix::{SystemMatrix, compute_matrix};
+use crate::matrix::{SystemMatrix, compute_matrix_stack};
 use crate::noise::{NoiseRng, SensorNoise};
 use crate::recon::Problem;
 use crate::recon::admm::{AdmmSettings, admm_tv};
@@ -70,12 +79,54 @@ pub struct DemoRow {
     pub frame_ms: f64,
 }
 
+/// One target of the demo's several-depths part.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DepthRow {
+    /// Target name.
+    pub target: String,
+    /// Where the object is, mm from the plate.
+    pub true_depth_mm: f64,
+    /// The distance H was made for (the scene's), mm.
+    pub nominal_depth_mm: f64,
+    /// The estimate over the stack.
+    pub estimate: crate::recon::depth::DepthEstimate,
+    /// PSNR (dB) and SSIM of CGM and ADMM-TV with the nominal H: [cgm, admm-tv].
+    pub nominal: [(f64, f64); 2],
+    /// The same with the H of the estimated depth.
+    pub estimated: [(f64, f64); 2],
+}
+
+/// Number of planes of the demo's depth stack.
+pub const DEMO_DEPTHS: usize = 8;
+/// Index of the scene's own distance in the stack.
+const NOMINAL: usize = 5;
+/// Index of the plane the objects are moved to.
+const NEAR: usize = 2;
+
+/// The demo's depth grid for a scene at `d0_mm`: d0·(6 + i)/11 for i = 0..8, the sixth exactly
+/// d0 (300, 350, …, 650 mm for 550 mm).
+pub fn demo_depth_grid(d0_mm: f64) -> Vec<f64> {
+    (0..DEMO_DEPTHS)
+        .map(|i| {
+            if i == NOMINAL {
+                d0_mm
+            } else {
+                d0_mm * (6 + i) as f64 / 11.0
+            }
+        })
+        .collect()
+}
+
 /// Everything the demo produced, in memory: files (name, bytes) and the summary.
 pub struct DemoOutput {
     /// Files to write, flat names.
     pub files: Vec<(String, Vec<u8>)>,
     /// Table rows.
     pub rows: Vec<DemoRow>,
+    /// The several-depths part, one row per target.
+    pub depth_rows: Vec<DepthRow>,
+    /// What the crop sees of an object at the near plane (`analysis::object_coverage`).
+    pub depth_coverage: crate::analysis::ObjectCoverage,
     /// Calibration report.
     pub calibration: CalibrationReport,
     /// Summary JSON (timings, settings).
@@ -191,12 +242,16 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     }
     let gamma = sys.scene.display.gamma;
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
-    // 1. H.
+    // 1. H, as part of the depth stack (5.).
     let t0 = Instant::now();
-    let m: SystemMatrix = compute_matrix(
+    let d0 = -sys.display.z_mm;
+    let grid = demo_depth_grid(d0);
+    let stack = compute_matrix_stack(
         sys,
         &RenderSettings::lattice(set.spp, set.seed, set.progress),
+        &grid,
     );
+    let m: SystemMatrix = stack[NOMINAL].clone();
     let matrix_s = t0.elapsed().as_secs_f64();
     let rows_per_channel = m.crop.0 * m.crop.1;
     let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
@@ -275,6 +330,70 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         recons.push(per);
     }
     let recon_s = t0.elapsed().as_secs_f64();
+    // 5. Several depths.
+    let t0 = Instant::now();
+    let near = grid[NEAR];
+    let near_m = compute_matrix_stack(
+        sys,
+        &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
+        &[near],
+    )
+    .swap_remove(0);
+    let frames: Vec<Vec<f64>> = shots
+        .iter()
+        .enumerate()
+        .map(|(ti, shot)| noisy_capture_of(&near_m, &shot.truth, &noise, set.seed, 16 + ti as u64))
+        .collect();
+    let blocks: Vec<&crate::sparse::CsrMatrix> = stack.iter().map(|m| &m.h).collect();
+    let offsets: Vec<Option<&[f32]>> = stack.iter().map(|m| Some(&m.offset[..])).collect();
+    let estimates = crate::recon::depth::estimate_depths(
+        &blocks,
+        &offsets,
+        (ow, oh),
+        &frames,
+        &grid,
+        crate::recon::depth::DEFAULT_DEPTH_CG_ITERS,
+    );
+    let mut depth_rows = Vec::new();
+    let mut depth_recons: Vec<Vec<Vec<f64>>> = Vec::new();
+    let mut problems: Vec<Option<Problem>> = vec![None; grid.len()];
+    for ((shot, frame), est) in shots.iter().zip(&frames).zip(estimates) {
+        let mut scores = [[(0.0, 0.0); 2]; 2];
+        let mut per = Vec::new();
+        for (k, d) in [NOMINAL, est.best].into_iter().enumerate() {
+            let p = problems[d].get_or_insert_with(|| Problem::new(&stack[d].h, ow, oh));
+            let g: Vec<f64> = frame
+                .iter()
+                .zip(&stack[d].offset)
+                .map(|(a, &o)| a - f64::from(o))
+                .collect();
+            let htg = p.back_project(&g);
+            for (j, f) in [cg_normal(p, &htg, &set.cg).f, admm_tv(p, &htg, &set.admm).f]
+                .into_iter()
+                .enumerate()
+            {
+                scores[k][j] = (psnr(&f, &shot.truth), ssim(&f, &shot.truth, ow, oh));
+                if j == 1 {
+                    per.push(f);
+                }
+            }
+        }
+        depth_rows.push(DepthRow {
+            target: shot.name.to_string(),
+            true_depth_mm: near,
+            nominal_depth_mm: d0,
+            estimate: est,
+            nominal: scores[0],
+            estimated: scores[1],
+        });
+        depth_recons.push(per);
+    }
+    let depth_s = t0.elapsed().as_secs_f64();
+    let depth_coverage = {
+        let mut moved = sys.clone();
+        crate::matrix::place_object(&mut moved, near);
+        crate::analysis::object_coverage(&moved)
+    };
     // Files.
     let png = |f: &[f64]| crate::output::encode_object_png(f, ow, oh, gamma);
     for (shot, per) in shots.iter().zip(&recons) {
@@ -303,24 +422,75 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
             files.push((format!("recon_{}_{n}.png", shot.name), png(f)?));
         }
     }
+    let captions = |rec: &[Vec<Vec<f64>>]| -> Vec<Vec<String>> {
+        shots
+            .iter()
+            .zip(rec)
+            .map(|(s, per)| {
+                per.iter()
+                    .map(|f| format!("{:.2} DB", psnr(f, &s.truth)))
+                    .collect()
+            })
+            .collect()
+    };
     files.push((
         "figure.png".to_string(),
         figure(
+            &[
+                "OBJECT",
+                "CAPTURE",
+                "CGM H TRUE",
+                "ADMM TV H TRUE",
+                "CGM H CAL",
+                "ADMM TV H CAL",
+            ],
             &shots
                 .iter()
                 .map(|s| (s.name, &s.truth[..], &s.noisy[..rows_per_channel]))
                 .collect::<Vec<_>>(),
             &recons,
+            &captions(&recons),
             (ow, oh),
             m.crop,
             gamma,
         )?,
     ));
-    let markdown = table_markdown(&table);
+    let mm = crate::numfmt::sig6;
+    let mut depth_captions = captions(&depth_recons);
+    for (c, r) in depth_captions.iter_mut().zip(&depth_rows) {
+        c[1] += &format!(" AT {}", mm(r.estimate.depth_mm));
+    }
+    files.push((
+        "figure_depth.png".to_string(),
+        figure(
+            &[
+                "OBJECT",
+                &format!("CAPTURE {} MM", mm(near)),
+                &format!("ADMM H {} MM", mm(d0)),
+                "ADMM H EST",
+            ],
+            &shots
+                .iter()
+                .zip(&frames)
+                .map(|(s, f)| (s.name, &s.truth[..], &f[..rows_per_channel]))
+                .collect::<Vec<_>>(),
+            &depth_recons,
+            &depth_captions,
+            (ow, oh),
+            m.crop,
+            gamma,
+        )?,
+    ));
+    let markdown =
+        table_markdown(&table) + "\n" + &depth_table_markdown(&depth_rows, &depth_coverage);
     files.push(("table.md".to_string(), markdown.into_bytes()));
     files.push((
         "table.json".to_string(),
         serde_json::to_vec_pretty(&table).map_err(|e| e.to_string())?,
+    ));
+    files.push((
+        "table_depth.json".to_string(),
+        serde_json::to_vec_pretty(&depth_rows).map_err(|e| e.to_string())?,
     ));
     let summary = serde_json::json!({
         "stscam_version": crate::VERSION,
@@ -339,8 +509,9 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         "matrix_nnz": m.h.nnz(),
         "h_est_nnz": cal.h_est.nnz(),
         "gram_layout": {"true": p_true.gram_layout(), "calibrated": p_est.gram_layout()},
-        "timings_s": {"matrix": matrix_s, "captures": capture_s, "calibration": calibration_s, "reconstruction_setup": setup_s, "reconstructions": recon_s, "total": t_all.elapsed().as_secs_f64()},
+        "timings_s": {"matrix": matrix_s, "captures": capture_s, "calibration": calibration_s, "reconstruction_setup": setup_s, "reconstructions": recon_s, "several_depths": depth_s, "total": t_all.elapsed().as_secs_f64()},
         "calibration": cal.report,
+        "several_depths": {"grid_mm": grid, "nominal_mm": d0, "object_mm": near, "capture_seed": set.seed.wrapping_add(1), "noise_streams": "16 + target index", "criterion": "smallest relative residual after a short CGM per depth (recon::depth)", "cg_iterations": crate::recon::depth::DEFAULT_DEPTH_CG_ITERS, "object_coverage_at_object_mm": depth_coverage},
     });
     files.push((
         "calibration.json".to_string(),
@@ -376,6 +547,8 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     Ok(DemoOutput {
         files,
         rows: table,
+        depth_rows,
+        depth_coverage: depth_coverage.clone(),
         calibration: cal.report,
         summary,
     })
@@ -412,6 +585,56 @@ pub fn table_markdown(rows: &[DemoRow]) -> String {
     s
 }
 
+/// The several-depths table as Markdown: one row per target.
+pub fn depth_table_markdown(
+    rows: &[DepthRow],
+    coverage: &crate::analysis::ObjectCoverage,
+) -> String {
+    let Some(first) = rows.first() else {
+        return String::new();
+    };
+    let mm = crate::numfmt::sig6;
+    let (d, d0) = (mm(first.true_depth_mm), mm(first.nominal_depth_mm));
+    let mut s = format!(
+        "Several depths: the object at {d} mm, H made for {d0} mm or for the depth estimated from the capture.\n\n| target | estimated depth (refined, confidence) | CGM, H {d0} mm | ADMM-TV, H {d0} mm | CGM, H estimated | ADMM-TV, H estimated |\n|---|---|---|---|---|---|\n"
+    );
+    let cell = |(p, q): (f64, f64)| format!("{p:.2} dB / {q:.3}");
+    for r in rows {
+        s += &format!(
+            "| {} | {} mm ({:.1} mm, {:.2}) | {} | {} | {} | {} |\n",
+            r.target,
+            mm(r.estimate.depth_mm),
+            r.estimate.refined_depth_mm,
+            r.estimate.confidence,
+            cell(r.nominal[0]),
+            cell(r.nominal[1]),
+            cell(r.estimated[0]),
+            cell(r.estimated[1]),
+        );
+    }
+    if !coverage.complete() {
+        let mut parts = Vec::new();
+        if !coverage.rows_unseen.is_empty() {
+            parts.push(format!(
+                "rows {}",
+                crate::analysis::ranges(&coverage.rows_unseen)
+            ));
+        }
+        if !coverage.cols_unseen.is_empty() {
+            parts.push(format!(
+                "columns {}",
+                crate::analysis::ranges(&coverage.cols_unseen)
+            ));
+        }
+        s += &format!(
+            "\nThe crop was framed for {d0} mm; at {d} mm object {} have no replica in it with at least {} % of their strongest replica's weight, which limits even the right H.\n",
+            parts.join(" and "),
+            coverage.strong_fraction * 100.0
+        );
+    }
+    s
+}
+
 /// Area (box) resampling of a `w`×`h` image to `tw`×`th`.
 fn resample(src: &[f64], w: usize, h: usize, tw: usize, th: usize) -> Vec<f64> {
     let (sx, sy) = (w as f64 / tw as f64, h as f64 / th as f64);
@@ -442,21 +665,16 @@ const GAP: usize = 6;
 
 /// The Fig. 9-like figure: per target a row object | capture | CGM | ADMM-TV (H true) |
 /// CGM | ADMM-TV (H calibrated), with column labels; grey 16-bit PNG, display code values.
+#[allow(clippy::too_many_arguments)]
 fn figure(
+    labels: &[&str],
     shots: &[(&str, &[f64], &[f64])],
     recons: &[Vec<Vec<f64>>],
+    captions: &[Vec<String>],
     object: (usize, usize),
     crop: (usize, usize),
     gamma: f64,
 ) -> Result<Vec<u8>, String> {
-    let labels = [
-        "OBJECT",
-        "CAPTURE",
-        "CGM H TRUE",
-        "ADMM TV H TRUE",
-        "CGM H CAL",
-        "ADMM TV H CAL",
-    ];
     let cols = labels.len();
     let label_h = 9 * 2 + 4;
     // Row labels (target names) in a left column; each reconstruction's PSNR under its tile.
@@ -500,17 +718,12 @@ fn figure(
         text(&mut blit, name, row_label_w / 2, y0, row_label_w);
     }
     let code = |v: f64| v.clamp(0.0, 1.0).powf(1.0 / gamma);
-    for (r, ((_, truth, capture), rec)) in shots.iter().zip(recons).enumerate() {
+    for (r, (((_, truth, capture), rec), caps)) in
+        shots.iter().zip(recons).zip(captions).enumerate()
+    {
         let y0 = label_h + r * row_h;
-        for (k, f) in rec.iter().enumerate() {
-            let p = crate::recon::metrics::psnr(f, truth);
-            text(
-                &mut blit,
-                &format!("{p:.2} DB"),
-                col_x(2 + k) + TILE / 2,
-                y0 + TILE + 3,
-                TILE,
-            );
+        for (k, cap) in caps.iter().enumerate() {
+            text(&mut blit, cap, col_x(2 + k) + TILE / 2, y0 + TILE + 3, TILE);
         }
         let mut tiles: Vec<Vec<f64>> = Vec::new();
         tiles.push(resample(truth, object.0, object.1, TILE, TILE));

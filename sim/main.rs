@@ -1525,9 +1525,13 @@ fn cmd_demo(scene: &SceneArgs, out: &std::path::Path, run: &RunArgs) -> Result<(
         .map_err(bad_input)?;
     write_files(out, &res.files)?;
     println!("{}", stscam::demo::table_markdown(&res.rows));
+    println!(
+        "{}",
+        stscam::demo::depth_table_markdown(&res.depth_rows, &res.depth_coverage)
+    );
     let t = &res.summary["timings_s"];
     eprintln!(
-        "wrote {} ({} files: table.md, table.json, figure.png, H.npz, H_est.npz, calibration.json, images); {:.1} s in total ({} threads)",
+        "wrote {} ({} files: table.md, table.json, table_depth.json, figure.png, figure_depth.png, H.npz, H_est.npz, calibration.json, images); {:.1} s in total ({} threads)",
         out.display(),
         res.files.len(),
         t["total"].as_f64().unwrap_or(f64::NAN),
