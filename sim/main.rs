@@ -1671,8 +1671,10 @@ fn cmd_sweep(
                 f.efficiency_crop_mean,
                 f.bragg_min_nm,
                 f.bragg_max_nm,
-                f.psnr_db
-                    .map_or(String::new(), |p| format!(", PSNR {p:.2} dB"))
+                f.psnr_db.map_or(String::new(), |p| format!(
+                    ", PSNR {p:.2} dB ({:.2} dB with the base scene's H)",
+                    f.psnr_nominal_h_db.unwrap_or(f64::NAN)
+                ))
             );
         }
     }

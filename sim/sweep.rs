@@ -67,6 +67,11 @@
 //!   square) rendered with seed + 1; the sensor noise model of the scene with the exposure set
 //!   from the all-white capture H·1 + o and a noisy dark frame subtracted; ADMM-TV with the
 //!   default settings; PSNR (peak 1) against the linear target (`recon::metrics`).
+//!   With it, `psnr_nominal_h_db`: how fast a calibration goes stale. The same capture (of the
+//!   grid point's scene) reconstructed with the H of the *base* scene (no `--vary` values, the
+//!   same `spp` and `seed`, computed once): with `--vary display.distance_mm=…` the PSNR at
+//!   each true depth with the H of the nominal distance, against `psnr_db` with the H of the
+//!   true depth. NaN where the point's capture or object shape differs from the base scene's.
 //!
 //! Determinism: angles, crop rays and grid points are evaluated independently and collected in
 //! order, spectral sums run in wavelength order, and the PSNR pipeline is deterministic per
@@ -388,6 +393,9 @@ pub struct DesignFigures {
     /// ADMM-TV PSNR of the target, dB (when computed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psnr_db: Option<f64>,
+    /// The same capture reconstructed with the base scene's H (module header), dB.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psnr_nominal_h_db: Option<f64>,
 }
 
 /// The part of the display (object) plane that the capture sees through its strong replicas,
@@ -848,6 +856,7 @@ pub fn design_figures(sys: &System, set: &SweepSettings) -> DesignFigures {
         bragg_min_nm,
         bragg_max_nm,
         psnr_db: None,
+        psnr_nominal_h_db: None,
     }
 }
 
@@ -885,8 +894,30 @@ fn psnr_target(sys: &System, p: &PsnrSettings) -> Result<Vec<f64>, String> {
     Ok(truth)
 }
 
-/// ADMM-TV PSNR of `truth` on `sys` (module header, the `demo` protocol), dB.
+/// ADMM-TV PSNR of the target on `sys` (module header, the `demo` protocol), dB.
 pub fn psnr_figure(sys: &System, p: &PsnrSettings, progress: bool) -> Result<f64, String> {
+    psnr_figures(sys, p, None, progress).map(|(v, _)| v)
+}
+
+/// The reconstruction problem of `sys`'s H at the PSNR settings (the stale-calibration
+/// reference of [`psnr_figures`]).
+pub fn psnr_problem(sys: &System, p: &PsnrSettings, progress: bool) -> crate::recon::Problem {
+    let m = crate::matrix::compute_matrix(
+        sys,
+        &crate::render::RenderSettings::lattice(p.spp, p.seed, progress),
+    );
+    crate::recon::Problem::new(&m.h, sys.display.width_px, sys.display.height_px)
+}
+
+/// The PSNR of [`psnr_figure`] and, with `nominal` (the problem of another scene's H, e.g. the
+/// base scene's), the PSNR of the same capture reconstructed with it (None where the shapes
+/// differ).
+pub fn psnr_figures(
+    sys: &System,
+    p: &PsnrSettings,
+    nominal: Option<&crate::recon::Problem>,
+    progress: bool,
+) -> Result<(f64, Option<f64>), String> {
     let truth = psnr_target(sys, p)?;
     let (ow, oh) = (sys.display.width_px, sys.display.height_px);
     let set = psnr_demo_settings(p, progress);
@@ -897,9 +928,14 @@ pub fn psnr_figure(sys: &System, p: &PsnrSettings, progress: bool) -> Result<f64
     let (noise, dark) = crate::demo::exposure_and_dark(sys, &m, p.seed);
     let (_, g) = crate::demo::measured_capture(sys, &truth, &set, &noise, &dark, 0);
     let problem = crate::recon::Problem::new(&m.h, ow, oh);
-    let htg = problem.back_project(&g);
-    let f = crate::recon::admm::admm_tv(&problem, &htg, &set.admm).f;
-    Ok(crate::recon::metrics::psnr(&f, &truth))
+    let solve = |pr: &crate::recon::Problem| {
+        let f = crate::recon::admm::admm_tv(pr, &pr.back_project(&g), &set.admm).f;
+        crate::recon::metrics::psnr(&f, &truth)
+    };
+    let stale = nominal
+        .filter(|n| n.width == ow && n.height == oh && n.ht.cols == g.len())
+        .map(solve);
+    Ok((solve(&problem), stale))
 }
 
 /// The grid points: one value per axis, first axis slowest.
@@ -1003,6 +1039,14 @@ pub fn run_sweep(
             })?;
         }
     }
+    // The base scene's H for the stale-calibration PSNR (module header).
+    let nominal = match &set.psnr {
+        Some(ps) => {
+            let base = load_scene(scene, base_overrides).and_then(|ls| System::build(&ls))?;
+            Some(psnr_problem(&base, ps, false))
+        }
+        None => None,
+    };
     let pb = crate::render::row_progress(set.progress, points.len(), "sweep points");
     let mut rows = Vec::with_capacity(points.len());
     let mut point_seconds = Vec::with_capacity(points.len());
@@ -1015,11 +1059,14 @@ pub fn run_sweep(
         let t0 = Instant::now();
         let mut figures = design_figures(sys, set);
         if let Some(ps) = &set.psnr {
-            let v = psnr_figure(sys, ps, false).map_err(|message| SweepError::Psnr {
-                point: label(p),
-                message,
+            let (v, stale) = psnr_figures(sys, ps, nominal.as_ref(), false).map_err(|message| {
+                SweepError::Psnr {
+                    point: label(p),
+                    message,
+                }
             })?;
             figures.psnr_db = Some(v);
+            figures.psnr_nominal_h_db = Some(stale.unwrap_or(f64::NAN));
         }
         point_seconds.push(t0.elapsed().as_secs_f64());
         rows.push(SweepRow {
@@ -1193,7 +1240,7 @@ fn csv_columns(axes: &[VaryAxis], with_psnr: bool) -> Vec<Column> {
             Box::new(move |r| csv_text(&get(&r.figures).max.limited_by)),
         ));
     }
-    let nums: [(&str, Figure); 14] = [
+    let nums: [(&str, Figure); 15] = [
         ("scene_field_vertical_mm", |f| {
             f.scene_field_vertical.extent_mm
         }),
@@ -1220,6 +1267,9 @@ fn csv_columns(axes: &[VaryAxis], with_psnr: bool) -> Vec<Column> {
         ("bragg_min_nm", |f| f.bragg_min_nm),
         ("bragg_max_nm", |f| f.bragg_max_nm),
         ("psnr_db", |f| f.psnr_db.unwrap_or(f64::NAN)),
+        ("psnr_nominal_h_db", |f| {
+            f.psnr_nominal_h_db.unwrap_or(f64::NAN)
+        }),
     ];
     cols.push((
         "replicas_above_5pct".into(),
@@ -1230,7 +1280,7 @@ fn csv_columns(axes: &[VaryAxis], with_psnr: bool) -> Vec<Column> {
         Box::new(|r| r.figures.replicas_total.to_string()),
     ));
     for (name, get) in nums {
-        if name == "psnr_db" && !with_psnr {
+        if name.starts_with("psnr") && !with_psnr {
             continue;
         }
         cols.push((
@@ -1338,7 +1388,12 @@ fn quantities(with_psnr: bool) -> Vec<Quantity> {
             stem: "psnr",
             title: "ADMM-TV PSNR",
             y_label: "PSNR (dB)",
-            parts: vec![("ADMM-TV", |f| f.psnr_db.unwrap_or(f64::NAN))],
+            parts: vec![
+                ("ADMM-TV, H of the point", |f| f.psnr_db.unwrap_or(f64::NAN)),
+                ("ADMM-TV, H of the base scene", |f| {
+                    f.psnr_nominal_h_db.unwrap_or(f64::NAN)
+                }),
+            ],
         });
     }
     q

@@ -103,6 +103,79 @@ fn stack_equals_separate_single_depth_runs() {
             .unwrap()
             > 0.0
     );
+    // `reconstruct` with the stack: the depth of a capture rendered at 412.5 mm is found; the
+    // joint method writes one plane per depth.
+    let cap = d.join("cap");
+    let mut a = vec![
+        "render",
+        "--out",
+        cap.to_str().unwrap(),
+        "--set",
+        "display.distance_mm=412.5",
+    ];
+    a.extend(common);
+    let i = a.iter().position(|x| *x == "2").unwrap();
+    a[i] = "16";
+    stscam_ok(&a);
+    let h_stack = stack.join("H_stack.npz");
+    let (hs, capture) = (h_stack.to_str().unwrap(), cap.join("capture.exr"));
+    let capture = capture.to_str().unwrap();
+    let rd = d.join("rd");
+    stscam_ok(&[
+        "reconstruct",
+        "--matrix",
+        hs,
+        "--capture",
+        capture,
+        "--method",
+        "depth",
+        "--truth",
+        "letter:F@16",
+        "--out",
+        rd.to_str().unwrap(),
+    ]);
+    let j: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rd.join("recon.json")).unwrap()).unwrap();
+    assert_eq!(j["solver"]["depth_estimate"]["depth_mm"], 412.5, "{j}");
+    assert!(rd.join("recon_412.5mm.exr").exists() && rd.join("recon.png").exists());
+    let rj = d.join("rj");
+    stscam_ok(&[
+        "reconstruct",
+        "--matrix",
+        hs,
+        "--capture",
+        capture,
+        "--out",
+        rj.to_str().unwrap(),
+    ]);
+    for l in ["350", "412.5", "550"] {
+        assert!(rj.join(format!("recon_{l}mm.exr")).exists(), "{l}");
+    }
+    let j: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rj.join("recon.json")).unwrap()).unwrap();
+    assert_eq!(j["solver"]["method"], "joint");
+    // Methods that do not fit the matrix are refused (exit 2) and write nothing.
+    let one_h = d.join("one-350").join("H.npz");
+    let bad = d.join("bad");
+    for args in [
+        vec!["--matrix", hs, "--method", "cg"],
+        vec!["--matrix", hs, "--truth", "letter:F@16"],
+        vec!["--matrix", one_h.to_str().unwrap(), "--method", "joint"],
+    ] {
+        let mut a = vec![
+            "reconstruct",
+            "--capture",
+            capture,
+            "--out",
+            bad.to_str().unwrap(),
+        ];
+        a.extend(args);
+        let o = crate::common::stscam(&a);
+        assert_eq!(o.status.code(), Some(2), "{a:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(e.trim().lines().count(), 1, "{e}");
+        assert!(!bad.exists());
+    }
 }
 
 /// A random planar target: binary (letters, shapes, bars, checkers) or grayscale (smooth
@@ -296,4 +369,106 @@ fn joint_reconstruction_beats_single_depth_on_two_planes() {
     }
     let swapped = psnr(&joint.planes[0], &planes[1]);
     assert!(swapped < joint_psnr[1] - 3.0, "{swapped}");
+}
+
+/// The demo's several-depths rows: objects at 400 mm, the depth estimated over the 8-plane
+/// stack is 400 mm for every target, and the H of that depth reconstructs far better than the
+/// H of the scene's 550 mm (the comparison the rows exist for).
+#[test]
+fn demo_depth_rows_wrong_and_right_depth() {
+    let sys = system();
+    let demo = stscam::demo::run_demo(
+        &sys,
+        &stscam::demo::DemoSettings {
+            spp: 4,
+            seed: 3,
+            cg: stscam::recon::cg::CgSettings {
+                iters: stscam::recon::cg::DEFAULT_CG_ITERS,
+                tol: 0.0,
+            },
+            admm: AdmmSettings::default(),
+            progress: false,
+        },
+    )
+    .expect("demo");
+    assert_eq!(stscam::demo::demo_depth_grid(550.0)[2], 400.0);
+    assert_eq!(demo.depth_rows.len(), 4);
+    for r in &demo.depth_rows {
+        eprintln!(
+            "{}: estimated {} mm (refined {:.1}, confidence {:.2}); ADMM-TV H(550) {:.2} dB, H(est) {:.2} dB",
+            r.target,
+            r.estimate.depth_mm,
+            r.estimate.refined_depth_mm,
+            r.estimate.confidence,
+            r.nominal[1].0,
+            r.estimated[1].0
+        );
+        assert_eq!((r.true_depth_mm, r.nominal_depth_mm), (400.0, 550.0));
+        assert_eq!(r.estimate.depth_mm, 400.0, "{}", r.target);
+        assert!(r.estimated[1].0 > r.nominal[1].0 + 3.0, "{}", r.target);
+    }
+    let gain: f64 = demo
+        .depth_rows
+        .iter()
+        .map(|r| r.estimated[1].0 - r.nominal[1].0)
+        .sum::<f64>()
+        / 4.0;
+    assert!(gain > 6.0, "mean ADMM-TV gain {gain} dB");
+    let md = String::from_utf8(
+        demo.files
+            .iter()
+            .find(|f| f.0 == "table.md")
+            .unwrap()
+            .1
+            .clone(),
+    )
+    .unwrap();
+    assert!(md.contains("| glyph | 400 mm ("), "{md}");
+    assert!(demo.files.iter().any(|f| f.0 == "figure_depth.png"));
+}
+
+/// The sweep's stale-calibration PSNR: at the base scene's distance the H of the base scene is
+/// the point's own H (the same figure to the bit); 150 mm nearer it is far worse than the H of
+/// the true depth.
+#[test]
+fn sweep_shows_how_fast_a_calibration_goes_stale() {
+    use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
+    let base: Vec<String> = HALF_SCALE.iter().map(|s| s.to_string()).collect();
+    let set = SweepSettings {
+        psnr: Some(PsnrSettings {
+            target: "letter:A".into(),
+            spp: 4,
+            seed: 5,
+        }),
+        ..Default::default()
+    };
+    let axis = VaryAxis::parse("display.distance_mm=400:550:2").expect("axis");
+    let out = run_sweep(None, &base, &[axis], &set).expect("sweep");
+    let f = |i: usize| &out.rows[i].figures;
+    eprintln!(
+        "400 mm: {:.2} dB (H at 550: {:.2} dB); 550 mm: {:.2} dB",
+        f(0).psnr_db.unwrap(),
+        f(0).psnr_nominal_h_db.unwrap(),
+        f(1).psnr_db.unwrap()
+    );
+    assert_eq!(
+        f(1).psnr_db.map(f64::to_bits),
+        f(1).psnr_nominal_h_db.map(f64::to_bits)
+    );
+    assert!(f(0).psnr_nominal_h_db.unwrap() < f(0).psnr_db.unwrap() - 10.0);
+    let csv = String::from_utf8(
+        out.files
+            .iter()
+            .find(|f| f.0 == "sweep.csv")
+            .unwrap()
+            .1
+            .clone(),
+    )
+    .unwrap();
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .ends_with("psnr_db,psnr_nominal_h_db")
+    );
 }
