@@ -63,8 +63,14 @@ struct ColumnTable {
 
 const EMPTY: u32 = u32::MAX;
 
-/// Branches per sample whose last entry is remembered (later ones share the last slot).
-const RECENT: usize = 16;
+/// Entries of the direct-mapped cache in front of each depth's column table (a power of two).
+const RECENT: usize = 64;
+
+/// The cache line of `key`.
+#[inline(always)]
+fn recent_slot(key: u32) -> usize {
+    (key.wrapping_mul(0x9E37_79B1) >> 26) as usize & (RECENT - 1)
+}
 
 impl ColumnTable {
     fn new() -> Self {
@@ -171,8 +177,8 @@ struct RowBlock {
 struct DepthAccumulator {
     depth_mm: f64,
     table: ColumnTable,
-    /// (column, entry index) last hit by the j-th branch of this pixel's samples.
-    recent: [(u32, usize); RECENT],
+    /// Direct-mapped cache of (column, entry index), by [`recent_slot`] of the column.
+    recent: [(u32, u32); RECENT],
     off: [f64; 4],
     block: RowBlock,
 }
@@ -211,6 +217,7 @@ fn matrix_row(
         .collect();
     let mut order: Vec<usize> = Vec::new();
     let mut branches: Vec<(f64, glam::DVec2)> = Vec::with_capacity(64);
+    let mut weighted: Vec<(glam::DVec2, [f64; 4], [f64; 4])> = Vec::with_capacity(64);
     let grid = PixelGrid::of(disp);
     for col in 0..w {
         let pixel = (row * w + col) as u64;
@@ -236,37 +243,48 @@ fn matrix_row(
                 continue;
             }
             let r = channel_weights(sys, s.lambda_nm);
+            // Per branch, once for every depth: its H contribution c·r_ch and its offset
+            // contribution c·r_ch·bl (unused channels stay 0, so whole 4-lanes add).
+            weighted.clear();
+            weighted.extend(branches.iter().map(|&(wt, exit)| {
+                let c = s.factor * wt;
+                let (mut cr, mut crb) = ([0.0f64; 4], [0.0f64; 4]);
+                for ch in 0..nch {
+                    cr[ch] = c * r[ch];
+                    crb[ch] = c * r[ch] * bl;
+                }
+                (exit, cr, crb)
+            }));
             // Physical light travels along −dir (as in `trace`): every branch of the sample
             // crosses the air gap to depth D with the same lateral shift.
             let u = -s.ray.dir.truncate();
             for a in &mut acc {
                 let shift = lateral_shift(u, 1.0, a.depth_mm);
-                for (j, &(wt, exit)) in branches.iter().enumerate() {
-                    let x = exit - shift;
+                for (exit, cr, crb) in &weighted {
+                    let x = *exit - shift;
                     // `Display::on_lcd`, with the pixel lookup done once.
                     let k = grid.pixel_at(x);
                     if k.is_none() && !disp.within_extent(x) {
                         continue;
                     }
-                    let c = s.factor * wt;
-                    for (o, rc) in a.off.iter_mut().zip(r).take(nch) {
-                        *o += c * rc * bl;
+                    for (o, v) in a.off.iter_mut().zip(crb) {
+                        *o += v;
                     }
                     if let Some((kc, kr)) = k {
                         let key = (kr * disp.width_px + kc) as u32;
-                        // The j-th branch of a pixel's samples mostly lands on the object
-                        // pixel it landed on last time: remember its entry.
-                        let slot = j.min(RECENT - 1);
+                        // A pixel's samples land on a few object pixels per depth: a small
+                        // direct-mapped cache finds most entries without probing the table.
+                        let slot = recent_slot(key);
                         let idx = if a.recent[slot].0 == key {
-                            a.recent[slot].1
+                            a.recent[slot].1 as usize
                         } else {
                             let idx = a.table.index(key);
-                            a.recent[slot] = (key, idx);
+                            a.recent[slot] = (key, idx as u32);
                             idx
                         };
                         let e = &mut a.table.sums[idx];
-                        for ch in 0..nch {
-                            e[ch] += c * r[ch];
+                        for (e, v) in e.iter_mut().zip(cr) {
+                            *e += v;
                         }
                     }
                 }
