@@ -883,15 +883,11 @@ fn matrix_stack(
         side["coverage"] = serde_json::to_value(cov).unwrap_or_default();
         side["stack"] = STACK_MATRIX.into();
         side["stats"] = serde_json::to_value(&m.stats).unwrap_or_default();
-        let dir = out.to_path_buf();
-        files.push((
-            names[0].clone(),
-            m.h.encode_npz(&dir.join(&names[0]))
-                .map_err(write_failure)?,
-        ));
+        // The matrices are encoded below, in parallel.
+        files.push((names[0].clone(), Vec::new()));
         files.push((
             names[1].clone(),
-            stscam::io::npz::encode_npy_f32(&dir.join(&names[1]), &[m.offset.len()], &m.offset)
+            stscam::io::npz::encode_npy_f32(&out.join(&names[1]), &[m.offset.len()], &m.offset)
                 .map_err(write_failure)?,
         ));
         files.push((
@@ -943,10 +939,35 @@ fn matrix_stack(
         "paths_per_second": m0.stats.camera_paths as f64 / matrix_s,
         "stats": m0.stats,
     });
+    // Every matrix file (each depth's and the block matrix) encoded in parallel.
+    let mut mats: Vec<&stscam::sparse::CsrMatrix> = blocks.clone();
+    mats.push(&block);
+    let encoded: Vec<Result<Vec<u8>, String>> = pool.install(|| {
+        use rayon::prelude::*;
+        mats.par_iter()
+            .enumerate()
+            .map(|(i, h)| {
+                let name = if i < depths.len() {
+                    depth_file_names(depths[i])[0].clone()
+                } else {
+                    STACK_MATRIX.to_string()
+                };
+                h.encode_npz(&out.join(name)).map_err(|e| e.to_string())
+            })
+            .collect()
+    });
+    let mut encoded = encoded.into_iter();
+    for i in 0..depths.len() {
+        files[3 * i].1 = encoded
+            .next()
+            .unwrap_or(Ok(Vec::new()))
+            .map_err(write_failure)?;
+    }
     files.push((
         STACK_MATRIX.to_string(),
-        block
-            .encode_npz(&out.join(STACK_MATRIX))
+        encoded
+            .next()
+            .unwrap_or(Ok(Vec::new()))
             .map_err(write_failure)?,
     ));
     files.push((
@@ -966,11 +987,15 @@ fn matrix_stack(
         "wrote {}: H at {} depths ({}) and {STACK_MATRIX} ({} x {}, {} stored entries), {} spp, {:.3} s in one pass ({} threads)",
         out.display(),
         depths.len(),
-        depths
-            .iter()
-            .map(|d| format!("{d} mm"))
-            .collect::<Vec<_>>()
-            .join(", "),
+        if depths.len() <= 8 {
+            depths
+                .iter()
+                .map(|d| format!("{d} mm"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        } else {
+            format!("{} mm to {} mm", depths[0], depths[depths.len() - 1])
+        },
         block.rows,
         block.cols,
         block.nnz(),

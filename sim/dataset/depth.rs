@@ -9,7 +9,7 @@
 //! one place to switch to it. Assumption: the plane at each depth is the scene's display (same
 //! size, black level and spectrum), only moved.
 
-use crate::matrix::{SystemMatrix, compute_matrix};
+use crate::matrix::SystemMatrix;
 use crate::render::RenderSettings;
 use crate::system::System;
 
@@ -21,21 +21,20 @@ pub fn at_depth(sys: &System, depth_mm: f64) -> System {
 }
 
 /// H and the offset of the object plane at each of `depths_mm` (in that order), all with the
-/// same camera rays (`settings.seed`).
+/// same camera rays (`settings.seed`): one pass over the camera paths
+/// (`matrix::compute_matrix_stack`), each H bit-identical to `compute_matrix` at its depth.
 pub fn depth_matrices(
     sys: &System,
     depths_mm: &[f64],
     settings: &RenderSettings,
 ) -> Vec<SystemMatrix> {
-    depths_mm
-        .iter()
-        .map(|&d| compute_matrix(&at_depth(sys, d), settings))
-        .collect()
+    crate::matrix::compute_matrix_stack(sys, settings, depths_mm)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matrix::compute_matrix;
     use crate::scene::load_scene;
 
     #[test]
