@@ -854,7 +854,12 @@ fn matrix_stack(
         STACK_MATRIX, STACK_OFFSET, STACK_SIDECAR, coverage, depth_file_names, layered_offset,
     };
     let t0 = Instant::now();
-    let stack = pool.install(|| stscam::matrix::compute_matrix_stack(sys, settings, depths));
+    // Each H is held about four times while written (the matrices, the block matrix and both
+    // encoded): the pass stops once its entries pass a quarter of the job memory limit.
+    let budget = (stscam::limits::MAX_JOB_BYTES / 4) as u64;
+    let stack = pool
+        .install(|| stscam::matrix::compute_matrix_stack_within(sys, settings, depths, budget))
+        .map_err(limit)?;
     let matrix_s = t0.elapsed().as_secs_f64();
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut per_depth = Vec::new();

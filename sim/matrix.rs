@@ -355,6 +355,37 @@ pub fn compute_matrix_stack(
     set: &RenderSettings,
     depths_mm: &[f64],
 ) -> Vec<SystemMatrix> {
+    stack_pass(sys, set, depths_mm, u64::MAX).unwrap_or_default()
+}
+
+/// [`compute_matrix_stack`] that stops once the stored entries of all depths pass `max_bytes`
+/// (8 bytes an entry: the matrices' own size), returning how far it got instead of matrices.
+/// A stack's size is not known before the pass (defocused planes store more entries), so this
+/// bounds the memory of `matrix --depth-mm` with many depths while it runs.
+pub fn compute_matrix_stack_within(
+    sys: &System,
+    set: &RenderSettings,
+    depths_mm: &[f64],
+    max_bytes: u64,
+) -> Result<Vec<SystemMatrix>, crate::limits::LimitError> {
+    stack_pass(sys, set, depths_mm, max_bytes).ok_or_else(|| crate::limits::LimitError {
+        setting: "--depth-mm".into(),
+        message: format!(
+            "the {} matrices would hold more than {} GiB of entries (stopped early): use fewer depths, fewer --spp or a smaller crop",
+            depths_mm.len(),
+            crate::numfmt::sig6(max_bytes as f64 / f64::from(1u32 << 30))
+        ),
+    })
+}
+
+/// The stack pass; None when the entries passed `max_bytes`.
+fn stack_pass(
+    sys: &System,
+    set: &RenderSettings,
+    depths_mm: &[f64],
+    max_bytes: u64,
+) -> Option<Vec<SystemMatrix>> {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let nch = sys.response.curves.len();
     let cols = sys.display.width_px * sys.display.height_px;
@@ -366,10 +397,11 @@ pub fn compute_matrix_stack(
     let pb = row_progress(set.progress, h, &what);
     let rule = lattice_rule(set);
     let cancel = crate::cancel::current();
+    let (stored, over) = (AtomicU64::new(0), AtomicBool::new(false));
     let rows: Vec<(Vec<RowBlock>, RenderStats)> = (0..h)
         .into_par_iter()
         .map(|row| {
-            if cancel.is_cancelled() {
+            if cancel.is_cancelled() || over.load(Ordering::Relaxed) {
                 let empty = || RowBlock {
                     counts: vec![vec![0; w]; nch],
                     entries: vec![(Vec::new(), Vec::new()); nch],
@@ -381,54 +413,66 @@ pub fn compute_matrix_stack(
                 );
             }
             let b = matrix_row(sys, set, rule, depths_mm, row);
+            let bytes: usize = (b.0.iter())
+                .flat_map(|blk| blk.entries.iter().map(|e| e.0.len()))
+                .sum::<usize>()
+                * 8;
+            if stored.fetch_add(bytes as u64, Ordering::Relaxed) + bytes as u64 > max_bytes {
+                over.store(true, Ordering::Relaxed);
+            }
             pb.inc(1);
             b
         })
         .collect();
     pb.finish_and_clear();
+    if over.load(Ordering::Relaxed) {
+        return None;
+    }
     let mut stats = RenderStats::default();
     for (_, s) in &rows {
         stats.merge(s);
     }
-    (0..depths_mm.len())
-        .map(|d| {
-            let blocks: Vec<&RowBlock> = rows.iter().map(|r| &r.0[d]).collect();
-            let nnz: usize = blocks
-                .iter()
-                .map(|b| b.entries.iter().map(|e| e.0.len()).sum::<usize>())
-                .sum();
-            let mut m = CsrMatrix {
-                rows: nch * w * h,
-                cols,
-                indptr: Vec::with_capacity(nch * w * h + 1),
-                indices: Vec::with_capacity(nnz),
-                data: Vec::with_capacity(nnz),
-            };
-            m.indptr.push(0);
-            let mut offset = Vec::with_capacity(nch * w * h);
-            let st = stats.clone();
-            for ch in 0..nch {
-                for b in &blocks {
-                    let mut last = *m.indptr.last().unwrap_or(&0);
-                    for &n in &b.counts[ch] {
-                        last += u64::from(n);
-                        m.indptr.push(last);
+    Some(
+        (0..depths_mm.len())
+            .map(|d| {
+                let blocks: Vec<&RowBlock> = rows.iter().map(|r| &r.0[d]).collect();
+                let nnz: usize = blocks
+                    .iter()
+                    .map(|b| b.entries.iter().map(|e| e.0.len()).sum::<usize>())
+                    .sum();
+                let mut m = CsrMatrix {
+                    rows: nch * w * h,
+                    cols,
+                    indptr: Vec::with_capacity(nch * w * h + 1),
+                    indices: Vec::with_capacity(nnz),
+                    data: Vec::with_capacity(nnz),
+                };
+                m.indptr.push(0);
+                let mut offset = Vec::with_capacity(nch * w * h);
+                let st = stats.clone();
+                for ch in 0..nch {
+                    for b in &blocks {
+                        let mut last = *m.indptr.last().unwrap_or(&0);
+                        for &n in &b.counts[ch] {
+                            last += u64::from(n);
+                            m.indptr.push(last);
+                        }
+                        m.indices.extend_from_slice(&b.entries[ch].0);
+                        m.data.extend_from_slice(&b.entries[ch].1);
+                        offset.extend(b.offset[ch].iter().map(|&v| v as f32));
                     }
-                    m.indices.extend_from_slice(&b.entries[ch].0);
-                    m.data.extend_from_slice(&b.entries[ch].1);
-                    offset.extend(b.offset[ch].iter().map(|&v| v as f32));
                 }
-            }
-            SystemMatrix {
-                h: m,
-                offset,
-                crop: (w, h),
-                object: (sys.display.width_px, sys.display.height_px),
-                channels: sys.response.names.clone(),
-                stats: st,
-            }
-        })
-        .collect()
+                SystemMatrix {
+                    h: m,
+                    offset,
+                    crop: (w, h),
+                    object: (sys.display.width_px, sys.display.height_px),
+                    channels: sys.response.names.clone(),
+                    stats: st,
+                }
+            })
+            .collect(),
+    )
 }
 
 impl SystemMatrix {
@@ -550,4 +594,29 @@ pub fn load_matrix(
         offset,
         offset_path: off_path,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stack_beyond_its_memory_budget_stops() {
+        let ov = [
+            "sensor.crop_px=24".to_string(),
+            "sensor.pitch_um=60".to_string(),
+            "display.image=letter:F@8".to_string(),
+        ];
+        let sys = System::build(&crate::scene::load_scene(None, &ov).unwrap()).unwrap();
+        let set = RenderSettings::lattice(2, 3, false);
+        let depths = [400.0, 550.0];
+        let full = compute_matrix_stack(&sys, &set, &depths);
+        let bytes: u64 = full.iter().map(|m| 8 * m.h.nnz() as u64).sum();
+        assert!(bytes > 64, "{bytes}");
+        // Just enough: the same matrices; one entry short: refused, naming --depth-mm.
+        let ok = compute_matrix_stack_within(&sys, &set, &depths, bytes).expect("within");
+        assert_eq!(ok[1].h, full[1].h);
+        let e = compute_matrix_stack_within(&sys, &set, &depths, bytes - 8).unwrap_err();
+        assert_eq!(e.setting, "--depth-mm");
+    }
 }

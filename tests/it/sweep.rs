@@ -530,7 +530,11 @@ fn psnr_follows_the_demo_protocol() {
     );
     assert!(out.files.iter().any(|f| f.0 == "psnr.png"));
     let csv = String::from_utf8(file(&out.files, "sweep.csv").to_vec()).expect("utf-8");
-    assert!(csv.lines().next().is_some_and(|h| h.ends_with(",psnr_db,psnr_nominal_h_db")));
+    assert!(
+        csv.lines()
+            .next()
+            .is_some_and(|h| h.ends_with(",psnr_db,psnr_nominal_h_db"))
+    );
 }
 
 #[test]
