@@ -321,13 +321,10 @@ fn matrix_row(
 /// Checks a `--depth-mm` value: the object plane must be a positive distance in front of the
 /// plate.
 pub fn check_depth(depth_mm: f64) -> Result<(), String> {
-    if depth_mm.is_finite() && depth_mm > 0.0 {
-        Ok(())
-    } else {
-        Err(format!(
-            "--depth-mm {depth_mm}: must be a positive distance"
-        ))
-    }
+    let spec = crate::stack::depth_label(depth_mm);
+    crate::stack::parse_depths(&spec)
+        .map(|_| ())
+        .map_err(|m| format!("--depth-mm {spec}: {m}"))
 }
 
 /// Moves the object (display) plane to `depth_mm` in front of the plate, keeping the camera
@@ -599,6 +596,17 @@ pub fn load_matrix(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn check_depth_says_what_the_cli_says() {
+        assert_eq!(check_depth(412.5), Ok(()));
+        assert_eq!(
+            check_depth(-5.0).unwrap_err(),
+            "--depth-mm -5: depth -5 mm: must be a positive distance"
+        );
+        assert!(check_depth(f64::NAN).is_err());
+        assert!(check_depth(0.0).is_err());
+    }
 
     #[test]
     fn a_stack_beyond_its_memory_budget_stops() {
