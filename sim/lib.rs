@@ -14,6 +14,7 @@ pub mod demo;
 pub mod display;
 pub mod hadamard;
 pub mod io;
+pub mod jobs;
 pub mod limits;
 pub mod matrix;
 pub mod noise;

@@ -737,6 +737,13 @@ mod tests {
             include_str!("analytic.rs"),
             include_str!("bench.rs"),
             include_str!("main.rs"),
+            include_str!("jobs/bench.rs"),
+            include_str!("jobs/demo.rs"),
+            include_str!("jobs/info.rs"),
+            include_str!("jobs/matrix.rs"),
+            include_str!("jobs/reconstruct.rs"),
+            include_str!("jobs/sweep.rs"),
+            include_str!("jobs/validate.rs"),
             include_str!("demo.rs"),
             include_str!("plot.rs"),
         ];

@@ -1,0 +1,567 @@
+//! `stscam bench`: BVH, reconstruction and render (run time against error) benchmarks.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::render::RenderSettings;
+use crate::sampler::SamplerKind;
+
+use super::*;
+
+/// Run time against error for each estimator (and other renderers' curves given as JSON): DIR/bench-render.{json,md,svg,png}.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchRenderOptions {
+    /// The scene and its overrides.
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Output directory.
+    #[arg(long, default_value = "out/bench-render-error")]
+    pub out: PathBuf,
+    /// Crop size N (N×N); the pixel pitch is scaled so the field of view stays that of the
+    /// scene's crop.
+    #[arg(long, default_value_t = 128)]
+    pub crop: u32,
+    /// Samples per pixel of the reference (default estimator, independent seed).
+    #[arg(long, default_value_t = 4096)]
+    pub ref_spp: u32,
+    /// Time budget per estimator, s.
+    #[arg(long, default_value_t = 60.0)]
+    pub budget_s: f64,
+    /// Target relative RMSE for the time-to-error figures.
+    #[arg(long, default_value_t = 0.01)]
+    pub target: f64,
+    /// Error measure: against a high-spp reference, or from two independent half renders
+    /// (no reference; what validation/mitsuba/bench.py measures for Mitsuba).
+    #[arg(long, value_enum, default_value = "reference")]
+    pub error: ErrorArg,
+    /// Extra curves (JSON: {"name": ..., "points": [{"spp", "seconds", "relative_rmse"}]}),
+    /// e.g. Mitsuba's from validation/mitsuba (repeatable).
+    #[arg(long)]
+    pub extra: Vec<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// Only redraw the plots of DIR/bench-render.json (no rendering).
+    #[arg(long)]
+    pub replot: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// BVH build time and closest-hit rays per second with 1 and 2 threads on a displaced sphere of at least TRIANGLES triangles (incoherent rays; medians over RUNS seeds).
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchBvhOptions {
+    /// Triangles of the test mesh.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub triangles: usize,
+    /// Rays per measurement.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub rays: usize,
+    /// Runs (seeds 1..=RUNS); medians are reported.
+    #[arg(long, default_value_t = 3)]
+    pub runs: u64,
+}
+
+/// H, calibration and reconstruction speed at the scene's size (medians).
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchReconOptions {
+    /// The scene and its overrides.
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Samples per pixel of H.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    /// Timed runs per reconstruction figure.
+    #[arg(long, default_value_t = 21)]
+    pub runs: usize,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// Error measure of `bench render --error`.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+pub enum ErrorArg {
+    /// Relative RMSE against a high-spp reference.
+    Reference,
+    /// ‖A − B‖/‖A + B‖ of two independent half renders.
+    Halves,
+}
+
+/// Peak resident memory of this process so far (VmHWM), MiB, where the OS reports it.
+fn peak_rss_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn median_ms(mut v: Vec<f64>) -> serde_json::Value {
+    v.sort_by(f64::total_cmp);
+    serde_json::json!({
+        "median_ms": v[v.len() / 2] * 1e3,
+        "min_ms": v[0] * 1e3,
+        "max_ms": v[v.len() - 1] * 1e3,
+        "runs": v.len(),
+    })
+}
+
+/// `stscam bench bvh`: prints the medians over seeds 1..=runs as JSON.
+fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64, con: &Console) -> Result<(), Failure> {
+    // Measured peak: about 300 bytes per triangle (mesh and BVH) and 48 per ray, so the
+    // largest run stays near 4 GiB.
+    if !(1..=10_000_000).contains(&triangles)
+        || !(1..=20_000_000).contains(&rays)
+        || !(1..=99).contains(&runs)
+    {
+        return Err(bad_input(
+            "bench bvh: --triangles must be 1..=10000000, --rays 1..=20000000, --runs 1..=99",
+        ));
+    }
+    let results: Vec<_> = (1..=runs)
+        .map(|seed| crate::world::bench_bvh::bench_bvh(triangles, rays, seed))
+        .collect();
+    let median = |f: &dyn Fn(&crate::world::bench_bvh::BvhBench) -> f64| {
+        let mut v: Vec<f64> = results.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let per_threads: Vec<serde_json::Value> = (0..results[0].runs.len())
+        .map(|k| {
+            serde_json::json!({
+                "threads": results[0].runs[k].threads,
+                "build_s_median": median(&|b| b.runs[k].build_s),
+                "rays_per_s_median": median(&|b| b.runs[k].rays_per_s),
+            })
+        })
+        .collect();
+    let out = serde_json::json!({
+        "triangles": results[0].triangles,
+        "rays": rays,
+        "runs": runs,
+        "hit_fraction": results[0].hit_fraction,
+        "medians": per_threads,
+        "all": results,
+    });
+    con.out(format_args!("{}", to_json(&out)?));
+    Ok(())
+}
+
+fn cmd_bench_recon(
+    scene: &SceneArgs,
+    spp: u32,
+    runs: usize,
+    json: bool,
+    threads: Option<usize>,
+    con: &Console,
+) -> Result<(), Failure> {
+    use crate::recon::{Problem, admm, cg};
+    if spp == 0 || !(1..=MAX_RUNS).contains(&runs) {
+        return Err(bad_input(format!(
+            "--spp must be at least 1 and --runs in 1..={MAX_RUNS}"
+        )));
+    }
+    let pool = thread_pool(threads)?;
+    let (_, sys) = pool.install(|| load(scene))?;
+    let rs = RenderSettings {
+        spp,
+        seed: 1,
+        sampler: SamplerKind::Lattice,
+        spectral_bins: None,
+        progress: true,
+    };
+    crate::render::check_limits(&sys, &rs, 1, "--spp").map_err(limit)?;
+    let t0 = Instant::now();
+    let m = pool.install(|| crate::matrix::compute_matrix(&sys, &rs));
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let matrix_peak = peak_rss_mib();
+    let n = m.h.cols;
+    let t0 = Instant::now();
+    let cal = if n.is_power_of_two() {
+        pool.install(|| {
+            crate::hadamard::calibrate(
+                &m.h,
+                &m.offset,
+                crate::hadamard::FrameSource::Matrix,
+                &crate::hadamard::CalibrationSettings {
+                    noise: None,
+                    seed: 1,
+                    dark_frame: true,
+                    threshold_sigma: 0.0,
+                },
+            )
+            .ok()
+        })
+    } else {
+        None
+    };
+    let calibration_s = cal.as_ref().map(|_| t0.elapsed().as_secs_f64());
+    let t0 = Instant::now();
+    let p = pool.install(|| Problem::new(&m.h, m.object.0, m.object.1));
+    let setup_s = t0.elapsed().as_secs_f64();
+    // One frame: the capture H f + o of the scene's target, offset removed.
+    let g = m.h.mul_vec(&sys.display.intensity);
+    let cg_set = cg::CgSettings {
+        iters: cg::DEFAULT_CG_ITERS,
+        tol: 0.0,
+    };
+    let admm_set = admm::AdmmSettings::default();
+    let mut t_cg = Vec::new();
+    let mut t_admm = Vec::new();
+    let mut t_bp = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        let htg = pool.install(|| p.back_project(&g));
+        t_bp.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        let f = pool.install(|| {
+            let htg = p.back_project(&g);
+            cg::cg_normal(&p, &htg, &cg_set).f
+        });
+        t_cg.push(t.elapsed().as_secs_f64());
+        std::hint::black_box((f, htg));
+        let t = Instant::now();
+        let f = pool.install(|| {
+            let htg = p.back_project(&g);
+            admm::admm_tv(&p, &htg, &admm_set).f
+        });
+        t_admm.push(t.elapsed().as_secs_f64());
+        std::hint::black_box(f);
+    }
+    let out = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "threads": pool.current_num_threads(),
+        "shape": [m.h.rows, m.h.cols],
+        "matrix": {"seconds": matrix_s, "spp": spp, "nnz": m.h.nnz(), "peak_rss_mib": matrix_peak},
+        "calibration": {"seconds": calibration_s, "frames_from": "H_true, no noise, dark frame, every entry kept"},
+        "setup": {"seconds": setup_s, "gram_nnz": p.gram_nnz, "gram_layout": p.gram_layout()},
+        "back_projection": median_ms(t_bp),
+        "cgm": {"iters": cg_set.iters, "timing": median_ms(t_cg)},
+        "admm_tv": {"iters": admm_set.iters, "inner_cg_iters": admm_set.inner_iters, "timing": median_ms(t_admm)},
+        "peak_rss_mib": peak_rss_mib(),
+    });
+    if json {
+        con.out(format_args!("{}", to_json(&out)?));
+    } else {
+        con.out(format_args!(
+            "H {}x{} ({} entries): {:.2} s, peak memory {:.0} MiB",
+            m.h.rows,
+            m.h.cols,
+            m.h.nnz(),
+            matrix_s,
+            matrix_peak.unwrap_or(f64::NAN)
+        ));
+        if let Some(c) = calibration_s {
+            con.out(format_args!(
+                "calibration (frames from H, transform, errors): {c:.2} s"
+            ));
+        }
+        con.out(format_args!(
+            "reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s",
+            p.gram_nnz,
+            p.gram_layout(),
+            setup_s
+        ));
+        con.out(format_args!(
+            "per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
+            out["back_projection"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN),
+            cg_set.iters,
+            out["cgm"]["timing"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN),
+            admm_set.iters,
+            out["admm_tv"]["timing"]["median_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
+        ));
+    }
+    Ok(())
+}
+
+/// The time-against-error plot of `bench render`.
+fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LinePlot {
+    crate::plot::LinePlot {
+        title: "Relative RMSE against render time".into(),
+        x_label: "wall time of the render (s)".into(),
+        y_label: "relative RMSE".into(),
+        log_x: true,
+        log_y: true,
+        series: curves
+            .iter()
+            .map(|c| crate::plot::Series {
+                name: if c.name.contains("(default)") {
+                    "stscam (default)".to_string()
+                } else if c.name.contains("Russian roulette") {
+                    "uniform + roulette".to_string()
+                } else {
+                    c.name.chars().take(26).collect()
+                },
+                points: c
+                    .points
+                    .iter()
+                    .map(|p| (p.seconds, p.relative_rmse))
+                    .collect(),
+            })
+            .collect(),
+        h_line: Some((target, format!("{:.0} %", 100.0 * target))),
+    }
+}
+
+/// Redraws the plots of a finished `bench render` from its JSON (no rendering).
+fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
+    let path = dir.join("bench-render.json");
+    let text = crate::io::read_text(&path).map_err(|e| bad_input(e.to_string()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    let target = v["target_relative_rmse"].as_f64().unwrap_or(0.01);
+    let curves: Vec<crate::bench::Curve> = v["curves"]
+        .as_array()
+        .ok_or_else(|| bad_input(format!("{}: no curves", path.display())))?
+        .iter()
+        .map(|c| crate::bench::Curve {
+            name: c["name"].as_str().unwrap_or("").to_string(),
+            points: c["points"]
+                .as_array()
+                .map(|ps| {
+                    ps.iter()
+                        .map(|p| crate::bench::Point {
+                            spp: p["spp"].as_u64().unwrap_or(0) as u32,
+                            seconds: p["seconds"].as_f64().unwrap_or(f64::NAN),
+                            relative_rmse: p["relative_rmse"].as_f64().unwrap_or(f64::NAN),
+                        })
+                        .collect()
+                })
+                .unwrap_or_default(),
+            seconds_to_target: c["seconds_to_target"].as_f64(),
+            extrapolated: c["extrapolated"].as_bool().unwrap_or(false),
+        })
+        .collect();
+    let plot = bench_plot(&curves, target);
+    let png = plot.to_png().map_err(write_failure)?;
+    crate::io::write_all_atomic(
+        dir,
+        &[
+            ("bench-render.svg", plot.to_svg().as_bytes()),
+            ("bench-render.png", &png),
+        ],
+    )
+    .map_err(write_failure)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_bench_render(
+    scene: &SceneArgs,
+    out: &std::path::Path,
+    crop: u32,
+    ref_spp: u32,
+    budget_s: f64,
+    target: f64,
+    error: ErrorArg,
+    extra: &[PathBuf],
+    json: bool,
+    replot: bool,
+    threads: Option<usize>,
+    con: &Console,
+) -> Result<(), Failure> {
+    use crate::bench::{Curve, ErrorMeasure, curves_markdown, measure_curve, time_to_error};
+    if replot {
+        return replot_bench(out);
+    }
+    let measure = match error {
+        ErrorArg::Reference => ErrorMeasure::Reference,
+        ErrorArg::Halves => ErrorMeasure::Halves,
+    };
+    use crate::render::Estimator;
+    if crop == 0
+        || ref_spp == 0
+        || !(budget_s > 0.0 && budget_s <= MAX_BUDGET_S)
+        || !(target > 0.0 && target < 1.0)
+    {
+        return Err(bad_input(format!(
+            "--crop and --ref-spp must be positive, --budget-s in (0, {MAX_BUDGET_S}] and --target in (0, 1)"
+        )));
+    }
+    check_out_dir(out)?;
+    let mut extras: Vec<Curve> = Vec::new();
+    for p in extra {
+        let text = crate::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let name = v["name"].as_str().unwrap_or("extra").to_string();
+        let points: Vec<crate::bench::Point> = v["points"]
+            .as_array()
+            .ok_or_else(|| bad_input(format!("{}: no \"points\" array", p.display())))?
+            .iter()
+            .map(|q| crate::bench::Point {
+                spp: q["spp"].as_u64().unwrap_or(0) as u32,
+                seconds: q["seconds"].as_f64().unwrap_or(f64::NAN),
+                relative_rmse: q["relative_rmse"].as_f64().unwrap_or(f64::NAN),
+            })
+            .collect();
+        let t = time_to_error(&points, target);
+        extras.push(Curve {
+            name,
+            points,
+            seconds_to_target: t.map(|x| x.0),
+            extrapolated: t.is_some_and(|x| x.1),
+        });
+    }
+    let pool = thread_pool(threads)?;
+    // Same field of view on an N×N crop.
+    let base =
+        load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
+    let (cw, ch) = base.scene.sensor.crop_px.size();
+    let pitch = base.scene.sensor.pitch_um * f64::from(cw.max(ch)) / f64::from(crop);
+    let mut set = scene.set.clone();
+    set.push(format!("sensor.crop_px=[{crop},{crop}]"));
+    set.push(format!("sensor.pitch_um={pitch}"));
+    let args = SceneArgs {
+        scene: scene.scene.clone(),
+        set,
+    };
+    let (ls, sys) = pool.install(|| load(&args))?;
+    crate::render::check_limits(
+        &sys,
+        &RenderSettings::lattice(ref_spp, 0, false),
+        1,
+        "--ref-spp",
+    )
+    .map_err(limit)?;
+    let t0 = Instant::now();
+    let ref_spp = if measure == ErrorMeasure::Halves {
+        0
+    } else {
+        ref_spp
+    };
+    let reference: Vec<Vec<f32>> = if ref_spp == 0 {
+        Vec::new()
+    } else {
+        pool.install(|| {
+            crate::render::render(
+                &sys,
+                &RenderSettings {
+                    spp: ref_spp,
+                    seed: 1_000_003,
+                    sampler: SamplerKind::Lattice,
+                    spectral_bins: None,
+                    progress: true,
+                },
+            )
+            .channels
+        })
+    };
+    let ref_s = t0.elapsed().as_secs_f64();
+    let mut curves = Vec::new();
+    for (est, name) in [
+        (
+            Estimator::Bragg,
+            "stscam: Bragg sampling + replica splitting (default)",
+        ),
+        (
+            Estimator::UniformAnalog,
+            "stscam: uniform wavelengths + Russian roulette",
+        ),
+    ] {
+        let c = pool.install(|| {
+            measure_curve(
+                &sys,
+                est,
+                name,
+                &reference,
+                measure,
+                budget_s,
+                1 << 20,
+                target,
+                true,
+            )
+        });
+        con.err(format_args!(
+            "{name}: {} renders, time to {:.0} %: {}",
+            c.points.len(),
+            100.0 * target,
+            c.seconds_to_target.map_or("-".into(), |t| format!(
+                "{t:.3} s{}",
+                if c.extrapolated {
+                    " (extrapolated)"
+                } else {
+                    ""
+                }
+            ))
+        ));
+        curves.push(c);
+    }
+    curves.extend(extras);
+    let md = format!(
+        "Scene: {} with a {crop}×{crop} crop (pitch {pitch:.3} µm, same field of view); {} threads; error: {}.\n\n{}",
+        ls.source,
+        pool.current_num_threads(),
+        match measure {
+            ErrorMeasure::Reference => format!("relative RMSE ‖a − b‖/‖b‖ against a {ref_spp}-spp reference of the default estimator ({ref_s:.1} s; other renderers against their own reference)"),
+            ErrorMeasure::Halves => "‖A − B‖/‖A + B‖ of two independent renders of half the samples each (the relative RMS Monte Carlo error of their mean; time = both renders)".to_string(),
+        },
+        curves_markdown(&curves, target)
+    );
+    let plot = bench_plot(&curves, target);
+    let report = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "scene_source": ls.source,
+        "overrides": args.set,
+        "crop_px": crop,
+        "pitch_um": pitch,
+        "error_measure": measure,
+        "reference_spp": ref_spp,
+        "reference_seconds": ref_s,
+        "threads": pool.current_num_threads(),
+        "target_relative_rmse": target,
+        "curves": curves,
+        "ratios_to_default": curves.iter().map(|c| {
+            let b = curves[0].seconds_to_target;
+            serde_json::json!({"name": c.name, "ratio": c.seconds_to_target.zip(b).map(|(t, b)| t / b)})
+        }).collect::<Vec<_>>(),
+    });
+    let jb = serde_json::to_vec_pretty(&report).map_err(write_failure)?;
+    let png = plot.to_png().map_err(write_failure)?;
+    crate::io::write_all_atomic(
+        out,
+        &[
+            ("bench-render.json", &jb),
+            ("bench-render.md", md.as_bytes()),
+            ("bench-render.svg", plot.to_svg().as_bytes()),
+            ("bench-render.png", &png),
+        ],
+    )
+    .map_err(write_failure)?;
+    if json {
+        con.out(format_args!("{}", to_json(&report)?));
+    } else {
+        con.out(format_args!("{md}"));
+    }
+    Ok(())
+}
+
+/// Runs the job: its files written (under temporary names, renamed when complete), its
+/// report sent to `con`.
+pub fn run_bvh(o: &BenchBvhOptions, con: &Console) -> Result<(), JobError> {
+    cmd_bench_bvh(o.triangles, o.rays, o.runs, con)
+}
+
+/// Runs the job: its files written (under temporary names, renamed when complete), its
+/// report sent to `con`.
+pub fn run_recon(o: &BenchReconOptions, con: &Console) -> Result<(), JobError> {
+    cmd_bench_recon(&o.scene, o.spp, o.runs, o.json, o.threads, con)
+}
+
+/// Runs the job: its files written (under temporary names, renamed when complete), its
+/// report sent to `con`.
+pub fn run_render(o: &BenchRenderOptions, con: &Console) -> Result<(), JobError> {
+    cmd_bench_render(
+        &o.scene, &o.out, o.crop, o.ref_spp, o.budget_s, o.target, o.error, &o.extra, o.json,
+        o.replot, o.threads, con,
+    )
+}

@@ -1,0 +1,105 @@
+//! `stscam info`: the design summary.
+
+use crate::analysis;
+
+use super::*;
+
+/// Design summary: angles, replica pitch and count, Bragg wavelengths, field of view.
+#[derive(clap::Args, Debug, Clone)]
+pub struct InfoOptions {
+    /// The scene and its overrides.
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn fmt_fov(name: &str, f: &analysis::Fov) -> String {
+    format!(
+        "{name}: {:.2}° (from {:.2}°, limited by {}, to {:.2}°, limited by {})",
+        f.full_deg, f.min.angle_deg, f.min.limited_by, f.max.angle_deg, f.max.limited_by
+    )
+}
+
+fn cmd_info(
+    scene: &SceneArgs,
+    json: bool,
+    con: &Console,
+) -> Result<crate::analysis::DesignInfo, Failure> {
+    let (_, sys) = load(scene)?;
+    let info = analysis::info(&sys);
+    if json {
+        con.out(format_args!("{}", to_json(&info)?));
+        return Ok(info);
+    }
+    con.out(format_args!(
+        "critical angle glass→air at λ0: {:.3}° (n_glass = {:.5}); film→air {:.3}°",
+        info.critical_angle_deg, info.n_glass_recording, info.film_critical_angle_deg
+    ));
+    con.out(format_args!(
+        "grating period: {:.2} nm; focus {:.1} mm, lens–sensor {:.4} mm",
+        info.grating_period_nm, info.focus_distance_mm, info.sensor_distance_mm
+    ));
+    con.out(format_args!(
+        "{:<8} {:>10} {:>10} {:>12} {:>9} {:>10}",
+        "field", "λ_B (nm)", "Θ' (deg)", "pitch (mm)", "replicas", ">5% peak"
+    ));
+    for f in &info.field {
+        con.out(format_args!(
+            "{:<8} {:>10.2} {:>10.2} {:>12.3} {:>9} {:>10}",
+            f.name,
+            f.lambda_nm,
+            f.guided_angle_deg,
+            f.replica_pitch_mm,
+            f.replicas,
+            f.replicas_above_5pct
+        ));
+    }
+    let rows: Vec<String> = info
+        .point_replicas
+        .iter()
+        .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
+        .collect();
+    con.out(format_args!(
+        "a point at the display centre appears at rows (weight): {}",
+        rows.join(", ")
+    ));
+    con.out(format_args!(
+        "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
+        info.replica_pitch_sensor_px
+    ));
+    con.out(format_args!(
+        "{}",
+        fmt_fov("vertical FOV, waveguide", &info.fov_vertical_waveguide)
+    ));
+    con.out(format_args!(
+        "{}",
+        fmt_fov("vertical FOV, capture", &info.fov_vertical_capture)
+    ));
+    con.out(format_args!(
+        "{}",
+        fmt_fov("horizontal FOV, waveguide", &info.fov_horizontal_waveguide)
+    ));
+    con.out(format_args!(
+        "{}",
+        fmt_fov("horizontal FOV, capture", &info.fov_horizontal_capture)
+    ));
+    let cov = &info.object_coverage;
+    match cov.warning() {
+        _ if !sys.scene.display.enabled => {}
+        None => con.out(format_args!(
+            "object ({}x{} px): every row and column seen through a replica with >= {} % of its strongest",
+            cov.object_px[0],
+            cov.object_px[1],
+            cov.strong_fraction * 100.0
+        )),
+        Some(w) => con.out(format_args!("{w}")),
+    }
+    Ok(info)
+}
+
+/// Runs the job: the design summary, returned and sent to `con`.
+pub fn run(o: &InfoOptions, con: &Console) -> Result<crate::analysis::DesignInfo, JobError> {
+    cmd_info(&o.scene, o.json, con)
+}

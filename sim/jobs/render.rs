@@ -1,0 +1,203 @@
+//! `stscam render`: the capture (EXR, PNG preview, JSON), and with 3-D objects the frontal image, depth and mask.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::output::{CAPTURE_UNITS, write_capture_with};
+use crate::render::{RenderSettings, render};
+use crate::sampler::SamplerKind;
+
+use super::*;
+
+/// Render the capture: DIR/capture.exr, capture.png and capture.json.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RenderOptions {
+    /// The scene and its overrides.
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Output directory.
+    #[arg(long, default_value = "out/render")]
+    pub out: PathBuf,
+    /// Samples, seed and threads.
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Also write spectral channels (bins of about 10 nm tiling the sampling band) into the EXR.
+    #[arg(long)]
+    pub spectral: bool,
+    /// Sample sequence.
+    #[arg(long, value_enum, default_value = "lattice")]
+    pub sampler: SamplerArg,
+    /// 3-D scenes: size of frontal.exr, depth.exr and mask.png, `N` or `WxH` (default: the
+    /// capture's crop size).
+    #[arg(long, value_name = "N|WxH")]
+    pub frontal_px: Option<String>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_render(
+    scene: &SceneArgs,
+    out: &std::path::Path,
+    run: &RunArgs,
+    spectral: bool,
+    sampler: SamplerArg,
+    frontal_px: Option<&str>,
+    con: &Console,
+) -> Result<(), Failure> {
+    let (spp, seed, threads) = run.checked()?;
+    let frontal_size = frontal_px.map(parse_frontal_px).transpose()?;
+    let start = Instant::now();
+    if out.exists() && !out.is_dir() {
+        return Err(bad_input(format!(
+            "{}: --out exists and is not a directory",
+            out.display()
+        )));
+    }
+    let pool = thread_pool(threads)?;
+    let (ls, sys) = pool.install(|| load(scene))?;
+    let bins = spectral.then(|| crate::render::spectral_bins(&sys.scene.sampling));
+    let settings = RenderSettings {
+        spp,
+        seed,
+        sampler: match sampler {
+            SamplerArg::Lattice => SamplerKind::Lattice,
+            SamplerArg::Independent => SamplerKind::Independent,
+        },
+        spectral_bins: bins,
+        progress: true,
+    };
+    crate::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
+    if let (Some((fw, fh)), true) = (frontal_size, sys.world.is_some()) {
+        crate::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
+            .map_err(limit)?;
+    }
+    let t0 = Instant::now();
+    let cap = pool.install(|| render(&sys, &settings));
+    let render_s = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
+    let frontal = pool.install(|| crate::world::frontal::render_frontal(&sys, fw, fh, spp, seed));
+    let frontal_s = t1.elapsed().as_secs_f64();
+    let scene_json = serde_json::to_string(&sys.scene).map_err(|e| Failure {
+        code: 1,
+        message: e.to_string(),
+    })?;
+    let sidecar = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "command": "render",
+        "scene_source": ls.source,
+        "overrides": scene.set,
+        "scene": sys.scene,
+        "seed": seed,
+        "spp": spp,
+        "sampler": settings.sampler,
+        "threads": pool.current_num_threads(),
+        "width": cap.width,
+        "height": cap.height,
+        "channels": cap.channel_names,
+        "spectral_bins_nm": cap.spectral.iter().map(|(l, _)| *l).collect::<Vec<_>>(),
+        "units": CAPTURE_UNITS,
+        "render_time_s": render_s,
+        "wall_time_s": start.elapsed().as_secs_f64(),
+        "paths_per_second": cap.stats.camera_paths as f64 / render_s,
+        "stats": cap.stats,
+    });
+    let mut sidecar = sidecar;
+    if let (Some(world), Some(f)) = (sys.world.as_deref(), frontal.as_ref()) {
+        sidecar["world"] = serde_json::json!({
+            "objects": world.objects,
+            "triangles": world.mesh.triangles.len(),
+            "lights": sys.scene.light.len(),
+            "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
+            "display_enabled": sys.scene.display.enabled,
+        });
+        sidecar["frontal"] = serde_json::json!({
+            "files": {
+                "frontal.exr": format!("channels {:?}: {}", f.channel_names, crate::output::FRONTAL_UNITS),
+                "frontal.png": "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)",
+                "depth.exr": "channel Z: distance from the plate's front face along -z in mm, +inf where nothing is hit (pixel centre ray)",
+                "mask.png": "16-bit grey: object index + 1 (see world.objects[].mask_value), 65535 the display, 0 nothing (pixel centre ray)",
+            },
+            "width": f.width,
+            "height": f.height,
+            "spp": spp,
+            "camera": "pinhole at (0, 0, 0) mm (front face, bottom vHOE centre) looking along -z; pixel (c, r) looks along the capture's chief ray at crop position ((c + 0.5) * crop_w / w, (r + 0.5) * crop_h / h)",
+            "rays": f.rays,
+            "render_time_s": frontal_s,
+        });
+    }
+    // A missing or unwritable output location is the user's to fix, but it is not bad input
+    // to the simulator: exit 1.
+    write_capture_with(
+        out,
+        &cap,
+        &scene_json,
+        seed,
+        spp,
+        &sidecar,
+        frontal.as_ref(),
+    )
+    .map_err(|e| Failure {
+        code: 1,
+        message: e.to_string(),
+    })?;
+    if cap.stats.nonfinite_samples > 0 {
+        con.err(format_args!(
+            "warning: {} samples were NaN or infinite and were zeroed",
+            cap.stats.nonfinite_samples
+        ));
+    }
+    if cap.stats.max_truncated_weight > 1e-3 && cap.stats.max_contacts_hits == 0 {
+        con.err(format_args!(
+            "warning: paths were stopped by sampling.min_guided_weight with up to {:.3e} of their guided weight left; lower it for this scene",
+            cap.stats.max_truncated_weight
+        ));
+    }
+    if cap.stats.max_contacts_hits > 0 {
+        con.err(format_args!(
+            "warning: {} paths hit sampling.max_contacts; up to {:.3e} of a path's guided weight was dropped",
+            cap.stats.max_contacts_hits, cap.stats.max_truncated_weight
+        ));
+    }
+    con.err(format_args!(
+        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {:.2} M paths/s ({} threads)",
+        out.display(),
+        cap.width,
+        cap.height,
+        spp,
+        render_s,
+        cap.stats.camera_paths as f64 / render_s / 1e6,
+        pool.current_num_threads()
+    ));
+    Ok(())
+}
+
+/// `N` or `WxH` for `--frontal-px`.
+fn parse_frontal_px(spec: &str) -> Result<(usize, usize), Failure> {
+    let bad = || {
+        bad_input(format!(
+            "--frontal-px: expected N or WxH (1..=8192 each), got {spec:?}"
+        ))
+    };
+    let (w, h) = match spec.split_once(['x', 'X']) {
+        Some((a, b)) => (a.trim().parse::<usize>(), b.trim().parse::<usize>()),
+        None => (spec.trim().parse::<usize>(), spec.trim().parse::<usize>()),
+    };
+    match (w, h) {
+        (Ok(w), Ok(h)) if (1..=8192).contains(&w) && (1..=8192).contains(&h) => Ok((w, h)),
+        _ => Err(bad()),
+    }
+}
+
+/// Runs the job: its files written (under temporary names, renamed when complete), its
+/// report sent to `con`.
+pub fn run(o: &RenderOptions, con: &Console) -> Result<(), JobError> {
+    cmd_render(
+        &o.scene,
+        &o.out,
+        &o.run,
+        o.spectral,
+        o.sampler,
+        o.frontal_px.as_deref(),
+        con,
+    )
+}
