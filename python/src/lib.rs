@@ -242,6 +242,45 @@ fn matrix<'py>(
     Ok(d)
 }
 
+/// Every depth's H and offset of a depth stack, in one pass (as `stscam matrix --depth-mm
+/// SPEC` with a list or range): one dict per depth, sorted by depth.
+#[pyfunction]
+#[pyo3(signature = (scene, spp, seed, depth_spec, threads))]
+fn matrix_stack<'py>(
+    py: Python<'py>,
+    scene: SceneArg,
+    spp: u32,
+    seed: u64,
+    depth_spec: &str,
+    threads: Option<usize>,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    check_spp(spp)?;
+    let depths = stscam::stack::parse_depths(depth_spec)
+        .map_err(|m| value_error(format!("--depth-mm {depth_spec}: {m}")))?;
+    // The CLI's bound on a stack's entries while the pass runs.
+    let budget = (stscam::limits::MAX_JOB_BYTES / 4) as u64;
+    let stack = run_job(py, threads, || {
+        let sys = load(&scene)?;
+        stscam::matrix::compute_matrix_stack_within(
+            &sys,
+            &RenderSettings::lattice(spp, seed, false),
+            &depths,
+            budget,
+        )
+        .map_err(|e| e.to_string())
+    })?
+    .map_err(value_error)?;
+    let mut out = Vec::with_capacity(stack.len());
+    for (m, d) in stack.iter().zip(&depths) {
+        let dict = csr_dict(py, &m.h)?;
+        dict.set_item("depth_mm", *d)?;
+        dict.set_item("offset", f32_bytes(py, &m.offset))?;
+        dict.set_item("object", m.object)?;
+        out.push(dict);
+    }
+    Ok(out)
+}
+
 /// `stscam info --json`.
 #[pyfunction]
 #[pyo3(signature = (scene))]
@@ -546,6 +585,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene_json, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(matrix, m)?)?;
+    m.add_function(wrap_pyfunction!(matrix_stack, m)?)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
     m.add_function(wrap_pyfunction!(probe, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;

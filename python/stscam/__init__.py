@@ -21,7 +21,7 @@ from . import _native
 from .dataset import Dataset, load_dataset
 
 __all__ = [
-    "Scene", "Render", "Frontal", "render", "matrix", "info", "probe", "reconstruct",
+    "Scene", "Render", "Frontal", "render", "matrix", "matrix_stack", "info", "probe", "reconstruct",
     "calibrate", "sweep", "build_dataset", "merge_dataset", "load_dataset", "Dataset",
     "read_exr", "__version__",
 ]
@@ -169,6 +169,28 @@ def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
                        None if depth_mm is None else float(depth_mm), threads)
     h = _csr(d)
     return h, np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)
+
+
+def matrix_stack(scene: Optional[Scene] = None, depth_mm="300:650:8", spp: int = 64,
+                 seed: int = 1, threads: Optional[int] = None
+                 ) -> list[tuple[float, scipy.sparse.csr_matrix, np.ndarray]]:
+    """A depth stack in one pass, as ``stscam matrix --depth-mm SPEC``: ``[(depth_mm, H,
+    offset), ...]`` sorted by depth, each H and offset equal to that run's ``H_<D>mm.npz``
+    and ``offset_<D>mm.npy`` (and to ``matrix(scene, depth_mm=D)``). ``depth_mm`` is a
+    sequence of depths in mm or the CLI's ``"START:STOP:STEPS"``. The block matrix of the
+    layered model is ``scipy.sparse.hstack([H for _, H, _ in stack], format="csr")``."""
+    s = _scene(scene)
+    if isinstance(depth_mm, str):
+        spec = depth_mm
+    else:
+        try:
+            spec = ",".join(repr(float(d)) for d in depth_mm)
+        except (TypeError, ValueError):
+            raise ValueError(f"--depth-mm {depth_mm!r}: expected depths in mm or START:STOP:STEPS") from None
+    out = []
+    for d in _native.matrix_stack(s._arg, int(spp), int(seed), spec, threads):
+        out.append((float(d["depth_mm"]), _csr(d), np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)))
+    return out
 
 
 def info(scene: Optional[Scene] = None) -> dict:

@@ -109,6 +109,26 @@ def test_matrix_equals_cli_npz_and_offset(scene, tmp_path):
     assert not (h2.nnz == h.nnz and same_bits(h2.data, h.data))
 
 
+def test_matrix_stack_equals_cli_depth_files(scene, tmp_path):
+    cli("matrix", "--out", tmp_path, "--spp", SPP, "--depth-mm", "400,480", *set_args(SETS))
+    stack = stscam.matrix_stack(scene, depth_mm=[480, 400], spp=SPP)
+    assert [d for d, _, _ in stack] == [400.0, 480.0]
+    for d, h, off in stack:
+        h_cli = scipy.sparse.load_npz(tmp_path / f"H_{d:g}mm.npz")
+        for name in ("data", "indices", "indptr"):
+            assert same_bits(getattr(h, name), getattr(h_cli, name)), (d, name)
+        assert same_bits(off, np.load(tmp_path / f"offset_{d:g}mm.npy"))
+    # The block matrix of the layered model is the CLI's H_stack.npz.
+    block = scipy.sparse.hstack([h for _, h, _ in stack], format="csr")
+    b_cli = scipy.sparse.load_npz(tmp_path / "H_stack.npz")
+    assert block.shape == b_cli.shape and (block != b_cli).nnz == 0
+    # A range as the CLI writes it, and the CLI's message for a bad one.
+    assert [d for d, _, _ in stscam.matrix_stack(scene, depth_mm="400:480:2", spp=1)] == [400.0, 480.0]
+    with pytest.raises(ValueError) as e:
+        stscam.matrix_stack(scene, depth_mm="480:400:2", spp=1)
+    assert str(e.value) == cli_error("matrix", "--depth-mm", "480:400:2", "--out", tmp_path / "bad")
+
+
 def test_info_and_probe_equal_cli_json(scene):
     assert stscam.info(scene) == json.loads(cli("info", "--json", *set_args(SETS)).stdout)
     p = stscam.probe(scene, pixel=(10, 20))
