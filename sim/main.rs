@@ -107,7 +107,7 @@ fn main() -> ExitCode {
     };
     let con = &Console::Terminal;
     let result = match &cli.command {
-        Command::Render(o) => jobs::render::run(o, con),
+        Command::Render(o) => jobs::render::run(o, con).map(drop),
         Command::Matrix(o) => jobs::matrix::run(o, con),
         Command::Calibrate(o) => jobs::calibrate::run(o, con),
         Command::Reconstruct(o) => jobs::reconstruct::run(o, con),

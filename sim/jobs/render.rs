@@ -42,7 +42,7 @@ fn cmd_render(
     sampler: SamplerArg,
     frontal_px: Option<&str>,
     con: &Console,
-) -> Result<(), Failure> {
+) -> Result<crate::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
     let frontal_size = frontal_px.map(parse_frontal_px).transpose()?;
     let start = Instant::now();
@@ -168,7 +168,7 @@ fn cmd_render(
         cap.stats.camera_paths as f64 / render_s / 1e6,
         pool.current_num_threads()
     ));
-    Ok(())
+    Ok(cap)
 }
 
 /// `N` or `WxH` for `--frontal-px`.
@@ -189,8 +189,8 @@ fn parse_frontal_px(spec: &str) -> Result<(usize, usize), Failure> {
 }
 
 /// Runs the job: its files written (under temporary names, renamed when complete), its
-/// report sent to `con`.
-pub fn run(o: &RenderOptions, con: &Console) -> Result<(), JobError> {
+/// report sent to `con`; returns the capture (the values `capture.exr` holds, and the counters).
+pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, JobError> {
     cmd_render(
         &o.scene,
         &o.out,

@@ -12,6 +12,7 @@ mod depth;
 mod estimators;
 mod hostile;
 mod invariants;
+mod jobs;
 mod matrix_calibration;
 mod mesh_scenes;
 mod mitsuba_reference;
