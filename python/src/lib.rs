@@ -299,6 +299,211 @@ fn probe(scene: SceneArg, col: usize, row: usize) -> PyResult<String> {
     json(&p)
 }
 
+/// A CSR matrix from the Python layer's little-endian arrays (int64 indptr and indices, float32
+/// data), checked: every problem raises ValueError naming `what`.
+fn csr_from(
+    rows: usize,
+    cols: usize,
+    indptr: &[u8],
+    indices: &[u8],
+    data: &[u8],
+    what: &str,
+) -> PyResult<stscam::sparse::CsrMatrix> {
+    // Negative or too large indices become values that `check` rejects.
+    let indptr: Vec<u64> = decode(indptr, "indptr", |c| {
+        u64::try_from(i64::from_le_bytes(c)).unwrap_or(u64::MAX)
+    })?;
+    let indices: Vec<u32> = decode(indices, "indices", |c| {
+        u32::try_from(i64::from_le_bytes(c)).unwrap_or(u32::MAX)
+    })?;
+    let data: Vec<f32> = decode(data, "data", f32::from_le_bytes)?;
+    let h = stscam::sparse::CsrMatrix {
+        rows,
+        cols,
+        indptr,
+        indices,
+        data,
+    };
+    h.check().map_err(|m| value_error(format!("{what}: {m}")))?;
+    if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
+        return Err(value_error(format!(
+            "{what}: entry {i} is not a finite number"
+        )));
+    }
+    Ok(h)
+}
+
+/// One depth of a stack as the Python layer passes it: (depth_mm, rows, cols, indptr, indices,
+/// data, offset or None).
+type StackBlock<'py> = (
+    f64,
+    usize,
+    usize,
+    Bound<'py, PyBytes>,
+    Bound<'py, PyBytes>,
+    Bound<'py, PyBytes>,
+    Option<Bound<'py, PyBytes>>,
+);
+
+/// Reconstruction with a depth stack (as `stscam reconstruct --matrix H_stack.npz`): joint
+/// multi-depth ADMM-TV or depth estimation then ADMM-TV at the estimated depth. Returns the
+/// planes (depth, little-endian f64 values), the estimate (JSON or None) and the solver report.
+#[pyfunction]
+#[pyo3(signature = (blocks, object, capture, joint_offset, method, iters, tau, mu, tv, threads))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn reconstruct_stack<'py>(
+    py: Python<'py>,
+    blocks: Vec<StackBlock<'py>>,
+    object: (usize, usize),
+    capture: &[u8],
+    joint_offset: Option<&[u8]>,
+    method: &str,
+    iters: Option<usize>,
+    tau: f64,
+    mu: f64,
+    tv: &str,
+    threads: Option<usize>,
+) -> PyResult<(Vec<(f64, Bound<'py, PyBytes>)>, Option<String>, String)> {
+    use stscam::recon::admm::TvKind;
+    use stscam::recon::layered::{StackMethod, StackOptions, solve_stack, stack_setup_bytes};
+    let method = match method {
+        "joint" => StackMethod::Joint,
+        "depth" => StackMethod::Depth,
+        m => {
+            return Err(value_error(format!(
+                "method {m:?}: expected \"joint\" or \"depth\""
+            )));
+        }
+    };
+    let tv = match tv {
+        "iso" => TvKind::Iso,
+        "aniso" => TvKind::Aniso,
+        t => {
+            return Err(value_error(format!(
+                "tv {t:?}: expected \"iso\" or \"aniso\""
+            )));
+        }
+    };
+    for (name, v) in [("--tau", tau), ("--mu", mu)] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(value_error(format!(
+                "{name} {v}: must be a non-negative number"
+            )));
+        }
+    }
+    if iters == Some(0) {
+        return Err(value_error("--iters: must be at least 1"));
+    }
+    if blocks.is_empty() {
+        return Err(value_error("stack: no depths"));
+    }
+    let mut depths_mm = Vec::with_capacity(blocks.len());
+    let mut hs = Vec::with_capacity(blocks.len());
+    let mut offsets = Vec::with_capacity(blocks.len());
+    for (d, rows, cols, ip, ix, data, off) in &blocks {
+        let what = format!("H at {d} mm");
+        if !(d.is_finite() && *d > 0.0) || depths_mm.last().is_some_and(|p| p >= d) {
+            return Err(value_error(format!(
+                "stack: depth {d} mm: depths must be positive and ascending"
+            )));
+        }
+        let h = csr_from(
+            *rows,
+            *cols,
+            ip.as_bytes(),
+            ix.as_bytes(),
+            data.as_bytes(),
+            &what,
+        )?;
+        if h.rows
+            != hs
+                .first()
+                .map_or(h.rows, |f: &stscam::sparse::CsrMatrix| f.rows)
+            || object.0.checked_mul(object.1) != Some(h.cols)
+        {
+            return Err(value_error(format!(
+                "{what}: {}x{} does not match the other depths' rows or the object {}x{}",
+                h.rows, h.cols, object.0, object.1
+            )));
+        }
+        let off = off
+            .as_ref()
+            .map(|o| decode(o.as_bytes(), "offset", f32::from_le_bytes))
+            .transpose()?;
+        if off.as_ref().is_some_and(|o| o.len() != h.rows) {
+            return Err(value_error(format!(
+                "{what}: its offset has the wrong length"
+            )));
+        }
+        depths_mm.push(*d);
+        hs.push(h);
+        offsets.push(off);
+    }
+    let rows = hs[0].rows;
+    let g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
+    if g.len() != rows {
+        return Err(value_error(format!(
+            "capture: the capture has {} values but H has {rows} rows (crop pixels x channels); they must match",
+            g.len()
+        )));
+    }
+    if let Some(i) = g.iter().position(|v| !v.is_finite()) {
+        return Err(value_error(format!(
+            "capture: value {i} is not a finite number"
+        )));
+    }
+    // Default: Σ_d o_d summed as `offset_stack.npy` is (f64 over the depths, then f32).
+    let joint_offset = match joint_offset {
+        Some(o) => Some(decode(o, "offset", f32::from_le_bytes)?),
+        None if offsets.iter().all(Option::is_some) => Some(
+            (0..rows)
+                .map(|i| {
+                    offsets
+                        .iter()
+                        .flatten()
+                        .map(|o| f64::from(o[i]))
+                        .sum::<f64>() as f32
+                })
+                .collect(),
+        ),
+        None => None,
+    };
+    if joint_offset.as_ref().is_some_and(|o| o.len() != rows) {
+        return Err(value_error("offset: its length is not H's row count"));
+    }
+    let ls = stscam::stack::LoadedStack {
+        depths_mm,
+        blocks: hs,
+        object,
+        offsets,
+        joint_offset,
+        joint_offset_path: None,
+    };
+    let opts = StackOptions {
+        method,
+        iters,
+        tau_rel: tau,
+        mu_rel: mu,
+        tv,
+        ..StackOptions::default()
+    };
+    let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
+    stscam::limits::check_bytes(
+        "stack",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stack_setup_bytes(&ls, method, threads_n),
+    )
+    .map_err(value_error)?;
+    let sol = run_job(py, threads, || solve_stack(&ls, &g, &opts))?.map_err(value_error)?;
+    let planes = sol
+        .planes
+        .iter()
+        .map(|(d, f)| (*d, f64_bytes(py, f)))
+        .collect();
+    let estimate = sol.estimate.as_ref().map(json).transpose()?;
+    Ok((planes, estimate, json(&sol.info)?))
+}
+
 /// Little-endian values of `N` bytes each from `b`, converted by `f`.
 fn decode<const N: usize, T>(b: &[u8], what: &str, f: impl Fn([u8; N]) -> T) -> PyResult<Vec<T>> {
     if b.len() % N != 0 {
@@ -364,25 +569,7 @@ fn reconstruct<'py>(
     if iters == Some(0) {
         return Err(value_error("--iters: must be at least 1"));
     }
-    // Negative or too large indices become values that `check` rejects.
-    let indptr: Vec<u64> = decode(indptr, "indptr", |c| {
-        u64::try_from(i64::from_le_bytes(c)).unwrap_or(u64::MAX)
-    })?;
-    let indices: Vec<u32> = decode(indices, "indices", |c| {
-        u32::try_from(i64::from_le_bytes(c)).unwrap_or(u32::MAX)
-    })?;
-    let data: Vec<f32> = decode(data, "data", f32::from_le_bytes)?;
-    let h = stscam::sparse::CsrMatrix {
-        rows,
-        cols,
-        indptr,
-        indices,
-        data,
-    };
-    h.check().map_err(|m| value_error(format!("H: {m}")))?;
-    if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
-        return Err(value_error(format!("H: entry {i} is not a finite number")));
-    }
+    let h = csr_from(rows, cols, indptr, indices, data, "H")?;
     if object.0.checked_mul(object.1) != Some(cols) {
         return Err(value_error(format!(
             "the object {}x{} has {} pixels but H has {cols} columns",
@@ -589,6 +776,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(info, m)?)?;
     m.add_function(wrap_pyfunction!(probe, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(reconstruct_stack, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add_function(wrap_pyfunction!(build_dataset, m)?)?;

@@ -21,7 +21,7 @@ from . import _native
 from .dataset import Dataset, load_dataset
 
 __all__ = [
-    "Scene", "Render", "Frontal", "render", "matrix", "matrix_stack", "info", "probe", "reconstruct",
+    "Scene", "Render", "Frontal", "render", "matrix", "matrix_stack", "reconstruct_stack", "info", "probe", "reconstruct",
     "calibrate", "sweep", "build_dataset", "merge_dataset", "load_dataset", "Dataset",
     "read_exr", "__version__",
 ]
@@ -242,6 +242,54 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
         0.001 if tau is None else float(tau), tv, threads)
     obj = np.frombuffer(f, dtype="<f8").reshape(hh, w).astype(np.float64)
     return (obj, json.loads(solver)) if return_info else obj
+
+
+def reconstruct_stack(stack, capture, method: str = "joint", iters: Optional[int] = None,
+                      tau: Optional[float] = None, mu: Optional[float] = None, offset=None,
+                      tv: str = "iso", object_shape: Optional[tuple[int, int]] = None,
+                      threads: Optional[int] = None):
+    """Reconstruction with a depth stack (``[(depth_mm, H, offset), ...]`` as
+    :func:`matrix_stack` returns it), as ``stscam reconstruct --matrix H_stack.npz``:
+    ``method="joint"`` reconstructs every plane at once (joint ADMM-TV with a group-sparsity
+    prior across depth, weight ``mu`` relative to ‖Hᵀg‖∞, default 1e-5; the capture minus
+    ``offset``, default the sum of the depths' offsets); ``method="depth"`` estimates the depth
+    of one planar object (each depth's own offset subtracted) and reconstructs it there.
+    Returns ``{"planes": {depth_mm: object [h, w]}, "estimate": dict or None, "solver": dict}``."""
+    blocks = []
+    for item in stack:
+        try:
+            d, H, off = item
+        except (TypeError, ValueError):
+            raise ValueError("stack: expected (depth_mm, H, offset) items as matrix_stack returns") from None
+        if not scipy.sparse.issparse(H):
+            raise ValueError(f"H at {d} mm: expected a scipy sparse matrix, got {type(H).__name__}")
+        h = scipy.sparse.csr_matrix(H, dtype=np.float32, copy=True)
+        h.sum_duplicates()
+        h.sort_indices()
+        o = None if off is None else np.ascontiguousarray(
+            np.asarray(off, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
+        blocks.append((float(d), h.shape[0], h.shape[1], h.indptr.astype("<i8").tobytes(),
+                       h.indices.astype("<i8").tobytes(), h.data.astype("<f4").tobytes(), o))
+    if not blocks:
+        raise ValueError("stack: no depths")
+    cols = blocks[0][2]
+    if object_shape is None:
+        side = int(round(cols ** 0.5))
+        if side * side != cols:
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+        object_shape = (side, side)
+    w, hh = (int(v) for v in object_shape)
+    g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
+    joint = None if offset is None else np.ascontiguousarray(
+        np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
+    planes, estimate, solver = _native.reconstruct_stack(
+        blocks, (w, hh), g.astype("<f8").tobytes(), joint, method, iters,
+        0.001 if tau is None else float(tau), 1e-5 if mu is None else float(mu), tv, threads)
+    return {
+        "planes": {d: np.frombuffer(b, dtype="<f8").reshape(hh, w).astype(np.float64) for d, b in planes},
+        "estimate": None if estimate is None else json.loads(estimate),
+        "solver": json.loads(solver),
+    }
 
 
 def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,

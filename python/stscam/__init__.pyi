@@ -56,6 +56,11 @@ def reconstruct(H: Any, capture: Any, method: str = "admm-tv", iters: Optional[i
                 tau: Optional[float] = None, offset: Any = None, tv: str = "iso",
                 object_shape: Optional[tuple[int, int]] = None, threads: Optional[int] = None,
                 return_info: bool = False) -> Any: ...
+def reconstruct_stack(stack: Sequence[tuple[float, Any, Any]], capture: Any, method: str = "joint",
+                      iters: Optional[int] = None, tau: Optional[float] = None,
+                      mu: Optional[float] = None, offset: Any = None, tv: str = "iso",
+                      object_shape: Optional[tuple[int, int]] = None,
+                      threads: Optional[int] = None) -> dict[str, Any]: ...
 def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
               matrix: Optional[str | os.PathLike[str]] = None,
               object_shape: Optional[tuple[int, int]] = None, noise: str = "sensor",

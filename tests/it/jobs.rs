@@ -90,7 +90,10 @@ fn info_and_probe_jobs_equal_the_cli_json() {
         serde_json::to_string_pretty(&p).unwrap() + "\n",
         stscam_ok(&args)
     );
-    assert_eq!(stscam_json(&args)["lambda_nm"].as_f64().map(f64::is_finite), Some(true));
+    assert_eq!(
+        stscam_json(&args)["lambda_nm"].as_f64().map(f64::is_finite),
+        Some(true)
+    );
 }
 
 #[test]
