@@ -27,8 +27,8 @@
 use rayon::prelude::*;
 
 use crate::render::{
-    RenderSettings, RenderStats, camera_sample, channel_weights, lattice_rule, row_progress,
-    trace_branches,
+    RenderSettings, RenderStats, SAMPLE_BATCH, camera_samples, channel_weights, lattice_rule,
+    row_progress, trace_branches,
 };
 use crate::sampler::PixelSampler;
 use crate::sparse::CsrMatrix;
@@ -225,66 +225,74 @@ fn matrix_row(
         for a in &mut acc {
             a.off = [0.0; 4];
         }
-        for i in 0..u64::from(set.spp) {
-            let Some(s) = camera_sample(sys, &sampler, col, row, i) else {
-                continue;
-            };
-            branches.clear();
-            let mut total = 0.0;
-            trace_branches(sys, &s, &mut stats, |wt, b| {
-                branches.push((wt, b.exit_point_mm));
-                total += wt;
-            });
-            // A non-finite sample is dropped at every depth alike: the decision uses all of
-            // its branches, wherever they land (branch weights are finite and positive, so this
-            // drops exactly the samples whose factor is not finite).
-            if !(s.factor * total).is_finite() {
-                stats.nonfinite_samples += 1;
-                continue;
-            }
-            let r = channel_weights(sys, s.lambda_nm);
-            // Per branch, once for every depth: its H contribution c·r_ch and its offset
-            // contribution c·r_ch·bl (unused channels stay 0, so whole 4-lanes add).
-            weighted.clear();
-            weighted.extend(branches.iter().map(|&(wt, exit)| {
-                let c = s.factor * wt;
-                let (mut cr, mut crb) = ([0.0f64; 4], [0.0f64; 4]);
-                for ch in 0..nch {
-                    cr[ch] = c * r[ch];
-                    crb[ch] = c * r[ch] * bl;
+        let spp = u64::from(set.spp);
+        let mut batch = [None; SAMPLE_BATCH];
+        let mut first = 0u64;
+        while first < spp {
+            let len = (spp - first).min(SAMPLE_BATCH as u64) as usize;
+            camera_samples(sys, &sampler, col, row, first, &mut batch[..len]);
+            first += len as u64;
+            for s in &batch[..len] {
+                let Some(s) = s else {
+                    continue;
+                };
+                branches.clear();
+                let mut total = 0.0;
+                trace_branches(sys, s, &mut stats, |wt, b| {
+                    branches.push((wt, b.exit_point_mm));
+                    total += wt;
+                });
+                // A non-finite sample is dropped at every depth alike: the decision uses all of
+                // its branches, wherever they land (branch weights are finite and positive, so this
+                // drops exactly the samples whose factor is not finite).
+                if !(s.factor * total).is_finite() {
+                    stats.nonfinite_samples += 1;
+                    continue;
                 }
-                (exit, cr, crb)
-            }));
-            // Physical light travels along −dir (as in `trace`): every branch of the sample
-            // crosses the air gap to depth D with the same lateral shift.
-            let u = -s.ray.dir.truncate();
-            for a in &mut acc {
-                let shift = lateral_shift(u, 1.0, a.depth_mm);
-                for (exit, cr, crb) in &weighted {
-                    let x = *exit - shift;
-                    // `Display::on_lcd`, with the pixel lookup done once.
-                    let k = grid.pixel_at(x);
-                    if k.is_none() && !disp.within_extent(x) {
-                        continue;
+                let r = channel_weights(sys, s.lambda_nm);
+                // Per branch, once for every depth: its H contribution c·r_ch and its offset
+                // contribution c·r_ch·bl (unused channels stay 0, so whole 4-lanes add).
+                weighted.clear();
+                weighted.extend(branches.iter().map(|&(wt, exit)| {
+                    let c = s.factor * wt;
+                    let (mut cr, mut crb) = ([0.0f64; 4], [0.0f64; 4]);
+                    for ch in 0..nch {
+                        cr[ch] = c * r[ch];
+                        crb[ch] = c * r[ch] * bl;
                     }
-                    for (o, v) in a.off.iter_mut().zip(crb) {
-                        *o += v;
-                    }
-                    if let Some((kc, kr)) = k {
-                        let key = (kr * disp.width_px + kc) as u32;
-                        // A pixel's samples land on a few object pixels per depth: a small
-                        // direct-mapped cache finds most entries without probing the table.
-                        let slot = recent_slot(key);
-                        let idx = if a.recent[slot].0 == key {
-                            a.recent[slot].1 as usize
-                        } else {
-                            let idx = a.table.index(key);
-                            a.recent[slot] = (key, idx as u32);
-                            idx
-                        };
-                        let e = &mut a.table.sums[idx];
-                        for (e, v) in e.iter_mut().zip(cr) {
-                            *e += v;
+                    (exit, cr, crb)
+                }));
+                // Physical light travels along −dir (as in `trace`): every branch of the sample
+                // crosses the air gap to depth D with the same lateral shift.
+                let u = -s.ray.dir.truncate();
+                for a in &mut acc {
+                    let shift = lateral_shift(u, 1.0, a.depth_mm);
+                    for (exit, cr, crb) in &weighted {
+                        let x = *exit - shift;
+                        // `Display::on_lcd`, with the pixel lookup done once.
+                        let k = grid.pixel_at(x);
+                        if k.is_none() && !disp.within_extent(x) {
+                            continue;
+                        }
+                        for (o, v) in a.off.iter_mut().zip(crb) {
+                            *o += v;
+                        }
+                        if let Some((kc, kr)) = k {
+                            let key = (kr * disp.width_px + kc) as u32;
+                            // A pixel's samples land on a few object pixels per depth: a small
+                            // direct-mapped cache finds most entries without probing the table.
+                            let slot = recent_slot(key);
+                            let idx = if a.recent[slot].0 == key {
+                                a.recent[slot].1 as usize
+                            } else {
+                                let idx = a.table.index(key);
+                                a.recent[slot] = (key, idx as u32);
+                                idx
+                            };
+                            let e = &mut a.table.sums[idx];
+                            for (e, v) in e.iter_mut().zip(cr) {
+                                *e += v;
+                            }
                         }
                     }
                 }

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
-use crate::trace::sees_through;
+use crate::trace::sees_through_n;
 
 /// Uniform fraction of the wavelength density for paths with a straight-through (broadband)
 /// view: the Bragg table and the uniform part get equal shares, so f/p stays within a factor of
@@ -146,32 +146,60 @@ pub(crate) struct CameraSample {
     pub(crate) pdf: f64,
 }
 
-/// Sample `i` of pixel (col, row), or `None` when its wavelength falls outside the band.
+/// Camera samples drawn at a time: drawing a sample is a chain of dependent steps (lattice
+/// point, ray, Bragg wavelength, plate crossing, table inversion), and drawing several in a
+/// row, apart from the tracing, lets the processor overlap their chains.
+pub(crate) const SAMPLE_BATCH: usize = 16;
+
+/// Samples `start`, `start + 1`, … of pixel (col, row) into `out` (at most [`SAMPLE_BATCH`]),
+/// each `None` when its wavelength falls outside the band. Render and matrix draw samples
+/// with this one function, so equal seeds give equal samples (the contract H·f = render(f)).
 #[inline]
-pub(crate) fn camera_sample(
+pub(crate) fn camera_samples(
     sys: &System,
     sampler: &PixelSampler,
     col: usize,
     row: usize,
-    i: u64,
-) -> Option<CameraSample> {
-    camera_sample_with(sys, sampler, col, row, i, Estimator::Bragg)
+    start: u64,
+    out: &mut [Option<CameraSample>],
+) {
+    camera_samples_with(sys, sampler, col, row, start, out, Estimator::Bragg);
 }
 
 #[inline]
-fn camera_sample_with(
+fn camera_samples_with(
     sys: &System,
     sampler: &PixelSampler,
     col: usize,
     row: usize,
-    i: u64,
+    start: u64,
+    out: &mut [Option<CameraSample>],
+    estimator: Estimator,
+) {
+    let mut u = [[0.0; crate::sampler::DIMS]; SAMPLE_BATCH];
+    let u = &mut u[..out.len()];
+    sampler.get_batch(start, u);
+    // The glass index of the see-through test is the same for every ray.
+    let n0 = sys.waveguide.n_glass(sys.scene.hoe.recording_wavelength_nm);
+    for (o, u) in out.iter_mut().zip(u.iter()) {
+        *o = camera_sample_at(sys, col, row, u, n0, estimator);
+    }
+}
+
+/// The sample of lattice point `u` in pixel (col, row); `n0` is the glass index at the
+/// recording wavelength.
+#[inline(always)]
+fn camera_sample_at(
+    sys: &System,
+    col: usize,
+    row: usize,
+    u: &[f64; crate::sampler::DIMS],
+    n0: f64,
     estimator: Estimator,
 ) -> Option<CameraSample> {
-    let u = sampler.get(i);
     let ray = sys
         .camera
         .generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
-    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
     let lb = sys
         .waveguide
         .grating
@@ -179,7 +207,7 @@ fn camera_sample_with(
     // Paths that also see straight through the plate need a broadband wavelength density.
     let fu = if estimator == Estimator::UniformAnalog {
         1.0
-    } else if sees_through(&sys.waveguide, ray.origin, ray.dir, lambda0) {
+    } else if sees_through_n(&sys.waveguide, ray.origin, ray.dir, n0) {
         sys.wavelengths
             .uniform_fraction()
             .max(BROADBAND_UNIFORM_FRACTION)
@@ -503,25 +531,33 @@ fn render_row_with(
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         let mut acc = [0.0f64; 4];
-        for i in 0..u64::from(set.spp) {
-            let Some(s) = camera_sample_with(sys, &sampler, col, row, i, estimator) else {
-                continue;
-            };
-            let base = value(&s, pixel, i, &mut stats);
-            if !base.is_finite() {
-                stats.nonfinite_samples += 1;
-                continue;
-            }
-            let r = channel_weights(sys, s.lambda_nm);
-            for (a, rc) in acc.iter_mut().zip(r).take(nch) {
-                *a += base * rc;
-            }
-            if let Some((start, width, n)) = set.spectral_bins {
-                let k = ((s.lambda_nm - start) / width).floor();
-                if k >= 0.0 && (k as usize) < n {
-                    spectral[col * nbins + k as usize] += base / width;
+        let spp = u64::from(set.spp);
+        let mut batch = [None; SAMPLE_BATCH];
+        let mut first = 0u64;
+        while first < spp {
+            let len = (spp - first).min(SAMPLE_BATCH as u64) as usize;
+            camera_samples_with(sys, &sampler, col, row, first, &mut batch[..len], estimator);
+            for (i, s) in (first..).zip(&batch[..len]) {
+                let Some(s) = s else {
+                    continue;
+                };
+                let base = value(s, pixel, i, &mut stats);
+                if !base.is_finite() {
+                    stats.nonfinite_samples += 1;
+                    continue;
+                }
+                let r = channel_weights(sys, s.lambda_nm);
+                for (a, rc) in acc.iter_mut().zip(r).take(nch) {
+                    *a += base * rc;
+                }
+                if let Some((start, width, n)) = set.spectral_bins {
+                    let k = ((s.lambda_nm - start) / width).floor();
+                    if k >= 0.0 && (k as usize) < n {
+                        spectral[col * nbins + k as usize] += base / width;
+                    }
                 }
             }
+            first += len as u64;
         }
         let inv = 1.0 / f64::from(set.spp.max(1));
         for c in 0..nch {

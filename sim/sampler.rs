@@ -187,6 +187,38 @@ impl PixelSampler {
         self
     }
 
+    /// Samples `start`, `start + 1`, … into `out` (one per element), each equal to
+    /// [`Self::get`] of its index. With a Korobov rule the lattice indices i·z_d mod N are
+    /// stepped by adding z_d (no division per sample).
+    #[inline]
+    pub fn get_batch(&self, start: u64, out: &mut [[f64; DIMS]]) {
+        match (self.kind, self.rule) {
+            (SamplerKind::Lattice, Some(rule)) => {
+                let n = rule.n;
+                let inv_n = 1.0 / n as f64;
+                let i0 = start % n;
+                let mut k = [0u64; DIMS];
+                for (kd, z) in k.iter_mut().zip(&rule.z) {
+                    *kd = (i0 * z) % n;
+                }
+                for u in out.iter_mut() {
+                    for d in 0..DIMS {
+                        let v = self.shift[d] + k[d] as f64 * inv_n;
+                        u[d] = if v >= 1.0 { v - 1.0 } else { v };
+                        // z_d < N, so one subtraction keeps k_d in [0, N).
+                        let next = k[d] + rule.z[d];
+                        k[d] = if next >= n { next - n } else { next };
+                    }
+                }
+            }
+            _ => {
+                for (j, u) in out.iter_mut().enumerate() {
+                    *u = self.get(start + j as u64);
+                }
+            }
+        }
+    }
+
     /// Sample `index`, all dimensions, each in [0, 1).
     #[inline]
     pub fn get(&self, index: u64) -> [f64; DIMS] {
@@ -256,6 +288,26 @@ mod tests {
         assert_eq!(LatticeRule::korobov(1), None);
         assert_eq!(LatticeRule::korobov(MAX_KOROBOV_N + 1), None);
         assert_eq!(zaremba_2d(1, 1, 64), 1);
+    }
+
+    #[test]
+    fn batches_equal_single_draws() {
+        for (kind, rule) in [
+            (SamplerKind::Lattice, LatticeRule::korobov(64)),
+            (SamplerKind::Lattice, LatticeRule::korobov(100)),
+            (SamplerKind::Lattice, None),
+            (SamplerKind::Independent, None),
+        ] {
+            let s = PixelSampler::new(kind, 5, 777).with_rule(rule);
+            // Across the end of the lattice (index ≥ N wraps) and from unaligned starts.
+            for start in [0u64, 3, 57, 60, 63, 64, 99, 250] {
+                let mut out = [[0.0; DIMS]; 16];
+                s.get_batch(start, &mut out[..13]);
+                for (j, u) in out[..13].iter().enumerate() {
+                    assert_eq!(*u, s.get(start + j as u64), "{kind:?} start {start} j {j}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -115,11 +115,16 @@ pub fn plate_crossing(wg: &Waveguide, origin: DVec3, dir: DVec3, n_glass: f64) -
 /// contribution): it misses the top vHOE, or the top vHOE is not covered. Uses the glass index
 /// at `lambda_nm` (the answer is needed before a wavelength is drawn; pass a fixed one).
 pub fn sees_through(wg: &Waveguide, origin: DVec3, dir: DVec3, lambda_nm: f64) -> bool {
+    sees_through_n(wg, origin, dir, wg.n_glass(lambda_nm))
+}
+
+/// [`sees_through`] with the glass index given (computed once for many rays).
+#[inline]
+pub fn sees_through_n(wg: &Waveguide, origin: DVec3, dir: DVec3, n_glass: f64) -> bool {
     if !wg.covered || dir.z >= 0.0 {
         return true;
     }
-    !wg.top
-        .contains(plate_crossing(wg, origin, dir, wg.n_glass(lambda_nm)).1)
+    !wg.top.contains(plate_crossing(wg, origin, dir, n_glass).1)
 }
 
 /// Traces one camera ray (lens point `origin`, unit direction `dir` toward the screen) at

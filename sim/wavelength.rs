@@ -96,7 +96,16 @@ pub struct WavelengthSampler {
     /// Bragg wavelength each table was measured at, ascending.
     keys_nm: Vec<f64>,
     tables: Vec<Table>,
+    /// Where to start looking up a key: `key_guide[c]` is the number of keys below the start
+    /// of cell c of an even grid over [first key, last key] (a starting guess, corrected by a
+    /// short walk, so the result is exactly that of a binary search).
+    key_guide: Vec<u32>,
+    /// Cells per nm of that grid.
+    key_cells_per_nm: f64,
 }
+
+/// Cells of the key guide per key.
+const KEY_GUIDE_CELLS_PER_KEY: usize = 4;
 
 impl WavelengthSampler {
     /// Builds the sampler from non-negative shapes, each tabulated on equal bins starting at
@@ -123,6 +132,15 @@ impl WavelengthSampler {
                 .map(|(k, s)| (*k, Table::new(s, bin_nm)))
                 .unzip()
         };
+        let cells = KEY_GUIDE_CELLS_PER_KEY * keys_nm.len();
+        let span = keys_nm[keys_nm.len() - 1] - keys_nm[0];
+        let key_cells_per_nm = if span > 0.0 { cells as f64 / span } else { 0.0 };
+        let key_guide = (0..cells)
+            .map(|c| {
+                let start = keys_nm[0] + c as f64 / key_cells_per_nm.max(f64::MIN_POSITIVE);
+                keys_nm.partition_point(|&k| k < start) as u32
+            })
+            .collect();
         WavelengthSampler {
             lo_nm,
             hi_nm,
@@ -131,7 +149,31 @@ impl WavelengthSampler {
             bin_nm,
             keys_nm,
             tables,
+            key_guide,
+            key_cells_per_nm,
         }
+    }
+
+    /// The number of keys below `lambda_nm` (`keys_nm.partition_point(|&k| k < lambda_nm)`),
+    /// from the guide and a short walk.
+    #[inline]
+    fn keys_below(&self, lambda_nm: f64) -> usize {
+        let keys = &self.keys_nm;
+        let x = (lambda_nm - keys[0]) * self.key_cells_per_nm;
+        // NaN and negative x go to cell 0; the walk corrects any cell.
+        let c = if x > 0.0 {
+            (x as usize).min(self.key_guide.len() - 1)
+        } else {
+            0
+        };
+        let mut i = self.key_guide[c] as usize;
+        while i > 0 && !(keys[i - 1] < lambda_nm) {
+            i -= 1;
+        }
+        while i < keys.len() && keys[i] < lambda_nm {
+            i += 1;
+        }
+        i
     }
 
     /// The band's width in nm.
@@ -147,7 +189,7 @@ impl WavelengthSampler {
     /// The table whose key is nearest `lambda_bragg_nm`.
     #[inline]
     fn table_for(&self, lambda_bragg_nm: f64) -> &Table {
-        let i = self.keys_nm.partition_point(|&k| k < lambda_bragg_nm);
+        let i = self.keys_below(lambda_bragg_nm);
         let j = if i == 0 {
             0
         } else if i == self.keys_nm.len()
@@ -285,6 +327,24 @@ mod tests {
             }
             // 39 dof, 99.9 % critical value ≈ 72.
             assert!(chi2 < 72.0, "λ_B {lb}: χ² = {chi2}");
+        }
+    }
+
+    #[test]
+    fn key_guide_matches_binary_search() {
+        let shapes: Vec<(f64, Vec<f64>)> = [500.0, 501.0, 503.5, 520.0, 520.0, 560.25, 561.0]
+            .iter()
+            .map(|&k| (k, vec![1.0; 4]))
+            .collect();
+        for n in [1, 2, shapes.len()] {
+            let s = WavelengthSampler::new(380.0, 780.0, 0.1, -1.0, 0.5, &shapes[..n]);
+            for j in 0..20_000 {
+                let l = 480.0 + j as f64 * 0.005;
+                for l in [l, 500.0, 520.0, 561.0, 100.0, 900.0, f64::NAN, -0.0] {
+                    let want = s.keys_nm.partition_point(|&k| k < l);
+                    assert_eq!(s.keys_below(l), want, "{n} keys, λ {l}");
+                }
+            }
         }
     }
 
