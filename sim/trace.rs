@@ -205,8 +205,9 @@ pub fn trace_camera_path_until(
     }
     // Only a reflection-type order sends the guided light back toward the camera (+z); where
     // the same order is transmission-type (far off Bragg) it leaves toward the user instead.
-    let Some(top) = grating
-        .diffract(u_g, -1.0, lambda_nm, -1)
+    let top_wave = grating.incident(u_g, -1.0, lambda_nm);
+    let Some(top) = top_wave
+        .and_then(|w| w.order(grating, -1))
         .filter(|d| d.reflection)
     else {
         return summary;
@@ -234,7 +235,7 @@ pub fn trace_camera_path_until(
     // at every contact; at the back face the wave toward the air face travels +z and vice
     // versa, so both faces see the same pair of passes in opposite order.
     let toward_back = grating.undiffracted(u_g, 1.0, lambda_nm);
-    let toward_front = grating.undiffracted_with(u_g, -1.0, lambda_nm, Some((-1, top.eta)));
+    let toward_front = grating.undiffracted_from(top_wave, u_g, Some((-1, top.eta)));
     let cont_bottom = mul(mul(toward_back, r_film), toward_front);
     let cont_top = if wg.covered && wg.cover_frustrates_tir {
         [0.0, 0.0]

@@ -138,6 +138,13 @@ impl VolumeGrating {
         lambda_nm: f64,
         order: i32,
     ) -> Option<Diffraction> {
+        self.incident(u, z_sign, lambda_nm)?.order(self, order)
+    }
+
+    /// The incident wave's quantities shared by all its orders; `None` if it cannot enter
+    /// the film.
+    #[inline]
+    pub(crate) fn incident(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> Option<Incident> {
         let k_vac = 2.0 * PI / lambda_nm;
         let beta = k_vac * self.n_film;
         let beta2 = beta * beta;
@@ -146,8 +153,40 @@ impl VolumeGrating {
         if rz2 <= 0.0 {
             return None;
         }
-        let rho = rho_t.extend(z_sign * rz2.sqrt());
-        let sigma = rho - f64::from(order) * self.k_rad_per_nm;
+        Some(Incident {
+            z_sign,
+            lambda_nm,
+            k_vac,
+            beta,
+            beta2,
+            rho: rho_t.extend(z_sign * rz2.sqrt()),
+        })
+    }
+}
+
+/// A plane wave inside the film, before diffraction (see [`VolumeGrating::diffract`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Incident {
+    z_sign: f64,
+    lambda_nm: f64,
+    k_vac: f64,
+    beta: f64,
+    beta2: f64,
+    rho: DVec3,
+}
+
+impl Incident {
+    /// Diffraction of this wave by `g` into order `order`; `None` if the order is evanescent.
+    pub(crate) fn order(&self, g: &VolumeGrating, order: i32) -> Option<Diffraction> {
+        let Incident {
+            z_sign,
+            lambda_nm,
+            k_vac,
+            beta,
+            beta2,
+            rho,
+        } = *self;
+        let sigma = rho - f64::from(order) * g.k_rad_per_nm;
         let kd_t = sigma.truncate();
         let kz2 = beta2 - kd_t.length_squared();
         if kz2 <= 0.0 {
@@ -165,12 +204,12 @@ impl VolumeGrating {
             return None;
         }
         let dkz = kd_z - sigma.z;
-        let d = self.thickness_nm;
+        let d = g.thickness_nm;
         let reflection = c_s < 0.0;
         let kd = kd_t.extend(kd_z);
         let cos_pp = (rho.dot(kd) / beta2).abs();
-        let kappa_s = PI * self.n1 / lambda_nm;
-        let eta = if self.alpha0_per_nm == 0.0 {
+        let kappa_s = PI * g.n1 / lambda_nm;
+        let eta = if g.alpha0_per_nm == 0.0 {
             let nu_s = kappa_s * d / (c_r * c_s.abs()).sqrt();
             let xi = 0.5 * dkz.abs() * d;
             if reflection {
@@ -185,7 +224,7 @@ impl VolumeGrating {
             let theta = c_s * dkz * z_sign;
             let cw = |kappa: f64| CoupledWave {
                 kappa: Complex64::new(kappa, 0.0),
-                alpha0: self.alpha0_per_nm,
+                alpha0: g.alpha0_per_nm,
                 theta,
                 c_r,
                 c_s,
@@ -198,14 +237,14 @@ impl VolumeGrating {
         } else {
             let nu_s = kappa_s * d / (c_r * c_s).sqrt();
             let xi = 0.5 * dkz.abs() * d;
-            let att = (-self.alpha0_per_nm * d * (1.0 / c_r + 1.0 / c_s)).exp();
+            let att = (-g.alpha0_per_nm * d * (1.0 / c_r + 1.0 / c_s)).exp();
             [
                 kogelnik::transmission_lossless(nu_s, xi) * att,
                 kogelnik::transmission_lossless(nu_s * cos_pp, xi) * att,
             ]
         };
         // Both envelopes must vary slowly: the smaller obliquity decides (reciprocal).
-        let taper = svea_taper(self.n1, self.n_film, c_r.min(c_s.abs()));
+        let taper = svea_taper(g.n1, g.n_film, c_r.min(c_s.abs()));
         Some(Diffraction {
             u: kd_t / k_vac,
             z_sign: kd_z.signum(),
@@ -213,7 +252,9 @@ impl VolumeGrating {
             reflection,
         })
     }
+}
 
+impl VolumeGrating {
     /// Mean-absorption factor exp(−2α0 d/c_R) of the film for a wave with direction cosines
     /// `u` crossing it once (1 for a lossless film or a wave that cannot enter).
     #[inline]
@@ -246,11 +287,26 @@ impl VolumeGrating {
         lambda_nm: f64,
         known: Option<(i32, [f64; 2])>,
     ) -> [f64; 2] {
+        // The incident wave once for both orders (the same values `efficiency` computes).
+        self.undiffracted_from(self.incident(u, z_sign, lambda_nm), u, known)
+    }
+
+    /// [`Self::undiffracted_with`] of the wave `incident` = `self.incident(u, …)` (computed
+    /// once for several uses).
+    #[inline]
+    pub(crate) fn undiffracted_from(
+        &self,
+        incident: Option<Incident>,
+        u: DVec2,
+        known: Option<(i32, [f64; 2])>,
+    ) -> [f64; 2] {
         let mut t = [1.0, 1.0];
         for order in [1, -1] {
             let eta = match known {
                 Some((o, eta)) if o == order => eta,
-                _ => self.efficiency(u, z_sign, lambda_nm, order),
+                _ => incident
+                    .and_then(|w| w.order(self, order))
+                    .map_or([0.0, 0.0], |d| d.eta),
             };
             t[0] -= eta[0];
             t[1] -= eta[1];
