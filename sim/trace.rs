@@ -234,7 +234,7 @@ pub fn trace_camera_path_until(
     // wave travelling −z is the one the top vHOE out-couples (order −1, `top.eta`), the same
     // at every contact; at the back face the wave toward the air face travels +z and vice
     // versa, so both faces see the same pair of passes in opposite order.
-    let toward_back = grating.undiffracted(u_g, 1.0, lambda_nm);
+    let toward_back = grating.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
     let toward_front = grating.undiffracted_from(top_wave, u_g, Some((-1, top.eta)));
     let cont_bottom = mul(mul(toward_back, r_film), toward_front);
     let cont_top = if wg.covered && wg.cover_frustrates_tir {

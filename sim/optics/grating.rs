@@ -176,6 +176,17 @@ pub(crate) struct Incident {
 }
 
 impl Incident {
+    /// The same wave travelling the other way along z (u unchanged): exactly what
+    /// `incident(u, −z_sign, λ)` computes, without recomputing it.
+    #[inline]
+    pub(crate) fn reversed(self) -> Incident {
+        Incident {
+            z_sign: -self.z_sign,
+            rho: DVec3::new(self.rho.x, self.rho.y, -self.rho.z),
+            ..self
+        }
+    }
+
     /// Diffraction of this wave by `g` into order `order`; `None` if the order is evanescent.
     pub(crate) fn order(&self, g: &VolumeGrating, order: i32) -> Option<Diffraction> {
         let Incident {
@@ -376,6 +387,29 @@ mod tests {
         let (d, _) = order_at(0.5);
         assert!(d.eta[0] > 0.0);
         assert_eq!(svea_taper(g.n1, g.n_film, 0.38), 1.0);
+    }
+
+    #[test]
+    fn reversed_incident_is_exact() {
+        let g = paper(0.015);
+        for (u, lam) in [
+            (DVec2::new(0.1, 0.9), 530.0),
+            (DVec2::new(-0.2, 1.1), 610.5),
+        ] {
+            for z in [1.0, -1.0] {
+                let w = g.incident(u, z, lam).unwrap();
+                let r = w.reversed();
+                let want = g.incident(u, -z, lam).unwrap();
+                assert_eq!(r.z_sign, want.z_sign);
+                assert_eq!(
+                    r.rho.to_array().map(f64::to_bits),
+                    want.rho.to_array().map(f64::to_bits)
+                );
+                for order in [-1, 1] {
+                    assert_eq!(r.order(&g, order), want.order(&g, order));
+                }
+            }
+        }
     }
 
     #[test]
