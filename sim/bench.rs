@@ -76,11 +76,17 @@ pub enum ErrorMeasure {
     Halves,
 }
 
-fn timed_render(sys: &System, spp: u32, seed: u64, estimator: Estimator) -> (Vec<Vec<f32>>, f64) {
+fn timed_render(
+    sys: &System,
+    spp: u32,
+    seed: u64,
+    estimator: Estimator,
+    sampler: SamplerKind,
+) -> (Vec<Vec<f32>>, f64) {
     let set = RenderSettings {
         spp,
         seed,
-        sampler: SamplerKind::Lattice,
+        sampler,
         spectral_bins: None,
         progress: false,
     };
@@ -89,13 +95,14 @@ fn timed_render(sys: &System, spp: u32, seed: u64, estimator: Estimator) -> (Vec
     (cap.channels, t0.elapsed().as_secs_f64())
 }
 
-/// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` until `budget_s`
+/// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` and `sampler` until `budget_s`
 /// seconds have been spent (or `max_spp`), measuring each render's error. With `progress`,
 /// the seconds of the budget spent are shown (see [`crate::progress`]).
 #[allow(clippy::too_many_arguments)]
 pub fn measure_curve(
     sys: &System,
     estimator: Estimator,
+    sampler: SamplerKind,
     name: &str,
     reference: &[Vec<f32>],
     measure: ErrorMeasure,
@@ -119,7 +126,7 @@ pub fn measure_curve(
     while spp <= max_spp && spent < budget_s {
         let (seconds, err) = match measure {
             ErrorMeasure::Reference => {
-                let (img, t) = timed_render(sys, spp, 7, estimator);
+                let (img, t) = timed_render(sys, spp, 7, estimator, sampler);
                 let pairs: Vec<(&[f32], &[f32])> = img
                     .iter()
                     .zip(reference)
@@ -128,8 +135,8 @@ pub fn measure_curve(
                 (t, relative_rmse(&pairs))
             }
             ErrorMeasure::Halves => {
-                let (a, ta) = timed_render(sys, spp / 2, 7, estimator);
-                let (b, tb) = timed_render(sys, spp / 2, 8, estimator);
+                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler);
+                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler);
                 let (mut num, mut den) = (0.0f64, 0.0f64);
                 for (ca, cb) in a.iter().zip(&b) {
                     for (x, y) in ca.iter().zip(cb) {

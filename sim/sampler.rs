@@ -28,6 +28,105 @@ pub enum SamplerKind {
     Lattice,
     /// Independent hashed uniforms.
     Independent,
+    /// Owen-scrambled 5-D Sobol' points (see [`sobol`]).
+    Sobol,
+}
+
+/// Owen-scrambled Sobol' points in 5 dimensions (Sobol' 1967 with the direction numbers of
+/// Joe & Kuo 2008, `new-joe-kuo-6.21201`, dimensions 1–5; the nested uniform scramble of Owen
+/// 1995 in the hash-based form of Burley 2020, "Practical Hash-based Owen Scrambling", JCGT
+/// 9(4), with the permutation constants of Vegdahl 2021). One Owen scramble of the index (it
+/// maps every aligned block of 2^m indices onto an aligned block) and one of each coordinate,
+/// all seeded from (seed, pixel): the first 2^m samples of a pixel are a scrambled (t, m, 5)-net,
+/// the pixel pair (dimensions 0, 1) a (0, m, 2)-net, and each sample is marginally uniform on
+/// [0, 1)^5. Unlike padding independent 2-D sets, the joint pixel–lens projections are
+/// stratified too, which matters here: where a ray meets the plate depends on both.
+pub mod sobol {
+    use super::DIMS;
+
+    /// Direction numbers (32-bit) from the degree `s`, coefficients `a` and initial `m` of a
+    /// primitive polynomial, by the Sobol'/Bratley–Fox recurrence.
+    const fn directions(s: usize, a: u32, m: [u32; 3]) -> [u32; 32] {
+        let mut v = [0u32; 32];
+        let mut k = 0;
+        while k < 32 {
+            if k < s {
+                v[k] = m[k] << (31 - k);
+            } else {
+                v[k] = v[k - s] ^ (v[k - s] >> s);
+                let mut j = 1;
+                while j < s {
+                    if (a >> (s - 1 - j)) & 1 != 0 {
+                        v[k] ^= v[k - j];
+                    }
+                    j += 1;
+                }
+            }
+            k += 1;
+        }
+        v
+    }
+
+    /// Direction numbers of the van der Corput sequence (bit reversal).
+    const fn van_der_corput() -> [u32; 32] {
+        let mut v = [0u32; 32];
+        let mut k = 0;
+        while k < 32 {
+            v[k] = 1 << (31 - k);
+            k += 1;
+        }
+        v
+    }
+
+    /// Dimension 1 is van der Corput's (every m = 1, no recurrence); then Joe & Kuo's
+    /// dimensions 2–5: (s, a, m) = (1, 0, 1), (2, 1, 1 3), (3, 1, 1 3 1), (3, 2, 1 1 1).
+    const DIRECTIONS: [[u32; 32]; DIMS] = [
+        van_der_corput(),
+        directions(1, 0, [1, 0, 0]),
+        directions(2, 1, [1, 3, 0]),
+        directions(3, 1, [1, 3, 1]),
+        directions(3, 2, [1, 1, 1]),
+    ];
+
+    /// The Sobol' point of `index` (natural order, not Gray code) as 32-bit fractions.
+    #[inline]
+    pub fn point(index: u32) -> [u32; DIMS] {
+        let mut x = [0u32; DIMS];
+        let mut i = index;
+        while i != 0 {
+            let k = i.trailing_zeros() as usize;
+            for (xd, dir) in x.iter_mut().zip(&DIRECTIONS) {
+                *xd ^= dir[k];
+            }
+            i &= i - 1;
+        }
+        x
+    }
+
+    /// Laine–Karras-style hash permutation with Vegdahl's constants: each bit is flipped by a
+    /// function of the bits below it and the seed.
+    #[inline]
+    fn lk_permute(mut x: u32, seed: u32) -> u32 {
+        x ^= x.wrapping_mul(0x3d20_adea);
+        x = x.wrapping_add(seed);
+        x = x.wrapping_mul((seed >> 16) | 1);
+        x ^= x.wrapping_mul(0x0552_6c56);
+        x ^= x.wrapping_mul(0x53a2_2864);
+        x
+    }
+
+    /// Nested uniform (Owen) scramble of a 32-bit fraction: each bit flipped by a hash of the
+    /// bits above it (more significant) and the seed.
+    #[inline]
+    pub fn owen_scramble(x: u32, seed: u32) -> u32 {
+        lk_permute(x.reverse_bits(), seed).reverse_bits()
+    }
+
+    /// A 32-bit fraction to the midpoint of its cell in (0, 1).
+    #[inline]
+    pub fn to_unit(x: u32) -> f64 {
+        (f64::from(x) + 0.5) * (1.0 / 4_294_967_296.0)
+    }
 }
 
 /// 64-bit finaliser (splitmix64).
@@ -162,6 +261,8 @@ pub struct PixelSampler {
     shift: [f64; DIMS],
     alpha: [f64; DIMS],
     rule: Option<LatticeRule>,
+    /// Owen-scramble seeds: the index's, then one per dimension.
+    owen: [u32; 1 + DIMS],
 }
 
 impl PixelSampler {
@@ -171,6 +272,13 @@ impl PixelSampler {
         for (d, s) in shift.iter_mut().enumerate() {
             *s = to_unit(hash(&[seed, pixel, d as u64, 0x0053_4849_4654]));
         }
+        let mut owen = [0u32; 1 + DIMS];
+        if kind == SamplerKind::Sobol {
+            let h = hash(&[seed, pixel, 0x0053_4F42_4F4C]);
+            for (k, o) in owen.iter_mut().enumerate() {
+                *o = (mix64(h ^ k as u64) >> 32) as u32;
+            }
+        }
         PixelSampler {
             kind,
             seed,
@@ -178,6 +286,7 @@ impl PixelSampler {
             shift,
             alpha: alphas(),
             rule: None,
+            owen,
         }
     }
 
@@ -244,6 +353,22 @@ impl PixelSampler {
                     *v = to_unit(hash(&[self.seed, self.pixel, index, d as u64]));
                 }
             }
+            (SamplerKind::Sobol, _) => {
+                // The index's low 32 bits run through the sequence; higher bits (past 2^32
+                // samples of one pixel) start an independently scrambled copy.
+                let i = index as u32;
+                let hi = index >> 32;
+                let mut o = self.owen;
+                if hi != 0 {
+                    for (k, ok) in o.iter_mut().enumerate() {
+                        *ok ^= (mix64(hi ^ ((k as u64) << 40)) >> 32) as u32;
+                    }
+                }
+                let x = sobol::point(sobol::owen_scramble(i, o[0]));
+                for (d, (ud, v)) in u.iter_mut().zip(x).enumerate() {
+                    *ud = sobol::to_unit(sobol::owen_scramble(v, o[1 + d]));
+                }
+            }
         }
         u
     }
@@ -297,6 +422,7 @@ mod tests {
             (SamplerKind::Lattice, LatticeRule::korobov(100)),
             (SamplerKind::Lattice, None),
             (SamplerKind::Independent, None),
+            (SamplerKind::Sobol, None),
         ] {
             let s = PixelSampler::new(kind, 5, 777).with_rule(rule);
             // Across the end of the lattice (index ≥ N wraps) and from unaligned starts.
@@ -317,7 +443,7 @@ mod tests {
 
     #[test]
     fn addressable_and_deterministic() {
-        for kind in [SamplerKind::Lattice, SamplerKind::Independent] {
+        for kind in [SamplerKind::Lattice, SamplerKind::Independent, SamplerKind::Sobol] {
             let a = PixelSampler::new(kind, 7, 12345);
             let b = PixelSampler::new(kind, 7, 12345);
             assert_eq!(a.get(99), b.get(99));
@@ -330,7 +456,7 @@ mod tests {
     /// critical value is 27.9).
     #[test]
     fn marginals_are_uniform() {
-        for kind in [SamplerKind::Lattice, SamplerKind::Independent] {
+        for kind in [SamplerKind::Lattice, SamplerKind::Independent, SamplerKind::Sobol] {
             let n_pix = 4000u64;
             let spp = 8u64;
             let mut bins = [[0u64; 10]; DIMS];
@@ -352,6 +478,108 @@ mod tests {
                 assert!(chi2 < 27.9, "{kind:?}: χ² = {chi2}");
             }
         }
+    }
+
+    /// The unscrambled Sobol' points equal the published sequence (Joe & Kuo's direction
+    /// numbers: scipy.stats.qmc.Sobol(5, scramble=False).random(16), which runs in Gray-code
+    /// order: its point k is index k ^ (k >> 1) here).
+    #[test]
+    fn sobol_points_equal_the_published_sequence() {
+        let scipy: [[f64; DIMS]; 16] = [
+            [0.0, 0.0, 0.0, 0.0, 0.0],
+            [0.5, 0.5, 0.5, 0.5, 0.5],
+            [0.75, 0.25, 0.25, 0.25, 0.75],
+            [0.25, 0.75, 0.75, 0.75, 0.25],
+            [0.375, 0.375, 0.625, 0.875, 0.375],
+            [0.875, 0.875, 0.125, 0.375, 0.875],
+            [0.625, 0.125, 0.875, 0.625, 0.625],
+            [0.125, 0.625, 0.375, 0.125, 0.125],
+            [0.1875, 0.3125, 0.9375, 0.4375, 0.5625],
+            [0.6875, 0.8125, 0.4375, 0.9375, 0.0625],
+            [0.9375, 0.0625, 0.6875, 0.1875, 0.3125],
+            [0.4375, 0.5625, 0.1875, 0.6875, 0.8125],
+            [0.3125, 0.1875, 0.3125, 0.5625, 0.9375],
+            [0.8125, 0.6875, 0.8125, 0.0625, 0.4375],
+            [0.5625, 0.4375, 0.0625, 0.8125, 0.1875],
+            [0.0625, 0.9375, 0.5625, 0.3125, 0.6875],
+        ];
+        for (k, want) in scipy.iter().enumerate() {
+            let g = (k ^ (k >> 1)) as u32;
+            let got = sobol::point(g).map(|v| f64::from(v) / 4_294_967_296.0);
+            assert_eq!(&got, want, "point {k}");
+        }
+    }
+
+    /// The smallest t for which `pts` (2^m points) is a (t, m, 2)-net: 2^t points in every
+    /// elementary box of area 2^(t − m).
+    fn net_quality(pts: &[(f64, f64)], m: u32) -> u32 {
+        let is_net = |t: u32| {
+            let k = m - t;
+            (0..=k).all(|a| {
+                let b = k - a;
+                let mut count = vec![0u32; 1 << k];
+                for &(x, y) in pts {
+                    let i = (x * f64::from(1u32 << a)) as usize;
+                    let j = (y * f64::from(1u32 << b)) as usize;
+                    count[(i << b) | j] += 1;
+                }
+                count.iter().all(|&c| c == 1 << t)
+            })
+        };
+        (0..=m).find(|&t| is_net(t)).unwrap_or(m + 1)
+    }
+
+    /// Every aligned block of 2^m scrambled samples of a pixel keeps the Sobol' net quality
+    /// (scipy's unscrambled points give t = 0 for the pixel pair and t ≤ 3 for every pair up to
+    /// m = 8): each coordinate one point per interval of 2^-m, every pair of dimensions a
+    /// (t ≤ 3, m, 2)-net. Independent points and a wrong direction number fail it.
+    #[test]
+    fn sobol_blocks_are_nets() {
+        let worst = |s: &PixelSampler, start: u64, m: u32| -> (u32, u32, u32) {
+            let us: Vec<_> = (start..start + (1 << m)).map(|i| s.get(i)).collect();
+            let mut one_d = 0;
+            let mut pairs = 0;
+            for d in 0..DIMS {
+                let p: Vec<_> = us.iter().map(|u| (u[d], 0.0)).collect();
+                // (x, 0) is a (t, m, 2)-net in the a = m boxes only if x is stratified.
+                let mut seen = vec![false; 1 << m];
+                for &(x, _) in &p {
+                    let i = (x * f64::from(1u32 << m)) as usize;
+                    if std::mem::replace(&mut seen[i], true) {
+                        one_d += 1;
+                    }
+                }
+                for e in d + 1..DIMS {
+                    let q: Vec<_> = us.iter().map(|u| (u[d], u[e])).collect();
+                    pairs = pairs.max(net_quality(&q, m));
+                }
+            }
+            let pix: Vec<_> = us.iter().map(|u| (u[0], u[1])).collect();
+            (one_d, pairs, net_quality(&pix, m))
+        };
+        for pixel in 0..12u64 {
+            let s = PixelSampler::new(SamplerKind::Sobol, 9, pixel);
+            for m in 0..=8u32 {
+                for block in [0u64, 1, 5] {
+                    let (one_d, pairs, pix) = worst(&s, block << m, m);
+                    assert_eq!(one_d, 0, "pixel {pixel} m {m} block {block}: 1-D strata");
+                    assert!(pairs <= 3, "pixel {pixel} m {m} block {block}: t = {pairs}");
+                    assert_eq!(pix, 0, "pixel {pixel} m {m} block {block}: pixel pair");
+                }
+            }
+        }
+        // Controls: independent points are not nets; neither is a flipped direction number.
+        let ind = PixelSampler::new(SamplerKind::Independent, 9, 3);
+        let (one_d, pairs, _) = worst(&ind, 0, 6);
+        assert!(one_d > 0 && pairs > 3);
+        let broken: Vec<_> = (0..64u32)
+            .map(|i| {
+                let x = sobol::point(i);
+                let y = if i & 4 != 0 { x[1] ^ (1 << 29) ^ (1 << 30) } else { x[1] };
+                (f64::from(x[0]) / 4_294_967_296.0, f64::from(y) / 4_294_967_296.0)
+            })
+            .collect();
+        assert!(net_quality(&broken, 6) > 0);
     }
 
     /// Within a pixel the lattice is far better stratified than independent samples: the
@@ -381,6 +609,9 @@ mod tests {
             rms(SamplerKind::Independent, None),
         );
         let kor = rms(SamplerKind::Lattice, LatticeRule::korobov(64));
+        let sob = rms(SamplerKind::Sobol, None);
+        eprintln!("rms error: lattice {lat}, korobov {kor}, sobol {sob}, independent {ind}");
+        assert!(sob < 0.25 * ind, "sobol {sob} independent {ind}");
         assert!(lat < 0.25 * ind, "lattice {lat} independent {ind}");
         assert!(kor < 0.25 * ind, "korobov {kor} independent {ind}");
     }

@@ -148,9 +148,10 @@ fn render<'py>(
     let sampler = match sampler {
         "lattice" => SamplerKind::Lattice,
         "independent" => SamplerKind::Independent,
+        "sobol" => SamplerKind::Sobol,
         other => {
             return Err(value_error(format!(
-                "sampler {other:?}: expected \"lattice\" or \"independent\""
+                "sampler {other:?}: expected \"lattice\", \"independent\" or \"sobol\""
             )));
         }
     };

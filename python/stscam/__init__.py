@@ -133,7 +133,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
            frontal_px: Optional[tuple[int, int]] = None) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed`` and ``sampler``
-    give the values of ``capture.exr`` (for any ``threads``)."""
+    give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
+    ``"lattice"`` (default), ``"independent"`` or ``"sobol"``."""
     s = _scene(scene)
     d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
                        None if frontal_px is None else tuple(frontal_px))

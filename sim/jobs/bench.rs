@@ -458,13 +458,20 @@ fn cmd_bench_render(
     };
     let ref_s = t0.elapsed().as_secs_f64();
     let mut curves = Vec::new();
-    for (est, name) in [
+    for (est, sampler, name) in [
         (
             Estimator::Bragg,
+            SamplerKind::Lattice,
             "stscam: Bragg sampling + replica splitting (default)",
         ),
         (
+            Estimator::Bragg,
+            SamplerKind::Sobol,
+            "stscam: the default with Owen-scrambled Sobol' points",
+        ),
+        (
             Estimator::UniformAnalog,
+            SamplerKind::Lattice,
             "stscam: uniform wavelengths + Russian roulette",
         ),
     ] {
@@ -472,6 +479,7 @@ fn cmd_bench_render(
             measure_curve(
                 &sys,
                 est,
+                sampler,
                 name,
                 &reference,
                 measure,

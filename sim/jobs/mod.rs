@@ -121,6 +121,8 @@ pub enum SamplerArg {
     Lattice,
     /// Independent hashed random numbers.
     Independent,
+    /// Owen-scrambled Sobol' points, padded: pixel and lens each a 2-D (0, 2)-sequence.
+    Sobol,
 }
 
 /// Most timed runs of a benchmark figure (`bench recon --runs`).

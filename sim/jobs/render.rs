@@ -61,6 +61,7 @@ fn cmd_render(
         sampler: match sampler {
             SamplerArg::Lattice => SamplerKind::Lattice,
             SamplerArg::Independent => SamplerKind::Independent,
+            SamplerArg::Sobol => SamplerKind::Sobol,
         },
         spectral_bins: bins,
         progress: true,
