@@ -443,7 +443,11 @@ mod tests {
 
     #[test]
     fn addressable_and_deterministic() {
-        for kind in [SamplerKind::Lattice, SamplerKind::Independent, SamplerKind::Sobol] {
+        for kind in [
+            SamplerKind::Lattice,
+            SamplerKind::Independent,
+            SamplerKind::Sobol,
+        ] {
             let a = PixelSampler::new(kind, 7, 12345);
             let b = PixelSampler::new(kind, 7, 12345);
             assert_eq!(a.get(99), b.get(99));
@@ -456,7 +460,11 @@ mod tests {
     /// critical value is 27.9).
     #[test]
     fn marginals_are_uniform() {
-        for kind in [SamplerKind::Lattice, SamplerKind::Independent, SamplerKind::Sobol] {
+        for kind in [
+            SamplerKind::Lattice,
+            SamplerKind::Independent,
+            SamplerKind::Sobol,
+        ] {
             let n_pix = 4000u64;
             let spp = 8u64;
             let mut bins = [[0u64; 10]; DIMS];
@@ -575,8 +583,15 @@ mod tests {
         let broken: Vec<_> = (0..64u32)
             .map(|i| {
                 let x = sobol::point(i);
-                let y = if i & 4 != 0 { x[1] ^ (1 << 29) ^ (1 << 30) } else { x[1] };
-                (f64::from(x[0]) / 4_294_967_296.0, f64::from(y) / 4_294_967_296.0)
+                let y = if i & 4 != 0 {
+                    x[1] ^ (1 << 29) ^ (1 << 30)
+                } else {
+                    x[1]
+                };
+                (
+                    f64::from(x[0]) / 4_294_967_296.0,
+                    f64::from(y) / 4_294_967_296.0,
+                )
             })
             .collect();
         assert!(net_quality(&broken, 6) > 0);
