@@ -68,6 +68,18 @@ def test_render_equals_cli_capture_exr(scene, tmp_path):
     assert not same_bits(stscam.render(scene, spp=SPP, seed=4).image, exr["Y"])
 
 
+def test_render_samplers_equal_cli(scene, tmp_path):
+    for sampler in ("sobol", "independent"):
+        out = tmp_path / sampler
+        cli("render", "--out", out, "--spp", SPP, "--sampler", sampler, *set_args(SETS))
+        r = stscam.render(scene, spp=SPP, sampler=sampler)
+        assert same_bits(r.image, stscam.read_exr(out / "capture.exr")["Y"])
+        # Each sampler gives other numbers than the default lattice's.
+        assert not same_bits(r.image, stscam.render(scene, spp=SPP).image)
+    with pytest.raises(ValueError, match="sobol"):
+        stscam.render(scene, spp=SPP, sampler="halton")
+
+
 def test_render_is_the_same_for_any_thread_count(scene):
     a = stscam.render(scene, spp=SPP, seed=5, threads=1).image
     b = stscam.render(scene, spp=SPP, seed=5, threads=2).image
