@@ -297,6 +297,8 @@ fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LineP
             .map(|c| crate::plot::Series {
                 name: if c.name.contains("(default)") {
                     "stscam (default)".to_string()
+                } else if c.name.contains("Sobol") {
+                    "stscam, Sobol' points".to_string()
                 } else if c.name.contains("Russian roulette") {
                     "uniform + roulette".to_string()
                 } else {
