@@ -548,11 +548,10 @@ mod tests {
             let mut one_d = 0;
             let mut pairs = 0;
             for d in 0..DIMS {
-                let p: Vec<_> = us.iter().map(|u| (u[d], 0.0)).collect();
-                // (x, 0) is a (t, m, 2)-net in the a = m boxes only if x is stratified.
+                // One point in each interval of 2^-m: count the intervals hit twice.
                 let mut seen = vec![false; 1 << m];
-                for &(x, _) in &p {
-                    let i = (x * f64::from(1u32 << m)) as usize;
+                for u in &us {
+                    let i = (u[d] * f64::from(1u32 << m)) as usize;
                     if std::mem::replace(&mut seen[i], true) {
                         one_d += 1;
                     }

@@ -121,7 +121,7 @@ pub enum SamplerArg {
     Lattice,
     /// Independent hashed random numbers.
     Independent,
-    /// Owen-scrambled Sobol' points, padded: pixel and lens each a 2-D (0, 2)-sequence.
+    /// Owen-scrambled 5-D Sobol' points (`sampler::sobol`).
     Sobol,
 }
 
