@@ -95,6 +95,34 @@ fn timed_render(
     (cap.channels, t0.elapsed().as_secs_f64())
 }
 
+/// Which sample sequence a curve renders with at each sample count.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CurveSampler {
+    /// The same kind at every spp.
+    Kind(SamplerKind),
+    /// The lattice as it was the default until 2026-11: a Korobov rule only where its worst
+    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 64), else R_5.
+    PreviousDefault,
+}
+
+impl CurveSampler {
+    /// The sampler kind used at `spp`.
+    pub fn at(self, spp: u32) -> SamplerKind {
+        match self {
+            CurveSampler::Kind(k) => k,
+            CurveSampler::PreviousDefault => {
+                match crate::sampler::LatticeRule::korobov_best(u64::from(spp)) {
+                    Some((_, q)) if q >= PREVIOUS_KOROBOV_MIN_QUALITY => SamplerKind::Lattice,
+                    _ => SamplerKind::R5,
+                }
+            }
+        }
+    }
+}
+
+/// The Korobov quality threshold of the previous default ([`CurveSampler::PreviousDefault`]).
+pub const PREVIOUS_KOROBOV_MIN_QUALITY: f64 = 0.15;
+
 /// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` and `sampler` until `budget_s`
 /// seconds have been spent (or `max_spp`), measuring each render's error. With `progress`,
 /// the seconds of the budget spent are shown (see [`crate::progress`]).
@@ -102,7 +130,7 @@ fn timed_render(
 pub fn measure_curve(
     sys: &System,
     estimator: Estimator,
-    sampler: SamplerKind,
+    sampler: CurveSampler,
     name: &str,
     reference: &[Vec<f32>],
     measure: ErrorMeasure,
@@ -126,7 +154,7 @@ pub fn measure_curve(
     while spp <= max_spp && spent < budget_s {
         let (seconds, err) = match measure {
             ErrorMeasure::Reference => {
-                let (img, t) = timed_render(sys, spp, 7, estimator, sampler);
+                let (img, t) = timed_render(sys, spp, 7, estimator, sampler.at(spp));
                 let pairs: Vec<(&[f32], &[f32])> = img
                     .iter()
                     .zip(reference)
@@ -135,8 +163,8 @@ pub fn measure_curve(
                 (t, relative_rmse(&pairs))
             }
             ErrorMeasure::Halves => {
-                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler);
-                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler);
+                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler.at(spp / 2));
+                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler.at(spp / 2));
                 let (mut num, mut den) = (0.0f64, 0.0f64);
                 for (ca, cb) in a.iter().zip(&b) {
                     for (x, y) in ca.iter().zip(cb) {

@@ -438,7 +438,7 @@ pub(crate) fn channel_weights(sys: &System, lambda_nm: f64) -> [f64; 4] {
 pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
     match set.sampler {
         SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
-        SamplerKind::Independent | SamplerKind::Sobol => None,
+        SamplerKind::R5 | SamplerKind::Independent | SamplerKind::Sobol => None,
     }
 }
 

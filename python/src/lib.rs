@@ -147,11 +147,12 @@ fn render<'py>(
     check_spp(spp)?;
     let sampler = match sampler {
         "lattice" => SamplerKind::Lattice,
+        "r5" => SamplerKind::R5,
         "independent" => SamplerKind::Independent,
         "sobol" => SamplerKind::Sobol,
         other => {
             return Err(value_error(format!(
-                "sampler {other:?}: expected \"lattice\", \"independent\" or \"sobol\""
+                "sampler {other:?}: expected \"lattice\", \"r5\", \"independent\" or \"sobol\""
             )));
         }
     };

@@ -297,6 +297,8 @@ fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LineP
             .map(|c| crate::plot::Series {
                 name: if c.name.contains("(default)") {
                     "stscam (default)".to_string()
+                } else if c.name.contains("previous default") {
+                    "previous default".to_string()
                 } else if c.name.contains("Sobol") {
                     "stscam, Sobol' points".to_string()
                 } else if c.name.contains("Russian roulette") {
@@ -371,7 +373,9 @@ fn cmd_bench_render(
     threads: Option<usize>,
     con: &Console,
 ) -> Result<(), Failure> {
-    use crate::bench::{Curve, ErrorMeasure, curves_markdown, measure_curve, time_to_error};
+    use crate::bench::{
+        Curve, CurveSampler, ErrorMeasure, curves_markdown, measure_curve, time_to_error,
+    };
     if replot {
         return replot_bench(out);
     }
@@ -463,17 +467,22 @@ fn cmd_bench_render(
     for (est, sampler, name) in [
         (
             Estimator::Bragg,
-            SamplerKind::Lattice,
+            CurveSampler::Kind(SamplerKind::Lattice),
             "stscam: Bragg sampling + replica splitting (default)",
         ),
         (
             Estimator::Bragg,
-            SamplerKind::Sobol,
+            CurveSampler::PreviousDefault,
+            "stscam: the previous default (R5 points except the Korobov rule at 64 spp)",
+        ),
+        (
+            Estimator::Bragg,
+            CurveSampler::Kind(SamplerKind::Sobol),
             "stscam: the default with Owen-scrambled Sobol' points",
         ),
         (
             Estimator::UniformAnalog,
-            SamplerKind::Lattice,
+            CurveSampler::Kind(SamplerKind::Lattice),
             "stscam: uniform wavelengths + Russian roulette",
         ),
     ] {

@@ -60,6 +60,7 @@ fn cmd_render(
         seed,
         sampler: match sampler {
             SamplerArg::Lattice => SamplerKind::Lattice,
+            SamplerArg::R5 => SamplerKind::R5,
             SamplerArg::Independent => SamplerKind::Independent,
             SamplerArg::Sobol => SamplerKind::Sobol,
         },
