@@ -70,42 +70,6 @@ pub fn concentric_disk(u: [f64; 2]) -> DVec2 {
     DVec2::new(r * phi.cos(), r * phi.sin())
 }
 
-/// Area of the disc of radius `r` centred at the origin inside the axis-aligned rectangle
-/// [x0, x1] × [y0, y1] (closed form: inclusion–exclusion over quadrant-like regions, each the
-/// integral of the clamped chord; exact to rounding).
-pub fn disc_rect_area(r: f64, x0: f64, x1: f64, y0: f64, y1: f64) -> f64 {
-    if !(x1 > x0 && y1 > y0 && r > 0.0) {
-        return 0.0;
-    }
-    let a = disc_below_left(r, x1, y1) - disc_below_left(r, x0, y1) - disc_below_left(r, x1, y0)
-        + disc_below_left(r, x0, y0);
-    a.clamp(0.0, (x1 - x0) * (y1 - y0))
-        .min(std::f64::consts::PI * r * r)
-}
-
-/// Area of the disc of radius `r` (centre 0) in the quadrant {X ≤ x, Y ≤ y}:
-/// ∫_{−r}^{x} (h(X) + clamp(y, −h(X), h(X))) dX with h = √(r² − X²).
-fn disc_below_left(r: f64, x: f64, y: f64) -> f64 {
-    let xc = x.clamp(-r, r);
-    // ∫_a^b h(X) dX through the primitive (X h + r² asin(X/r)) / 2.
-    let prim = |t: f64| {
-        let t = t.clamp(-r, r);
-        0.5 * (t * (r * r - t * t).max(0.0).sqrt() + r * r * (t / r).clamp(-1.0, 1.0).asin())
-    };
-    let int_h = |a: f64, b: f64| if b > a { prim(b) - prim(a) } else { 0.0 };
-    let whole = int_h(-r, xc);
-    let clamped = if y.abs() >= r {
-        y.signum() * whole
-    } else {
-        let s = (r * r - y * y).sqrt();
-        // |X| < s: the chord reaches beyond |y|, the clamp is y; elsewhere it is ±h.
-        let mid = (xc.min(s) - (-s)).max(0.0);
-        let outer = int_h(-r, xc.min(-s)) + int_h(s, xc);
-        y * mid + y.signum() * outer
-    };
-    whole + clamped
-}
-
 impl Camera {
     /// Position (mm) of a point in pixel (col, row) with in-pixel offsets `f` ∈ [0,1)², in the
     /// upright image plane centred on the optical axis (+x right, +y up).
@@ -213,43 +177,6 @@ mod tests {
         // Crop 440 px at 4.8 µm with f = 6 mm: half FOV ≈ 9.9°.
         let (v, h) = c.half_fov_rad();
         assert!((v.to_degrees() - 9.90).abs() < 0.05 && (h - v).abs() < 1e-15);
-    }
-
-    #[test]
-    fn disc_rect_area_matches_a_fine_grid_count() {
-        // Independent computation: count the centres of a 2000 x 2000 grid over the rectangle
-        // that fall inside the disc.
-        let cases = [
-            (0.75, -0.2, 0.3, -0.1, 0.4),
-            (0.75, 0.5, 0.9, 0.4, 0.8),
-            (0.75, -1.0, 1.0, -1.0, 1.0),
-            (0.75, -0.9, -0.5, -0.3, 0.2),
-            (1.0, 0.1, 0.6, -0.95, -0.45),
-            (1.0, 2.0, 3.0, 0.0, 1.0),
-        ];
-        for &(r, x0, x1, y0, y1) in &cases {
-            let n = 2000;
-            let mut inside = 0u64;
-            for i in 0..n {
-                for j in 0..n {
-                    let x = x0 + (x1 - x0) * (i as f64 + 0.5) / n as f64;
-                    let y = y0 + (y1 - y0) * (j as f64 + 0.5) / n as f64;
-                    inside += u64::from(x * x + y * y <= r * r);
-                }
-            }
-            let grid = (x1 - x0) * (y1 - y0) * inside as f64 / (n * n) as f64;
-            let a = disc_rect_area(r, x0, x1, y0, y1);
-            assert!(
-                (a - grid).abs() < 2e-4 * (x1 - x0) * (y1 - y0),
-                "{a} vs {grid}"
-            );
-        }
-        assert!(
-            (disc_rect_area(0.75, -1.0, 1.0, -1.0, 1.0) - std::f64::consts::PI * 0.5625).abs()
-                < 1e-12
-        );
-        // A deliberately wrong area (the rectangle's own) fails the same tolerance.
-        assert!((0.5 * 0.4 - disc_rect_area(0.75, 0.5, 0.9, 0.4, 0.8)).abs() > 0.01);
     }
 
     #[test]
