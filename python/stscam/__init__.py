@@ -134,7 +134,9 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            frontal_px: Optional[tuple[int, int]] = None) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed`` and ``sampler``
     give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
-    ``"lattice"`` (default), ``"independent"`` or ``"sobol"``."""
+    ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
+    the R5 sequence), ``"r5"`` (the R5 sequence at every ``spp``), ``"independent"`` or
+    ``"sobol"``."""
     s = _scene(scene)
     d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
                        None if frontal_px is None else tuple(frontal_px))
