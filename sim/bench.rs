@@ -101,7 +101,7 @@ pub enum CurveSampler {
     /// The same kind at every spp.
     Kind(SamplerKind),
     /// The lattice as it was the default until 2026-11: a Korobov rule only where its worst
-    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 64), else R_5.
+    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5.
     PreviousDefault,
 }
 

@@ -473,7 +473,7 @@ fn cmd_bench_render(
         (
             Estimator::Bragg,
             CurveSampler::PreviousDefault,
-            "stscam: the previous default (R5 points except the Korobov rule at 64 spp)",
+            "stscam: the previous default (R5 points except Korobov rules at 4 and 64 spp)",
         ),
         (
             Estimator::Bragg,

@@ -120,7 +120,7 @@ pub enum SamplerArg {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
     Lattice,
     /// The R_5 lattice sequence at every spp (the lattice's fallback; until 2026-11 the default
-    /// at every spp but 64).
+    /// at every spp but 4 and 64).
     R5,
     /// Independent hashed random numbers.
     Independent,
