@@ -9,22 +9,28 @@
 //!   Each sample is marginally uniform (unbiased); within a pixel the points are well spread
 //!   (quasi-Monte Carlo), which cuts the noise at edges and across the Bragg band.
 //!   When the sample count N is known (a render), the lattice is instead a rank-1 Korobov
-//!   lattice z = (1, a, a², a³, a⁴) mod N, found by searching a. Its worst two-dimensional
-//!   projection must reach a Zaremba index (the smallest max(1,|h_j|)·max(1,|h_k|) over its
-//!   dual vectors) of 0.095 N; among the rules that do, the one whose worst 3-D projection has
-//!   the largest Zaremba index is used. Its 2-D projections integrate edges (vHOE and target
+//!   lattice z = (1, a, a², a³, a⁴) mod N (Korobov 1959), found by searching a. Its worst
+//!   two-dimensional projection must reach a Zaremba index (the smallest
+//!   max(1,|h_j|)·max(1,|h_k|) over its dual vectors; Zaremba 1966, Niederreiter 1992 ch. 5,
+//!   Sloan & Joe 1994) of 0.095 N; among the rules that do, the one whose worst 3-D projection
+//!   has the largest Zaremba index is used. Its 2-D projections integrate edges (vHOE and target
 //!   boundaries) more accurately than those of R_5 (paper scene, relative RMSE against a
 //!   4096-spp reference: 2.2 % against 3.2 % at N = 64, 0.86 % against 1.11 % at 256, 0.58 %
 //!   against 0.82 % at 512). The 3-D step changes the rule only at N = 1024 and 2048 of the
-//!   powers of two, and renders better there (at 1024 the best 2-D rule lost to R_5; paper scene, 128 × 128
-//!   crop, seeds 1–3, against an 8192-spp reference: 1024 points 0.84–0.90 % with it, 0.69–0.75 %
-//!   with R_5, 0.63–0.71 % with the 3-D choice; 2048 points 0.36–0.42 %, 0.52–0.54 %,
-//!   0.32–0.34 %). Where no Korobov rule reaches 0.095 N (N = 16, 32, odd powers of small
-//!   primes, …) and above `MAX_KOROBOV_N` samples, R_5 is used.
+//!   powers of two, and renders better there (at 1024 the best 2-D rule lost to R_5; paper
+//!   scene, 128 × 128 crop, seeds 1–3, against an 8192-spp reference: 1024 points 0.84–0.90 %
+//!   with it, 0.69–0.75 % with R_5, 0.63–0.71 % with the 3-D choice; 2048 points 0.36–0.42 %,
+//!   0.52–0.54 %, 0.32–0.34 %). Where no Korobov rule reaches 0.095 N (N = 16, 32, odd powers
+//!   of small primes, …) and above `MAX_KOROBOV_N` samples, R_5 is used.
 //! - `R5`: the R_5 lattice sequence for every sample count (what `Lattice` falls back to).
 //! - `Independent`: every number an independent hash of (seed, pixel, index, dimension).
 //!
 //! Hash: the splitmix64/Murmur3 finaliser, applied to a chained combination of the inputs.
+//!
+//! Lattice sources: N. M. Korobov, Dokl. Akad. Nauk SSSR 124, 1207 (1959) (the rules
+//! (1, a, a², …)); S. K. Zaremba, Ann. Mat. Pura Appl. 73, 293 (1966) (the index);
+//! H. Niederreiter, Random Number Generation and Quasi-Monte Carlo Methods (SIAM 1992), ch. 5;
+//! I. H. Sloan & S. Joe, Lattice Methods for Multiple Integration (Oxford 1994).
 
 /// Number of dimensions a camera sample uses.
 pub const DIMS: usize = 5;
@@ -215,6 +221,16 @@ fn mod_inverse(a: u64, n: u64) -> Option<u64> {
     (r == 1).then(|| (if t < 0 { t + i128::from(n) } else { t }) as u64)
 }
 
+/// `r` (in 0..n) as the representative of its residue class in (−N/2, N/2].
+#[inline]
+fn centred(r: u64, n: u64) -> i64 {
+    if r > n / 2 {
+        r as i64 - n as i64
+    } else {
+        r as i64
+    }
+}
+
 /// Zaremba index of the 2-D lattice {(i·zj, i·zk) mod N}: the smallest
 /// max(1,|h_j|)·max(1,|h_k|) over nonzero dual vectors h (h_j·zj + h_k·zk ≡ 0 mod N).
 fn zaremba_2d(zj: u64, zk: u64, n: u64) -> u64 {
@@ -226,11 +242,7 @@ fn zaremba_2d(zj: u64, zk: u64, n: u64) -> u64 {
     for hj in 1..=half {
         // h_k ≡ −h_j·zj·zk⁻¹ (mod N), taken in (−N/2, N/2].
         let r = ((n - (hj as u64 * zj % n) % n) % n) * inv % n;
-        let hk = if r as i64 > half {
-            r as i64 - n as i64
-        } else {
-            r as i64
-        };
+        let hk = centred(r, n);
         best = best.min(hj as u64 * hk.unsigned_abs().max(1));
     }
     best
@@ -244,7 +256,6 @@ fn zaremba_3d(z: [u64; 3], n: u64, cap: u64) -> u64 {
         return 1;
     };
     let half = n as i64 / 2;
-    let centred = |r: u64| if r as i64 > half { r as i64 - n as i64 } else { r as i64 };
     let mut best = cap.min(n);
     // h = (h0, h1, h2) and −h are both dual vectors: take h0 ≥ 0, and h1 > 0 when h0 = 0.
     for h0 in 0..=half {
@@ -262,7 +273,7 @@ fn zaremba_3d(z: [u64; 3], n: u64, cap: u64) -> u64 {
                 continue;
             }
             let s = (h0 as u64 * z[0] % n + h1.rem_euclid(n as i64) as u64 * z[1] % n) % n;
-            let h2 = centred((n - s) % n * inv % n);
+            let h2 = centred((n - s) % n * inv % n, n);
             best = best.min(m01 * h2.unsigned_abs().max(1));
         }
     }
@@ -275,15 +286,34 @@ impl LatticeRule {
     /// n > `MAX_KOROBOV_N`). Among the rules that pass, the one whose worst 3-D projection has
     /// the largest Zaremba index is chosen, ties going to the larger worst 2-D index and then
     /// to the smallest a (deterministic).
+    ///
+    /// The search costs O(N²) (≈ 0.25 s at N = 4096), so its result is kept for the process:
+    /// datasets and sweeps render many times at one spp.
     pub fn korobov(n: u64) -> Option<LatticeRule> {
+        use std::collections::HashMap;
+        use std::sync::{Mutex, OnceLock};
+        static FOUND: OnceLock<Mutex<HashMap<u64, Option<LatticeRule>>>> = OnceLock::new();
+        let found = FOUND.get_or_init(Default::default);
+        // A panic elsewhere while the lock was held leaves the map valid: use it anyway.
+        if let Some(&rule) = found.lock().unwrap_or_else(|e| e.into_inner()).get(&n) {
+            return rule;
+        }
+        let rule = Self::korobov_search(n);
+        found
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(n, rule);
+        rule
+    }
+
+    /// The search behind [`Self::korobov`].
+    fn korobov_search(n: u64) -> Option<LatticeRule> {
         let min_index = KOROBOV_MIN_QUALITY * n as f64;
+        // `min_by_key` keeps the first of equal keys: ties go to the smallest a.
         korobov_rules(n)
             .filter(|&(_, worst2)| worst2 as f64 >= min_index)
             .map(|(rule, worst2)| (rule, worst2, rule.worst_zaremba_3d()))
-            .fold(None, |best: Option<(LatticeRule, u64, u64)>, c| match best {
-                Some(b) if (b.2, b.1) >= (c.2, c.1) => Some(b),
-                _ => Some(c),
-            })
+            .min_by_key(|&(_, worst2, worst3)| std::cmp::Reverse((worst3, worst2)))
             .map(|(rule, _, _)| rule)
     }
 
@@ -292,10 +322,7 @@ impl LatticeRule {
     /// [`Self::korobov`] would use it; `None` for n < 2 or n > `MAX_KOROBOV_N`.
     pub fn korobov_best(n: u64) -> Option<(LatticeRule, f64)> {
         korobov_rules(n)
-            .fold(None, |best: Option<(LatticeRule, u64)>, c| match best {
-                Some(b) if b.1 >= c.1 => Some(b),
-                _ => Some(c),
-            })
+            .min_by_key(|&(_, worst2)| std::cmp::Reverse(worst2))
             .map(|(r, w)| (r, w as f64 / n as f64))
     }
 
@@ -318,7 +345,11 @@ impl LatticeRule {
 /// Zaremba index of its worst 2-D projection. Empty for n < 2 or n > `MAX_KOROBOV_N`. Small
 /// powers of two have no good 5-D Korobov rule (a⁴ ≡ 1 mod 16 collapses two dimensions).
 fn korobov_rules(n: u64) -> impl Iterator<Item = (LatticeRule, u64)> {
-    let range = if (2..=MAX_KOROBOV_N).contains(&n) { 2..n } else { 2..2 };
+    let range = if (2..=MAX_KOROBOV_N).contains(&n) {
+        2..n
+    } else {
+        2..2
+    };
     range.filter(move |&a| gcd(a, n) == 1).map(move |a| {
         let mut z = [1u64; DIMS];
         for d in 1..DIMS {
