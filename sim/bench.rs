@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use crate::render::{Estimator, RenderSettings, relative_rmse, render_with};
+use crate::render::{Estimator, RenderSettings, UserSideSampler, relative_rmse, render_with};
 use crate::sampler::SamplerKind;
 use crate::system::System;
 
@@ -81,12 +81,13 @@ fn timed_render(
     spp: u32,
     seed: u64,
     estimator: Estimator,
-    sampler: SamplerKind,
+    (sampler, user_side): (SamplerKind, UserSideSampler),
 ) -> (Vec<Vec<f32>>, f64) {
     let set = RenderSettings {
         spp,
         seed,
         sampler,
+        user_side,
         spectral_bins: None,
         progress: false,
     };
@@ -101,20 +102,22 @@ pub enum CurveSampler {
     /// The same kind at every spp.
     Kind(SamplerKind),
     /// The lattice as it was the default until 2026-11: a Korobov rule only where its worst
-    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5.
+    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5; in
+    /// 3-D scenes, hashed numbers on the user side.
     PreviousDefault,
 }
 
 impl CurveSampler {
-    /// The sampler kind used at `spp`.
-    pub fn at(self, spp: u32) -> SamplerKind {
+    /// The sampler kind and the user side's numbers used at `spp`.
+    pub fn at(self, spp: u32) -> (SamplerKind, UserSideSampler) {
         match self {
-            CurveSampler::Kind(k) => k,
+            CurveSampler::Kind(k) => (k, UserSideSampler::Padded),
             CurveSampler::PreviousDefault => {
-                match crate::sampler::LatticeRule::korobov_best(u64::from(spp)) {
+                let kind = match crate::sampler::LatticeRule::korobov_best(u64::from(spp)) {
                     Some((_, q)) if q >= PREVIOUS_KOROBOV_MIN_QUALITY => SamplerKind::Lattice,
                     _ => SamplerKind::R5,
-                }
+                };
+                (kind, UserSideSampler::Hashed)
             }
         }
     }

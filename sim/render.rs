@@ -41,6 +41,20 @@ pub enum Estimator {
     UniformAnalog,
 }
 
+/// How the user-side path of a 3-D scene draws the numbers of its first vertex (each light's
+/// area sample and the first BSDF direction); every later number is hashed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum UserSideSampler {
+    /// Padded 2-D point sets shared by a pixel's samples ([`crate::sampler::padded`]), one per
+    /// (branch contact, purpose): the light and BSDF samples of a pixel's first vertices are
+    /// stratified. Hashed as well with `SamplerKind::Independent`.
+    #[default]
+    Padded,
+    /// Independent hashed numbers (the only behaviour until 2026-11).
+    Hashed,
+}
+
 /// Render settings that are not part of the scene.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {
@@ -50,6 +64,8 @@ pub struct RenderSettings {
     pub seed: u64,
     /// Sample sequence.
     pub sampler: SamplerKind,
+    /// 3-D scenes: how the user side draws the numbers of its first vertex.
+    pub user_side: UserSideSampler,
     /// Spectral bins (start nm, bin width nm, count), if spectral output is wanted.
     pub spectral_bins: Option<(f64, f64, usize)>,
     /// Show a progress bar on a terminal.
@@ -64,6 +80,7 @@ impl RenderSettings {
             spp,
             seed,
             sampler: crate::sampler::SamplerKind::Lattice,
+            user_side: Default::default(),
             spectral_bins: None,
             progress,
         }
@@ -354,6 +371,7 @@ fn world_sample(
     world: &crate::world::World,
     s: &CameraSample,
     key: [u64; 3],
+    padded_n: Option<u32>,
     stats: &mut RenderStats,
 ) -> f64 {
     use crate::world::integrator::{PathRng, branch_weights};
@@ -370,9 +388,14 @@ fn world_sample(
     let mut total = 0.0;
     for (exit, weight, contact) in branches {
         let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
+        if let Some(n) = padded_n {
+            // One padded set per (seed, pixel, branch contact), shared by the pixel's samples.
+            let pad_key = crate::sampler::hash(&[key[0], key[1], u64::from(contact), 0x00DA_DDED]);
+            rng = rng.with_padded(pad_key, key[2], n);
+        }
         let w = weight[0] + weight[1];
         let keep = if w < threshold { w / threshold } else { 1.0 };
-        if keep < 1.0 && rng.uniform() >= keep {
+        if keep < 1.0 && rng.single(crate::world::integrator::ROULETTE_SLOT) >= keep {
             continue;
         }
         let l = trace_exit(sys, world, s, exit, &mut rng, stats);
@@ -484,8 +507,12 @@ fn render_row(
     // it always was.
     match (sys.world.as_deref(), estimator) {
         (Some(world), Estimator::Bragg) => {
+            let padded_n = (set.user_side == UserSideSampler::Padded
+                && set.sampler != SamplerKind::Independent)
+                .then_some(set.spp);
             render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
-                s.ray.cos4 * world_sample(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
+                let v = world_sample(sys, world, s, [set.seed, pixel, i], padded_n, stats);
+                s.ray.cos4 * v / s.pdf
             })
         }
         (Some(world), Estimator::UniformAnalog) => {

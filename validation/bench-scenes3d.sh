@@ -4,9 +4,10 @@
 #     (`stscam bench bvh`, medians of 3 seeds) -> validation/results/scenes3d/bench-bvh.json;
 #  2. the eye-contact scene at 440x440: run time against relative RMSE (two independent half
 #     renders; time to 5 % and to 1 %);
-#  3. the mesh scene matched with Mitsuba 3 (validation/mitsuba/mesh-plain-glass.toml, through
-#     plain glass): stscam and, where out/mitsuba-venv exists (validation/mitsuba/run.sh makes
-#     it), Mitsuba 3, with the same reference-free error measure, side by side.
+#  3. the mesh scenes matched with Mitsuba 3 (validation/mitsuba/mesh-plain-glass.toml, through
+#     plain glass, and validation/mitsuba/mesh-waveguide.toml, through the waveguide): stscam
+#     and, where out/mitsuba-venv exists (validation/mitsuba/run.sh makes it), Mitsuba 3, with
+#     the same reference-free error measure, side by side.
 # Usage: validation/bench-scenes3d.sh [BUDGET_S]     (default 120)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -17,21 +18,23 @@ mkdir -p validation/results/scenes3d
 "$bin" bench bvh > validation/results/scenes3d/bench-bvh.json
 "$bin" bench render scenes/eye-contact.toml --crop 440 --error halves --target 0.01 \
     --budget-s "$budget" --out validation/results/eye-contact >/dev/null
-extra=()
-if [[ -x out/mitsuba-venv/bin/python ]]; then
-    info=$("$bin" info validation/mitsuba/mesh-plain-glass.toml --json)
-    focus=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['focus_distance_mm'])" "$info")
-    d0=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['sensor_distance_mm'])" "$info")
-    if [[ -e /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 ]]; then
-        export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
+for scene in mesh-plain-glass mesh-waveguide; do
+    extra=()
+    if [[ -x out/mitsuba-venv/bin/python ]]; then
+        info=$("$bin" info "validation/mitsuba/$scene.toml" --json)
+        focus=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['focus_distance_mm'])" "$info")
+        d0=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['sensor_distance_mm'])" "$info")
+        if [[ -e /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 ]]; then
+            export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
+        fi
+        mkdir -p out/mitsuba-home
+        HOME="$PWD/out/mitsuba-home" out/mitsuba-venv/bin/python validation/mitsuba/bench.py \
+            --scene "$scene" --out "out/bench-mitsuba-$scene.json" --budget-s "$((budget * 3))" \
+            --focus-mm "$focus" --sensor-mm "$d0"
+        extra=(--extra "out/bench-mitsuba-$scene.json")
     fi
-    mkdir -p out/mitsuba-home
-    HOME="$PWD/out/mitsuba-home" out/mitsuba-venv/bin/python validation/mitsuba/bench.py \
-        --scene mesh-plain-glass --out out/bench-mitsuba-mesh.json --budget-s "$((budget * 3))" \
-        --focus-mm "$focus" --sensor-mm "$d0"
-    extra=(--extra out/bench-mitsuba-mesh.json)
-fi
-"$bin" bench render validation/mitsuba/mesh-plain-glass.toml --error halves --budget-s "$budget" \
-    "${extra[@]}" --out validation/results/mesh-plain-glass >/dev/null
+    "$bin" bench render "validation/mitsuba/$scene.toml" --error halves --budget-s "$budget" \
+        "${extra[@]}" --out "validation/results/$scene" >/dev/null
+done
 cat validation/results/scenes3d/bench-bvh.json validation/results/eye-contact/bench-render.md \
-    validation/results/mesh-plain-glass/bench-render.md
+    validation/results/mesh-plain-glass/bench-render.md validation/results/mesh-waveguide/bench-render.md

@@ -132,7 +132,7 @@ fn scene_json(scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -143,8 +143,18 @@ fn render<'py>(
     sampler: &str,
     spectral: bool,
     frontal_px: Option<(usize, usize)>,
+    user_side: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
+    let user_side = match user_side {
+        "padded" => stscam::render::UserSideSampler::Padded,
+        "hashed" => stscam::render::UserSideSampler::Hashed,
+        other => {
+            return Err(value_error(format!(
+                "user_side {other:?}: expected \"padded\" or \"hashed\""
+            )));
+        }
+    };
     let sampler = match sampler {
         "lattice" => SamplerKind::Lattice,
         "r5" => SamplerKind::R5,
@@ -169,6 +179,7 @@ fn render<'py>(
             spp,
             seed,
             sampler,
+            user_side,
             spectral_bins: spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling)),
             progress: false,
         };

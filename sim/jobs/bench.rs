@@ -171,6 +171,7 @@ fn cmd_bench_recon(
         spp,
         seed: 1,
         sampler: SamplerKind::Lattice,
+        user_side: Default::default(),
         spectral_bins: None,
         progress: true,
     };
@@ -455,6 +456,7 @@ fn cmd_bench_render(
                     spp: ref_spp,
                     seed: 1_000_003,
                     sampler: SamplerKind::Lattice,
+                    user_side: Default::default(),
                     spectral_bins: None,
                     progress: true,
                 },
@@ -473,7 +475,7 @@ fn cmd_bench_render(
         (
             Estimator::Bragg,
             CurveSampler::PreviousDefault,
-            "stscam: the previous default (R5 points except Korobov rules at 4 and 64 spp)",
+            "stscam: the previous default (R5 points except Korobov rules at 4 and 64 spp; 3-D scenes: hashed user side)",
         ),
         (
             Estimator::Bragg,

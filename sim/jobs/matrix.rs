@@ -137,6 +137,7 @@ fn cmd_matrix(
         spp,
         seed,
         sampler: SamplerKind::Lattice,
+        user_side: Default::default(),
         spectral_bins: None,
         progress: true,
     };

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use crate::output::{CAPTURE_UNITS, write_capture_with};
-use crate::render::{RenderSettings, render};
+use crate::render::{RenderSettings, UserSideSampler, render};
 use crate::sampler::SamplerKind;
 
 use super::*;
@@ -27,6 +27,9 @@ pub struct RenderOptions {
     /// Sample sequence.
     #[arg(long, value_enum, default_value = "lattice")]
     pub sampler: SamplerArg,
+    /// 3-D scenes: numbers of the user side's first vertex (light and BSDF samples).
+    #[arg(long, value_enum, default_value = "padded")]
+    pub user_side: UserSideSampler,
     /// 3-D scenes: size of frontal.exr, depth.exr and mask.png, `N` or `WxH` (default: the
     /// capture's crop size).
     #[arg(long, value_name = "N|WxH")]
@@ -40,6 +43,7 @@ fn cmd_render(
     run: &RunArgs,
     spectral: bool,
     sampler: SamplerArg,
+    user_side: UserSideSampler,
     frontal_px: Option<&str>,
     con: &Console,
 ) -> Result<crate::render::Capture, Failure> {
@@ -64,6 +68,7 @@ fn cmd_render(
             SamplerArg::Independent => SamplerKind::Independent,
             SamplerArg::Sobol => SamplerKind::Sobol,
         },
+        user_side,
         spectral_bins: bins,
         progress: true,
     };
@@ -111,6 +116,7 @@ fn cmd_render(
             "lights": sys.scene.light.len(),
             "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
             "display_enabled": sys.scene.display.enabled,
+            "user_side": settings.user_side,
         });
         sidecar["frontal"] = serde_json::json!({
             "files": {
@@ -199,6 +205,7 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, J
         &o.run,
         o.spectral,
         o.sampler,
+        o.user_side,
         o.frontal_px.as_deref(),
         con,
     )

@@ -35,6 +35,9 @@ use crate::sampler::{mix64, to_unit};
 pub struct PathRng {
     key: u64,
     n: u64,
+    /// Until the first vertex is done: the padded sets' key, this sample's index and the
+    /// pixel's sample count.
+    padded: Option<(u64, u32, u32)>,
 }
 
 impl PathRng {
@@ -43,7 +46,46 @@ impl PathRng {
         PathRng {
             key: crate::sampler::hash(words),
             n: 0,
+            padded: None,
         }
+    }
+
+    /// The same stream, except that [`Self::pair`] takes point `index` of the `n`-point padded
+    /// sets keyed by `key` (and the slot) until [`Self::end_first_vertex`]. Ignored unless
+    /// `index` < `n`.
+    pub fn with_padded(mut self, key: u64, index: u64, n: u32) -> PathRng {
+        if index < u64::from(n) {
+            self.padded = Some((key, index as u32, n));
+        }
+        self
+    }
+
+    /// Two numbers in [0, 1) for purpose `slot` (at the first vertex: a light's index, or
+    /// [`BSDF_SLOT`]): a padded pair where one is set up, else the next two of the stream.
+    #[inline]
+    pub fn pair(&mut self, slot: u64) -> [f64; 2] {
+        match self.padded {
+            Some((key, index, n)) => {
+                crate::sampler::padded::pair(crate::sampler::hash(&[key, slot]), index, n)
+            }
+            None => [self.uniform(), self.uniform()],
+        }
+    }
+
+    /// One number in [0, 1) for purpose `slot`: the first of a padded pair where one is set
+    /// up, else the next of the stream.
+    #[inline]
+    pub fn single(&mut self, slot: u64) -> f64 {
+        match self.padded {
+            Some(_) => self.pair(slot)[0],
+            None => self.uniform(),
+        }
+    }
+
+    /// Ends the padded part: later pairs come from the stream.
+    #[inline]
+    pub fn end_first_vertex(&mut self) {
+        self.padded = None;
     }
 
     /// The next uniform number in [0, 1).
@@ -78,6 +120,12 @@ enum Hit {
     Display { t: f64, le: f64 },
     Escape,
 }
+
+/// The [`PathRng::pair`] slot of the first BSDF direction (emitters use their index).
+pub const BSDF_SLOT: u64 = u64::MAX;
+
+/// The [`PathRng::pair`] slot of the branch roulette's decision (its first number).
+pub const ROULETTE_SLOT: u64 = u64::MAX - 1;
 
 /// Up to this many emitters, next-event estimation samples each of them at every vertex.
 pub const ALL_EMITTERS_MAX: usize = 8;
@@ -200,14 +248,16 @@ impl World {
     fn sample_emitter(
         &self,
         disp: &Display,
-        e: Emitter,
+        slot: usize,
         p: DVec3,
         normal: DVec3,
         lambda_nm: f64,
         rng: &mut PathRng,
     ) -> Option<(DVec3, f64, f64, Option<f64>, Emitter)> {
+        let e = self.emitters[slot];
         let sel = self.selection_probability();
-        let (u0, u1, u2) = (rng.uniform(), rng.uniform(), rng.uniform());
+        let [u0, u1] = rng.pair(slot as u64);
+        let u2 = rng.uniform();
         match e {
             Emitter::Light(i) => {
                 let s = self.lights[i].sample(p, [u0, u1], lambda_nm)?;
@@ -355,7 +405,7 @@ impl World {
             };
             for k in picks {
                 let Some((wi, dist, li_over_pdf, pdf_l, e)) =
-                    self.sample_emitter(disp, self.emitters[k], p, ns, lambda_nm, rng)
+                    self.sample_emitter(disp, k, p, ns, lambda_nm, rng)
                 else {
                     continue;
                 };
@@ -379,7 +429,10 @@ impl World {
                 }
             }
             // BSDF sampling.
-            let Some(s) = bsdf.sample(wo_l, [rng.uniform(), rng.uniform(), rng.uniform()]) else {
+            let lobe = rng.uniform();
+            let [d0, d1] = rng.pair(BSDF_SLOT);
+            rng.end_first_vertex();
+            let Some(s) = bsdf.sample(wo_l, [lobe, d0, d1]) else {
                 break;
             };
             let wi = frame.to_world(s.wi);

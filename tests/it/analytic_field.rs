@@ -133,6 +133,7 @@ fn rendered_replica_rows_of_a_point_match_the_closed_form() {
         spp: 768,
         seed,
         sampler: SamplerKind::Independent,
+        user_side: Default::default(),
         spectral_bins: None,
         progress: false,
     };

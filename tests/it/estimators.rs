@@ -14,6 +14,7 @@ fn total(sys: &System, e: Estimator, spp: u32, seed: u64) -> (f64, f64) {
                 spp,
                 seed: seed + k,
                 sampler: SamplerKind::Independent,
+                user_side: Default::default(),
                 spectral_bins: None,
                 progress: false,
             };

@@ -33,6 +33,7 @@ fn render_job_returns_what_the_cli_writes() {
         },
         spectral: false,
         sampler: SamplerArg::Lattice,
+        user_side: Default::default(),
         frontal_px: None,
     };
     let cap = jobs::render::run(&opts, &Console::Silent).expect("render job");

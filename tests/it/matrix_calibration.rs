@@ -20,6 +20,7 @@ fn settings(spp: u32, seed: u64) -> RenderSettings {
         spp,
         seed,
         sampler: SamplerKind::Lattice,
+        user_side: Default::default(),
         spectral_bins: None,
         progress: false,
     }

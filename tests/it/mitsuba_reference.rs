@@ -108,6 +108,7 @@ fn render_y(sys: &System, seed: u64, spp: u32, n: usize) -> Vec<f64> {
             spp,
             seed,
             sampler: SamplerKind::Lattice,
+            user_side: Default::default(),
             spectral_bins: None,
             progress: false,
         },

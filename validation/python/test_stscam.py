@@ -119,6 +119,19 @@ def test_3d_scene_gives_frontal_depth_and_mask_equal_to_cli(tmp_path):
     assert np.isfinite(r.depth).any() and (r.mask > 0).any()
 
 
+def test_3d_user_side_hashed_equals_cli_and_differs_from_padded(tmp_path):
+    path = ROOT / "scenes" / "gesture.toml"
+    sets = {"sensor.crop_px": [24, 24], "sensor.pitch_um": 40.0}
+    cli("render", path, "--out", tmp_path, "--spp", 4, "--user-side", "hashed", *set_args(sets))
+    s = stscam.Scene(path, sets)
+    r = stscam.render(s, spp=4, user_side="hashed")
+    assert same_bits(r.image, stscam.read_exr(tmp_path / "capture.exr")["Y"])
+    assert json.load(open(tmp_path / "capture.json"))["world"]["user_side"] == "hashed"
+    assert not same_bits(r.image, stscam.render(s, spp=4).image)
+    with pytest.raises(ValueError, match="padded"):
+        stscam.render(s, spp=4, user_side="sobol")
+
+
 def test_matrix_equals_cli_npz_and_offset(scene, tmp_path):
     cli("matrix", "--out", tmp_path, "--spp", SPP, "--depth-mm", 480, *set_args(SETS))
     h_cli = scipy.sparse.load_npz(tmp_path / "H.npz")
