@@ -15,15 +15,7 @@ bin=target/release/stscam
 "$bin" bench render --budget-s "$budget" --ref-spp "$ref" --out validation/results/paper >/dev/null
 extra=()
 if [[ -x out/mitsuba-venv/bin/python ]]; then
-    info=$("$bin" info validation/mitsuba/waveguide.toml --json)
-    focus=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['focus_distance_mm'])" "$info")
-    d0=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['sensor_distance_mm'])" "$info")
-    if [[ -e /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 ]]; then
-        export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
-    fi
-    mkdir -p out/mitsuba-home
-    HOME="$PWD/out/mitsuba-home" out/mitsuba-venv/bin/python validation/mitsuba/bench.py \
-        --out out/bench-mitsuba.json --budget-s "$((budget * 5))" --focus-mm "$focus" --sensor-mm "$d0"
+    validation/mitsuba/curve.sh waveguide out/bench-mitsuba.json "$((budget * 5))"
     extra=(--extra out/bench-mitsuba.json)
 fi
 "$bin" bench render validation/mitsuba/waveguide.toml --error halves --budget-s "$budget" \

@@ -21,16 +21,7 @@ mkdir -p validation/results/scenes3d
 for scene in mesh-plain-glass mesh-waveguide; do
     extra=()
     if [[ -x out/mitsuba-venv/bin/python ]]; then
-        info=$("$bin" info "validation/mitsuba/$scene.toml" --json)
-        focus=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['focus_distance_mm'])" "$info")
-        d0=$(python3 -c "import json,sys; print(json.loads(sys.argv[1])['sensor_distance_mm'])" "$info")
-        if [[ -e /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 ]]; then
-            export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
-        fi
-        mkdir -p out/mitsuba-home
-        HOME="$PWD/out/mitsuba-home" out/mitsuba-venv/bin/python validation/mitsuba/bench.py \
-            --scene "$scene" --out "out/bench-mitsuba-$scene.json" --budget-s "$((budget * 3))" \
-            --focus-mm "$focus" --sensor-mm "$d0"
+        validation/mitsuba/curve.sh "$scene" "out/bench-mitsuba-$scene.json" "$((budget * 3))"
         extra=(--extra "out/bench-mitsuba-$scene.json")
     fi
     "$bin" bench render "validation/mitsuba/$scene.toml" --error halves --budget-s "$budget" \

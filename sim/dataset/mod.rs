@@ -564,8 +564,12 @@ pub struct Shard {
     pub count: usize,
 }
 
+/// Most shards of one dataset (a SLURM array holds at most a few hundred thousand tasks; a
+/// larger N is a typo, and every shard writes a manifest).
+pub const MAX_SHARDS: usize = 1_000_000;
+
 impl Shard {
-    /// Parses `I/N` (0 ≤ I < N).
+    /// Parses `I/N` (0 ≤ I < N ≤ [`MAX_SHARDS`]).
     pub fn parse(spec: &str) -> Result<Shard, String> {
         let (i, n) = spec
             .split_once('/')
@@ -580,6 +584,9 @@ impl Shard {
         );
         if n == 0 || i >= n {
             return Err(format!("{spec:?}: need 0 <= I < N"));
+        }
+        if n > MAX_SHARDS {
+            return Err(format!("{spec:?}: N must be at most {MAX_SHARDS}"));
         }
         Ok(Shard { index: i, count: n })
     }
@@ -1681,6 +1688,9 @@ mod tests {
         }
         assert!(Shard::parse("3/3").is_err());
         assert_eq!(Shard::parse("2/3").unwrap(), Shard { index: 2, count: 3 });
+        assert!(Shard::parse("0/1000000").is_ok());
+        let e = Shard::parse("0/1000000000000").unwrap_err();
+        assert!(e.contains("at most 1000000"), "{e}");
     }
 
     #[test]

@@ -305,7 +305,9 @@ fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LineP
                 } else if c.name.contains("Russian roulette") {
                     "uniform + roulette".to_string()
                 } else {
-                    c.name.chars().take(26).collect()
+                    // An extra curve: its name up to any parenthesis (Mitsuba 3.9.1).
+                    let head = c.name.split(" (").next().unwrap_or(&c.name);
+                    head.chars().take(26).collect()
                 },
                 points: c
                     .points
