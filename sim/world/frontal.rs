@@ -12,7 +12,9 @@
 //! response and capture unit (1 = display white) as the capture, but no waveguide, no lens
 //! falloff and no noise; pixel-area antialiasing with `spp` samples. Pixel position and
 //! wavelength come from the capture's rank-1 lattice (stratified within a pixel), the
-//! user-side path from a hash stream per (seed, pixel, sample). Depth and mask come from
+//! user-side path from a hash stream per (seed, pixel, sample) whose first vertex draws its
+//! light and BSDF numbers from padded sets stratified over the pixel's samples (as the
+//! capture's default, `render::UserSideSampler::Padded`). Depth and mask come from
 //! each pixel's centre ray: depth = −z of the first surface hit in mm (the display plane
 //! included, +inf where nothing is hit); mask = object index + 1 for objects, 65535 for the
 //! display, 0 for nothing (lights and the environment).
@@ -150,8 +152,10 @@ pub fn render_frontal(
                 let pixel = (r * width + c) as u64;
                 let sampler = PixelSampler::new(SamplerKind::Lattice, seed ^ 0xF80_17A1, pixel)
                     .with_rule(rule);
+                let pad_key = crate::sampler::hash(&[seed, pixel, 0xF80_17A1, 0x00DA_DDED]);
                 for i in 0..u64::from(spp) {
-                    let mut rng = PathRng::new(&[seed, pixel, i, 0xF80_17A1]);
+                    let mut rng =
+                        PathRng::new(&[seed, pixel, i, 0xF80_17A1]).with_padded(pad_key, i, spp);
                     let u = sampler.get(i);
                     let (ux, uy, ul) = (u[0], u[1], u[4]);
                     let d = direction(sys, width, height, c as f64 + ux, r as f64 + uy);
