@@ -390,7 +390,7 @@ fn world_sample(
         let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
         if let Some(n) = padded_n {
             // One padded set per (seed, pixel, branch contact), shared by the pixel's samples.
-            let pad_key = crate::sampler::hash(&[key[0], key[1], u64::from(contact), 0x00DA_DDED]);
+            let pad_key = PathRng::padded_key(&[key[0], key[1], u64::from(contact)]);
             rng = rng.with_padded(pad_key, key[2], n);
         }
         let w = weight[0] + weight[1];

@@ -105,30 +105,18 @@ pub mod sobol {
         directions(3, 2, [1, 1, 1]),
     ];
 
-    /// The Sobol' point of `index` (natural order, not Gray code) as 32-bit fractions.
+    /// The first `D` (≤ 5) coordinates of the Sobol' point of `index` (natural order, not Gray
+    /// code) as 32-bit fractions; `D` = 2 is a (0, 2)-sequence.
     #[inline]
-    pub fn point(index: u32) -> [u32; DIMS] {
-        let mut x = [0u32; DIMS];
+    pub fn point<const D: usize>(index: u32) -> [u32; D] {
+        const { assert!(D <= DIMS) };
+        let mut x = [0u32; D];
         let mut i = index;
         while i != 0 {
             let k = i.trailing_zeros() as usize;
             for (xd, dir) in x.iter_mut().zip(&DIRECTIONS) {
                 *xd ^= dir[k];
             }
-            i &= i - 1;
-        }
-        x
-    }
-
-    /// The first two coordinates of [`point`] (a (0, 2)-sequence).
-    #[inline]
-    pub fn point2(index: u32) -> [u32; 2] {
-        let mut x = [0u32; 2];
-        let mut i = index;
-        while i != 0 {
-            let k = i.trailing_zeros() as usize;
-            x[0] ^= DIRECTIONS[0][k];
-            x[1] ^= DIRECTIONS[1][k];
             i &= i - 1;
         }
         x
@@ -214,7 +202,7 @@ pub mod padded {
     pub fn pair(key: u64, index: u32, n: u32) -> [f64; 2] {
         let h = mix64(key);
         let j = permute(index, n, h as u32);
-        let x = sobol::point2(j);
+        let x = sobol::point::<2>(j);
         let s = mix64(h);
         [
             sobol::to_unit(sobol::owen_scramble(x[0], s as u32)),
@@ -554,7 +542,7 @@ impl PixelSampler {
                         *ok ^= (mix64(hi ^ ((k as u64) << 40)) >> 32) as u32;
                     }
                 }
-                let x = sobol::point(sobol::owen_scramble(i, o[0]));
+                let x = sobol::point::<DIMS>(sobol::owen_scramble(i, o[0]));
                 for (d, (ud, v)) in u.iter_mut().zip(x).enumerate() {
                     *ud = sobol::to_unit(sobol::owen_scramble(v, o[1 + d]));
                 }
@@ -786,7 +774,7 @@ mod tests {
         ];
         for (k, want) in scipy.iter().enumerate() {
             let g = (k ^ (k >> 1)) as u32;
-            let got = sobol::point(g).map(|v| f64::from(v) / 4_294_967_296.0);
+            let got = sobol::point::<DIMS>(g).map(|v| f64::from(v) / 4_294_967_296.0);
             assert_eq!(&got, want, "point {k}");
         }
     }
@@ -854,7 +842,7 @@ mod tests {
         assert!(one_d > 0 && pairs > 3);
         let broken: Vec<_> = (0..64u32)
             .map(|i| {
-                let x = sobol::point(i);
+                let x = sobol::point::<DIMS>(i);
                 let y = if i & 4 != 0 {
                     x[1] ^ (1 << 29) ^ (1 << 30)
                 } else {

@@ -152,7 +152,7 @@ pub fn render_frontal(
                 let pixel = (r * width + c) as u64;
                 let sampler = PixelSampler::new(SamplerKind::Lattice, seed ^ 0xF80_17A1, pixel)
                     .with_rule(rule);
-                let pad_key = crate::sampler::hash(&[seed, pixel, 0xF80_17A1, 0x00DA_DDED]);
+                let pad_key = PathRng::padded_key(&[seed, pixel, 0xF80_17A1]);
                 for i in 0..u64::from(spp) {
                     let mut rng =
                         PathRng::new(&[seed, pixel, i, 0xF80_17A1]).with_padded(pad_key, i, spp);

@@ -58,9 +58,16 @@ impl PathRng {
         }
     }
 
+    /// The key of the padded sets shared by the samples addressed by `words` (e.g. seed,
+    /// pixel, branch contact), for [`Self::with_padded`].
+    pub fn padded_key(words: &[u64]) -> u64 {
+        // hash(words ++ [tag]), the tag keeping these keys apart from the streams' own.
+        crate::sampler::mix64(crate::sampler::hash(words) ^ crate::sampler::mix64(0x00DA_DDED))
+    }
+
     /// The same stream, except that [`Self::pair`] takes point `index` of the `n`-point padded
-    /// sets keyed by `key` (and the slot) until [`Self::end_first_vertex`]. Ignored unless
-    /// `index` < `n`.
+    /// sets keyed by `key` ([`Self::padded_key`]; with the slot) until
+    /// [`Self::end_first_vertex`]. Ignored unless `index` < `n`.
     pub fn with_padded(mut self, key: u64, index: u64, n: u32) -> PathRng {
         if index < u64::from(n) {
             self.padded = Some((key, index as u32, n));
