@@ -105,13 +105,17 @@ pub enum CurveSampler {
     /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5; in
     /// 3-D scenes, hashed numbers on the user side.
     PreviousDefault,
+    /// The default lattice with every branch of every camera sample traced on the user side
+    /// (`UserSideSampler::Padded`: the 3-D default 2026-11-23 to 2026-11-26).
+    EveryBranch,
 }
 
 impl CurveSampler {
     /// The sampler kind and the user side's numbers used at `spp`.
     pub fn at(self, spp: u32) -> (SamplerKind, UserSideSampler) {
         match self {
-            CurveSampler::Kind(k) => (k, UserSideSampler::Padded),
+            CurveSampler::Kind(k) => (k, UserSideSampler::Auto),
+            CurveSampler::EveryBranch => (SamplerKind::Lattice, UserSideSampler::Padded),
             CurveSampler::PreviousDefault => {
                 let kind = match crate::sampler::LatticeRule::korobov_best(u64::from(spp)) {
                     Some((_, q)) if q >= PREVIOUS_KOROBOV_MIN_QUALITY => SamplerKind::Lattice,

@@ -41,19 +41,60 @@ pub enum Estimator {
     UniformAnalog,
 }
 
-/// How the user-side path of a 3-D scene draws the numbers of its first vertex (each light's
-/// area sample and the first BSDF direction); every later number is hashed.
+/// How a 3-D scene's user side is sampled: which branches get a user-side path, and how the
+/// path draws the numbers of its first vertex (each light's area sample and the first BSDF
+/// direction; every later number is hashed).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum UserSideSampler {
-    /// Padded 2-D point sets shared by a pixel's samples ([`crate::sampler::padded`]), one per
-    /// (branch contact, purpose): the light and BSDF samples of a pixel's first vertices are
-    /// stratified. Hashed as well with `SamplerKind::Independent`.
+    /// The default: `Resampled`, except in scenes with emissive meshes, where the camera sees
+    /// emission whose texture varies within a replica's branches as they spread over a pixel,
+    /// and drawing among them adds more noise than the shared paths save (`Padded` there).
+    /// [`Self::resolve`] gives the choice for a scene.
     #[default]
+    Auto,
+    /// The pixel's branches share user-side paths (the 3-D default since 2026-11-26): every camera
+    /// sample's branches are gathered per replica (plate contact), and each replica's sum is
+    /// estimated from paths traced from branches chosen in proportion to their weight, about
+    /// [`USER_SIDE_PATHS_PER_SAMPLE`] paths per camera sample in all, allotted to replicas by
+    /// weight (the estimator is described at `render_pixel_resampled`). First-vertex numbers as
+    /// `Padded`, over a replica's paths.
+    Resampled,
+    /// Every branch of every camera sample traced (weak ones through Russian roulette), with
+    /// padded 2-D point sets shared by a pixel's samples ([`crate::sampler::padded`]), one per
+    /// (branch contact, purpose): the light and BSDF samples of a pixel's first vertices are
+    /// stratified. Hashed as well with `SamplerKind::Independent`. The default 2026-11-23 to
+    /// 2026-11-26.
     Padded,
-    /// Independent hashed numbers (the only behaviour until 2026-11).
+    /// As `Padded` with independent hashed numbers (the only behaviour until 2026-11-23).
     Hashed,
 }
+
+impl UserSideSampler {
+    /// The estimator used for `world` (`Auto` resolved; the others as they are).
+    pub fn resolve(self, world: Option<&crate::world::World>) -> UserSideSampler {
+        match self {
+            UserSideSampler::Auto => {
+                if world.is_some_and(|w| w.materials.iter().any(|m| m.emits())) {
+                    UserSideSampler::Padded
+                } else {
+                    UserSideSampler::Resampled
+                }
+            }
+            other => other,
+        }
+    }
+}
+
+/// User-side paths per camera sample of [`UserSideSampler::Resampled`], on average over a
+/// pixel (eye-contact scene, 128 × 128, 128 spp, error² × time: 0.6 → 7.5, 1 → 6.8,
+/// 1.5 → 7.3).
+pub const USER_SIDE_PATHS_PER_SAMPLE: f64 = 1.0;
+
+/// [`UserSideSampler::Resampled`] gathers at most about this many branches before it traces
+/// their user side (a pixel with more is done in windows of whole camera samples), bounding
+/// its memory whatever the spp and the contact limit.
+pub const RESAMPLE_WINDOW_BRANCHES: usize = 16_384;
 
 /// Render settings that are not part of the scene.
 #[derive(Clone, Debug)]
@@ -107,6 +148,9 @@ pub struct RenderStats {
     /// 3-D scenes: rays traced on the user side (closest-hit and shadow rays).
     #[serde(skip_serializing_if = "is_zero")]
     pub scene_rays: u64,
+    /// 3-D scenes: user-side paths traced (one per traced branch).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub scene_paths: u64,
 }
 
 fn is_zero(v: &u64) -> bool {
@@ -124,6 +168,7 @@ impl RenderStats {
         self.max_truncated_weight = self.max_truncated_weight.max(o.max_truncated_weight);
         self.max_branch_weight = self.max_branch_weight.max(o.max_branch_weight);
         self.scene_rays += o.scene_rays;
+        self.scene_paths += o.scene_paths;
     }
 }
 
@@ -331,6 +376,7 @@ fn trace_exit(
         &mut counts,
     );
     stats.scene_rays += counts.rays;
+    stats.scene_paths += 1;
     l
 }
 
@@ -506,8 +552,13 @@ fn render_row(
     // One monomorphised loop per kind of sample value: the display-only loop is the tight one
     // it always was.
     match (sys.world.as_deref(), estimator) {
+        (Some(world), Estimator::Bragg)
+            if set.user_side.resolve(Some(world)) == UserSideSampler::Resampled =>
+        {
+            render_row_resampled(sys, set, world, rule, row, RESAMPLE_WINDOW_BRANCHES)
+        }
         (Some(world), Estimator::Bragg) => {
-            let padded_n = (set.user_side == UserSideSampler::Padded
+            let padded_n = (set.user_side.resolve(Some(world)) == UserSideSampler::Padded
                 && set.sampler != SamplerKind::Independent)
                 .then_some(set.spp);
             render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
@@ -569,36 +620,317 @@ fn render_row_with(
                     continue;
                 };
                 let base = value(s, pixel, i, &mut stats);
-                if !base.is_finite() {
-                    stats.nonfinite_samples += 1;
-                    continue;
-                }
-                let r = channel_weights(sys, s.lambda_nm);
-                for (a, rc) in acc.iter_mut().zip(r).take(nch) {
-                    *a += base * rc;
-                }
-                if let Some((start, width, n)) = set.spectral_bins {
-                    let k = ((s.lambda_nm - start) / width).floor();
-                    if k >= 0.0 && (k as usize) < n {
-                        spectral[col * nbins + k as usize] += base / width;
-                    }
-                }
+                let px_spectral = &mut spectral[col * nbins..(col + 1) * nbins];
+                add_sample(
+                    sys,
+                    set,
+                    &mut acc,
+                    px_spectral,
+                    base,
+                    s.lambda_nm,
+                    &mut stats,
+                );
             }
             first += len as u64;
         }
-        let inv = 1.0 / f64::from(set.spp.max(1));
-        for c in 0..nch {
-            values[col * nch + c] = acc[c] * inv;
-        }
-        for v in &mut spectral[col * nbins..(col + 1) * nbins] {
-            *v *= inv;
-        }
+        finish_pixel(
+            set,
+            acc,
+            &mut values[col * nch..(col + 1) * nch],
+            &mut spectral[col * nbins..(col + 1) * nbins],
+        );
     }
     RowResult {
         values,
         spectral,
         stats,
     }
+}
+
+/// Adds a sample's value `base` (before the sensor response) at `lambda_nm` to a pixel's
+/// channel sums `acc` and spectral bins `px_spectral`; a non-finite value is counted and
+/// dropped.
+#[inline(always)]
+fn add_sample(
+    sys: &System,
+    set: &RenderSettings,
+    acc: &mut [f64; 4],
+    px_spectral: &mut [f64],
+    base: f64,
+    lambda_nm: f64,
+    stats: &mut RenderStats,
+) {
+    if !base.is_finite() {
+        stats.nonfinite_samples += 1;
+        return;
+    }
+    let r = channel_weights(sys, lambda_nm);
+    for (a, rc) in acc.iter_mut().zip(r).take(sys.response.curves.len()) {
+        *a += base * rc;
+    }
+    if let Some((start, width, n)) = set.spectral_bins {
+        let k = ((lambda_nm - start) / width).floor();
+        if k >= 0.0 && (k as usize) < n {
+            px_spectral[k as usize] += base / width;
+        }
+    }
+}
+
+/// A pixel's values from its sums over `set.spp` samples.
+fn finish_pixel(
+    set: &RenderSettings,
+    acc: [f64; 4],
+    px_values: &mut [f64],
+    px_spectral: &mut [f64],
+) {
+    let inv = 1.0 / f64::from(set.spp.max(1));
+    for (v, a) in px_values.iter_mut().zip(acc) {
+        *v = a * inv;
+    }
+    for v in px_spectral {
+        *v *= inv;
+    }
+}
+
+/// One branch of a pixel's camera samples waiting for its user side
+/// ([`UserSideSampler::Resampled`]).
+#[derive(Clone, Copy, Debug)]
+struct PendingBranch {
+    /// The branch's plate contact (its replica, [`crate::trace::Branch::contact`]).
+    contact: u32,
+    /// The camera sample's index in the pixel.
+    sample: u32,
+    /// Front-face exit point, mm.
+    exit: glam::DVec2,
+    /// Energy fractions [TE, TM].
+    weight: [f64; 2],
+    /// The camera sample (ray, wavelength, density).
+    s: CameraSample,
+    /// Selection weight: the branch's weight to the sensor, ½(w_TE + w_TM)·cos⁴θ/p(λ)·Σ_c R_c(λ)
+    /// (without the response sum when spectral bins are written, which do not use it).
+    sel: f64,
+}
+
+/// Tag of the resampled user side's random streams (keeps them apart from the per-branch ones).
+const RESAMPLED_TAG: u64 = 0x5E5A_4D91_ED00_0000;
+
+/// The row loop of [`UserSideSampler::Resampled`], with windows of about `window_branches`
+/// branches.
+fn render_row_resampled(
+    sys: &System,
+    set: &RenderSettings,
+    world: &crate::world::World,
+    rule: Option<LatticeRule>,
+    row: usize,
+    window_branches: usize,
+) -> RowResult {
+    let w = sys.camera.width_px;
+    let nch = sys.response.curves.len();
+    let nbins = set.spectral_bins.map_or(0, |b| b.2);
+    let mut values = vec![0.0; w * nch];
+    let mut spectral = vec![0.0; w * nbins];
+    let mut stats = RenderStats::default();
+    let mut pending = Vec::new();
+    for col in 0..w {
+        let px_spectral = &mut spectral[col * nbins..(col + 1) * nbins];
+        let acc = render_pixel_resampled(
+            sys,
+            set,
+            world,
+            rule,
+            (col, row, window_branches),
+            &mut pending,
+            px_spectral,
+            &mut stats,
+        );
+        finish_pixel(
+            set,
+            acc,
+            &mut values[col * nch..(col + 1) * nch],
+            px_spectral,
+        );
+    }
+    RowResult {
+        values,
+        spectral,
+        stats,
+    }
+}
+
+/// One pixel of [`UserSideSampler::Resampled`]: the channel sums over its samples (spectral
+/// bins added into `px_spectral`), its branches traced in windows of whole camera samples
+/// holding at least `window_branches` branches (the last one fewer).
+///
+/// Estimator. The pixel's sum is Σ_i Σ_b v_ib·L_ib over camera samples i and their branches b,
+/// where v_ib (the branch's TE/TM weights, cos⁴θ/p(λ) and the channel responses at λ_i) comes
+/// from the cheap waveguide trace and L_ib (the radiance arriving along the branch's exit ray)
+/// from an expensive user-side path. Each sample's branches are gathered per replica
+/// (plate contact c); replica c's sum Σ_j v_j·L_j over its G_c branches, of total selection
+/// weight S_c = Σ_j s_j, is estimated from K_c user-side paths traced from branches drawn by
+/// systematic resampling in proportion to s_j (one uniform offset, the branches in sample
+/// order): (S_c/K_c)·Σ_k v_jk·L̂_jk/s_jk. Systematic resampling draws branch j K_c·s_j/S_c times
+/// in expectation (Douc, Cappé & Moulines 2005, "Comparison of resampling schemes for particle
+/// filtering"), and each L̂ is an independent unbiased path estimate, so the estimate is
+/// unbiased for any K_c fixed by the branches. Paths are allotted by weight,
+/// K_c = round(τ·N·S_c/Σ S) for τ = [`USER_SIDE_PATHS_PER_SAMPLE`] and N camera samples;
+/// a replica with τ·N·S_c/ΣS = q < 1 is traced once with probability q and weighted 1/q
+/// (Russian roulette). Why it pays: every camera sample still contributes its exact branch
+/// weights (the replica edges, the Bragg selectivity and the pixel footprint are integrated
+/// with all N samples), while the user side, about 85 % of a sample's cost, is sampled only as
+/// often as its own noise needs; branches of one replica in one pixel see nearly the same
+/// radiance, so drawing among them adds little. The first-vertex numbers of a replica's paths
+/// come from padded sets over its K_c paths (as [`UserSideSampler::Padded`], unless the
+/// sampler is independent).
+#[allow(clippy::too_many_arguments)]
+fn render_pixel_resampled(
+    sys: &System,
+    set: &RenderSettings,
+    world: &crate::world::World,
+    rule: Option<LatticeRule>,
+    (col, row, window_branches): (usize, usize, usize),
+    pending: &mut Vec<PendingBranch>,
+    px_spectral: &mut [f64],
+    stats: &mut RenderStats,
+) -> [f64; 4] {
+    let w = sys.camera.width_px;
+    let nch = sys.response.curves.len();
+    let pixel = (row * w + col) as u64;
+    let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
+    let mut acc = [0.0f64; 4];
+    let spp = u64::from(set.spp);
+    let mut batch = [None; SAMPLE_BATCH];
+    pending.clear();
+    let mut window = (0u64, 0u64);
+    let mut first = 0u64;
+    while first < spp {
+        let len = (spp - first).min(SAMPLE_BATCH as u64) as usize;
+        camera_samples_with(
+            sys,
+            &sampler,
+            col,
+            row,
+            first,
+            &mut batch[..len],
+            Estimator::Bragg,
+        );
+        for (i, s) in (first..).zip(&batch[..len]) {
+            if let Some(s) = s {
+                let response = if set.spectral_bins.is_some() {
+                    1.0
+                } else {
+                    channel_weights(sys, s.lambda_nm).iter().take(nch).sum()
+                };
+                let sel_scale = s.ray.cos4 / s.pdf * response;
+                trace_counted(sys, s, stats, |b| {
+                    let sel = 0.5 * (b.weight[0] + b.weight[1]) * sel_scale;
+                    if sel > 0.0 && sel.is_finite() {
+                        pending.push(PendingBranch {
+                            contact: b.contact,
+                            sample: i as u32,
+                            exit: b.exit_point_mm,
+                            weight: b.weight,
+                            s: *s,
+                            sel,
+                        });
+                    }
+                    ControlFlow::Continue(())
+                });
+            }
+            window.1 = i + 1;
+            if pending.len() >= window_branches {
+                trace_window(
+                    sys,
+                    set,
+                    world,
+                    pixel,
+                    window,
+                    pending,
+                    &mut acc,
+                    px_spectral,
+                    stats,
+                );
+                window.0 = window.1;
+            }
+        }
+        first += len as u64;
+    }
+    trace_window(
+        sys,
+        set,
+        world,
+        pixel,
+        window,
+        pending,
+        &mut acc,
+        px_spectral,
+        stats,
+    );
+    acc
+}
+
+/// Traces the user side of the branches gathered from camera samples `window` (start, end) of
+/// `pixel` (see [`render_pixel_resampled`]), adds them to `acc` and `px_spectral`, and empties
+/// `pending`.
+#[allow(clippy::too_many_arguments)]
+fn trace_window(
+    sys: &System,
+    set: &RenderSettings,
+    world: &crate::world::World,
+    pixel: u64,
+    window: (u64, u64),
+    pending: &mut Vec<PendingBranch>,
+    acc: &mut [f64; 4],
+    px_spectral: &mut [f64],
+    stats: &mut RenderStats,
+) {
+    use crate::world::integrator::{PathRng, branch_weights};
+    if pending.is_empty() {
+        return;
+    }
+    pending.sort_unstable_by_key(|p| (p.contact, p.sample));
+    let total: f64 = pending.iter().map(|p| p.sel).sum();
+    let paths = USER_SIDE_PATHS_PER_SAMPLE * (window.1 - window.0) as f64;
+    let pol = sys.display.polarization_weights;
+    let padded = set.sampler != SamplerKind::Independent;
+    for group in pending.chunk_by(|a, b| a.contact == b.contact) {
+        let contact = u64::from(group[0].contact);
+        let s_c: f64 = group.iter().map(|p| p.sel).sum();
+        let q = paths * s_c / total;
+        let h = crate::sampler::hash(&[set.seed, pixel, RESAMPLED_TAG ^ window.0, contact]);
+        // K paths, each standing for S_c/K_eff of selection weight.
+        let (k, k_eff) = if q >= 1.0 {
+            let k = q.round() as u64;
+            (k, k as f64)
+        } else if crate::sampler::to_unit(h) < q {
+            (1, q)
+        } else {
+            continue;
+        };
+        let offset = crate::sampler::to_unit(crate::sampler::mix64(h));
+        let pad_key = PathRng::padded_key(&[set.seed, pixel, contact, RESAMPLED_TAG ^ window.0]);
+        let step = s_c / k as f64;
+        let mut j = 0;
+        let mut cum = group[0].sel;
+        for kk in 0..k {
+            // Systematic resampling: the branch whose cumulative weight passes (kk + offset)·step.
+            let t = (kk as f64 + offset) * step;
+            while cum <= t && j + 1 < group.len() {
+                j += 1;
+                cum += group[j].sel;
+            }
+            let p = &group[j];
+            let mut rng = PathRng::new(&[set.seed, pixel, RESAMPLED_TAG ^ window.0, contact, kk]);
+            if padded && k <= u64::from(u32::MAX) {
+                rng = rng.with_padded(pad_key, kk, k as u32);
+            }
+            let l = trace_exit(sys, world, &p.s, p.exit, &mut rng, stats);
+            let (wd, wo) = branch_weights(p.weight, pol);
+            let base =
+                (s_c / k_eff) * (wd * l.display + wo * l.other) / p.sel * p.s.ray.cos4 / p.s.pdf;
+            add_sample(sys, set, acc, px_spectral, base, p.s.lambda_nm, stats);
+        }
+    }
+    pending.clear();
 }
 
 /// The spectral bins of `render --spectral`: about 10 nm wide, tiling the sampled band exactly,
@@ -685,5 +1017,68 @@ pub fn relative_rmse(pairs: &[(&[f32], &[f32])]) -> f64 {
         (num / den).sqrt()
     } else {
         f64::NAN
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mean and standard error of the mean.
+    fn mean_sem(v: &[f64]) -> (f64, f64) {
+        let n = v.len() as f64;
+        let m = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+        (m, (var / n).sqrt())
+    }
+
+    /// Windows of a few samples (what bounds the resampled user side's memory at high spp)
+    /// keep the estimate's expectation: the eye-contact scene's rows rendered with windows of
+    /// 16 branches against one window per pixel, per-pixel differences within 4 standard
+    /// errors of zero; a window render 3 % too bright fails the same rule.
+    #[test]
+    fn resampled_windows_keep_the_expectation() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
+        let sets = [
+            "sensor.crop_px=[40,40]".to_string(),
+            "sensor.pitch_um=52.8".to_string(),
+        ];
+        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let world = sys.world.as_deref().unwrap();
+        let rows = |seed: u64, window: usize| -> (Vec<f64>, u64) {
+            let set = RenderSettings::lattice(64, seed, false);
+            let rule = lattice_rule(&set);
+            let mut paths = 0;
+            let v = (0..sys.camera.height_px)
+                .flat_map(|row| {
+                    let r = render_row_resampled(&sys, &set, world, rule, row, window);
+                    paths += r.stats.scene_paths;
+                    r.values
+                })
+                .collect();
+            (v, paths)
+        };
+        let ((small, small_paths), (whole, whole_paths)) = (rows(1, 16), rows(2, usize::MAX));
+        // The windows do split the pixels (a 16-branch window holds 2–3 samples of ~7 branches),
+        // which changes how many paths the replicas get.
+        assert_ne!(small_paths, whole_paths);
+        let level = whole.iter().sum::<f64>() / whole.len() as f64;
+        assert!(level > 0.0);
+        let check = |scale: f64| {
+            let d: Vec<f64> = small
+                .iter()
+                .zip(&whole)
+                .map(|(a, b)| scale * a - b)
+                .collect();
+            let (m, sem) = mean_sem(&d);
+            (m / level, sem / level)
+        };
+        let (m, sem) = check(1.0);
+        assert!(m.abs() < 4.0 * sem, "windows of 16 branches: {m} ± {sem}");
+        let (m3, sem3) = check(1.03);
+        assert!(
+            m3.abs() > 4.0 * sem3,
+            "3 % too bright must fail: {m3} ± {sem3}"
+        );
     }
 }

@@ -147,11 +147,13 @@ fn render<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     let user_side = match user_side {
+        "auto" => stscam::render::UserSideSampler::Auto,
+        "resampled" => stscam::render::UserSideSampler::Resampled,
         "padded" => stscam::render::UserSideSampler::Padded,
         "hashed" => stscam::render::UserSideSampler::Hashed,
         other => {
             return Err(value_error(format!(
-                "user_side {other:?}: expected \"padded\" or \"hashed\""
+                "user_side {other:?}: expected \"auto\", \"resampled\", \"padded\" or \"hashed\""
             )));
         }
     };

@@ -131,14 +131,17 @@ class Render:
 
 def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
-           frontal_px: Optional[tuple[int, int]] = None, user_side: str = "padded") -> Render:
+           frontal_px: Optional[tuple[int, int]] = None, user_side: str = "auto") -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
     the R5 sequence), ``"r5"`` (the R5 sequence at every ``spp``), ``"independent"`` or
-    ``"sobol"``; ``user_side`` (3-D scenes) is ``"padded"`` (default: the first vertex's light
-    and BSDF samples stratified over a pixel's samples) or ``"hashed"`` (independent
-    numbers, as ``stscam render --user-side hashed``)."""
+    ``"sobol"``; ``user_side`` (3-D scenes) is ``"auto"`` (default: ``"resampled"``,
+    or ``"padded"`` in scenes with emissive meshes), ``"resampled"`` (a pixel's branches share
+    about one user-side path per camera sample, drawn per replica in proportion to their
+    weight), ``"padded"`` (every branch traced, the first vertex's light and BSDF samples
+    stratified over a pixel's samples) or ``"hashed"`` (as ``"padded"`` with independent
+    numbers), as ``stscam render --user-side``."""
     s = _scene(scene)
     d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
                        None if frontal_px is None else tuple(frontal_px), user_side)

@@ -300,6 +300,8 @@ fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LineP
                     "stscam (default)".to_string()
                 } else if c.name.contains("previous default") {
                     "previous default".to_string()
+                } else if c.name.contains("every branch") {
+                    "every branch traced".to_string()
                 } else if c.name.contains("Sobol") {
                     "stscam, Sobol' points".to_string()
                 } else if c.name.contains("Russian roulette") {
@@ -468,6 +470,12 @@ fn cmd_bench_render(
     };
     let ref_s = t0.elapsed().as_secs_f64();
     let mut curves = Vec::new();
+    // The user side's estimators differ only in 3-D scenes.
+    let every_branch = sys.world.is_some().then_some((
+        Estimator::Bragg,
+        CurveSampler::EveryBranch,
+        "stscam: the default with every branch traced on the user side (padded; the 3-D default until 2026-11-26)",
+    ));
     for (est, sampler, name) in [
         (
             Estimator::Bragg,
@@ -489,7 +497,10 @@ fn cmd_bench_render(
             CurveSampler::Kind(SamplerKind::Lattice),
             "stscam: uniform wavelengths + Russian roulette",
         ),
-    ] {
+    ]
+    .into_iter()
+    .chain(every_branch)
+    {
         let c = pool.install(|| {
             measure_curve(
                 &sys,

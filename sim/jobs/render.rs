@@ -27,8 +27,8 @@ pub struct RenderOptions {
     /// Sample sequence.
     #[arg(long, value_enum, default_value = "lattice")]
     pub sampler: SamplerArg,
-    /// 3-D scenes: numbers of the user side's first vertex (light and BSDF samples).
-    #[arg(long, value_enum, default_value = "padded")]
+    /// 3-D scenes: which branches get user-side paths and how their first vertex draws its light and BSDF numbers.
+    #[arg(long, value_enum, default_value = "auto")]
     pub user_side: UserSideSampler,
     /// 3-D scenes: size of frontal.exr, depth.exr and mask.png, `N` or `WxH` (default: the
     /// capture's crop size).
@@ -116,7 +116,7 @@ fn cmd_render(
             "lights": sys.scene.light.len(),
             "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
             "display_enabled": sys.scene.display.enabled,
-            "user_side": settings.user_side,
+            "user_side": settings.user_side.resolve(Some(world)),
         });
         sidecar["frontal"] = serde_json::json!({
             "files": {

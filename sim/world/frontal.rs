@@ -14,7 +14,7 @@
 //! wavelength come from the capture's rank-1 lattice (stratified within a pixel), the
 //! user-side path from a hash stream per (seed, pixel, sample) whose first vertex draws its
 //! light and BSDF numbers from padded sets stratified over the pixel's samples (as the
-//! capture's default, `render::UserSideSampler::Padded`). Depth and mask come from
+//! capture's user side does, `render::UserSideSampler`). Depth and mask come from
 //! each pixel's centre ray: depth = −z of the first surface hit in mm (the display plane
 //! included, +inf where nothing is hit); mask = object index + 1 for objects, 65535 for the
 //! display, 0 for nothing (lights and the environment).

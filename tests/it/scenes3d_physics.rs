@@ -303,3 +303,73 @@ fn padded_user_side_is_unbiased_and_less_noisy() {
     eprintln!("halves error: padded {padded:.4}, hashed {hashed:.4}");
     assert!(padded < 0.85 * hashed, "padded {padded} hashed {hashed}");
 }
+
+/// The resampled user side (the default: a pixel's branches share about one user-side path
+/// per camera sample, drawn per replica in proportion to their weight) has the expectation of
+/// the every-branch estimator, and reaches a given error with far fewer user-side rays.
+#[test]
+fn resampled_user_side_is_unbiased_and_cheaper() {
+    use stscam::render::UserSideSampler;
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
+    let sets: Vec<String> = SMALL.iter().map(|s| s.to_string()).collect();
+    let sys = System::build(&load_scene(Some(&scene), &sets).unwrap()).unwrap();
+    // The scene has no emissive mesh: the default resolves to the resampled user side.
+    assert_eq!(
+        UserSideSampler::default().resolve(sys.world.as_deref()),
+        UserSideSampler::Resampled
+    );
+    let run = |seed: u64, user_side: UserSideSampler| {
+        let mut set = RenderSettings::lattice(64, seed, false);
+        set.user_side = user_side;
+        let cap = render(&sys, &set);
+        let v = cap
+            .channels
+            .iter()
+            .flatten()
+            .map(|v| f64::from(*v))
+            .collect::<Vec<f64>>();
+        (v, cap.stats.scene_rays as f64)
+    };
+    let ((r1, rays_r), (p2, rays_p)) = (
+        run(1, UserSideSampler::Resampled),
+        run(2, UserSideSampler::Padded),
+    );
+    let level = p2.iter().sum::<f64>() / p2.len() as f64;
+    assert!(level > 0.0);
+    let bias = |scale: f64| {
+        let d: Vec<f64> = r1.iter().zip(&p2).map(|(a, b)| scale * a - b).collect();
+        let (m, sem) = mean_sem(&d);
+        (m / level, sem / level)
+    };
+    let (m, sem) = bias(1.0);
+    eprintln!("resampled - padded: mean {m:.2e} ± {sem:.2e} of the level");
+    assert!(m.abs() < 4.0 * sem, "resampled vs padded: {m} ± {sem}");
+    let (m3, sem3) = bias(1.03);
+    assert!(
+        m3.abs() > 4.0 * sem3,
+        "3 % too bright must fail: {m3} ± {sem3}"
+    );
+    // Error of two independent renders, and its square times the user-side rays (the cost
+    // that dominates; counted, so the rule does not depend on the machine).
+    let rel = |a: &[f64], b: &[f64]| {
+        let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+        let den: f64 = a.iter().zip(b).map(|(x, y)| (x + y) * (x + y)).sum();
+        (num / den).sqrt()
+    };
+    let resampled = rel(
+        &run(3, UserSideSampler::Resampled).0,
+        &run(4, UserSideSampler::Resampled).0,
+    );
+    let padded = rel(
+        &run(3, UserSideSampler::Padded).0,
+        &run(4, UserSideSampler::Padded).0,
+    );
+    let (cost_r, cost_p) = (resampled * resampled * rays_r, padded * padded * rays_p);
+    eprintln!(
+        "halves error: resampled {resampled:.4} ({rays_r} rays), padded {padded:.4} ({rays_p} rays); error² × rays {cost_r:.3e} vs {cost_p:.3e}"
+    );
+    assert!(
+        cost_r < 0.3 * cost_p,
+        "resampled {cost_r:.3e} padded {cost_p:.3e}"
+    );
+}

@@ -119,16 +119,22 @@ def test_3d_scene_gives_frontal_depth_and_mask_equal_to_cli(tmp_path):
     assert np.isfinite(r.depth).any() and (r.mask > 0).any()
 
 
-def test_3d_user_side_hashed_equals_cli_and_differs_from_padded(tmp_path):
+def test_3d_user_side_modes_equal_cli_and_differ(tmp_path):
     path = ROOT / "scenes" / "gesture.toml"
     sets = {"sensor.crop_px": [24, 24], "sensor.pitch_um": 40.0}
-    cli("render", path, "--out", tmp_path, "--spp", 4, "--user-side", "hashed", *set_args(sets))
     s = stscam.Scene(path, sets)
-    r = stscam.render(s, spp=4, user_side="hashed")
-    assert same_bits(r.image, stscam.read_exr(tmp_path / "capture.exr")["Y"])
-    assert json.load(open(tmp_path / "capture.json"))["world"]["user_side"] == "hashed"
-    assert not same_bits(r.image, stscam.render(s, spp=4).image)
-    with pytest.raises(ValueError, match="padded"):
+    images = {}
+    for mode in ("resampled", "padded", "hashed"):
+        out = tmp_path / mode
+        cli("render", path, "--out", out, "--spp", 4, "--user-side", mode, *set_args(sets))
+        images[mode] = stscam.render(s, spp=4, user_side=mode).image
+        assert same_bits(images[mode], stscam.read_exr(out / "capture.exr")["Y"]), mode
+        assert json.load(open(out / "capture.json"))["world"]["user_side"] == mode
+    # The default is the resampled user side; the three estimators draw different numbers.
+    assert same_bits(stscam.render(s, spp=4).image, images["resampled"])
+    assert not same_bits(images["resampled"], images["padded"])
+    assert not same_bits(images["padded"], images["hashed"])
+    with pytest.raises(ValueError, match="resampled"):
         stscam.render(s, spp=4, user_side="sobol")
 
 
