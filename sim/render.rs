@@ -600,12 +600,7 @@ fn render_row_with(
     mut value: impl FnMut(&CameraSample, u64, u64, &mut RenderStats) -> f64,
 ) -> RowResult {
     let w = sys.camera.width_px;
-    let nch = sys.response.curves.len();
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
-    let mut values = vec![0.0; w * nch];
-    let mut spectral = vec![0.0; w * nbins];
-    let mut stats = RenderStats::default();
-    for col in 0..w {
+    row_of_pixels(sys, set, |col, px_spectral, stats| {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         let mut acc = [0.0f64; 4];
@@ -619,31 +614,54 @@ fn render_row_with(
                 let Some(s) = s else {
                     continue;
                 };
-                let base = value(s, pixel, i, &mut stats);
-                let px_spectral = &mut spectral[col * nbins..(col + 1) * nbins];
-                add_sample(
-                    sys,
-                    set,
-                    &mut acc,
-                    px_spectral,
-                    base,
-                    s.lambda_nm,
-                    &mut stats,
-                );
+                let base = value(s, pixel, i, stats);
+                add_sample(sys, set, &mut acc, px_spectral, base, s.lambda_nm, stats);
             }
             first += len as u64;
         }
+        acc
+    })
+}
+
+/// A row from `pixel(col, spectral bins, stats)`, which returns the pixel's channel sums over
+/// its samples and adds its spectral sums into the bins.
+#[inline(always)]
+fn row_of_pixels(
+    sys: &System,
+    set: &RenderSettings,
+    mut pixel: impl FnMut(usize, &mut [f64], &mut RenderStats) -> [f64; 4],
+) -> RowResult {
+    let (nch, nbins) = row_layout(sys, set);
+    let mut r = empty_row(sys, set);
+    for col in 0..sys.camera.width_px {
+        let px_spectral = &mut r.spectral[col * nbins..(col + 1) * nbins];
+        let acc = pixel(col, px_spectral, &mut r.stats);
         finish_pixel(
             set,
             acc,
-            &mut values[col * nch..(col + 1) * nch],
-            &mut spectral[col * nbins..(col + 1) * nbins],
+            &mut r.values[col * nch..(col + 1) * nch],
+            px_spectral,
         );
     }
+    r
+}
+
+/// Values per pixel of a row: (sensor channels, spectral bins).
+fn row_layout(sys: &System, set: &RenderSettings) -> (usize, usize) {
+    (
+        sys.response.curves.len(),
+        set.spectral_bins.map_or(0, |b| b.2),
+    )
+}
+
+/// A row of zeros (no counts).
+fn empty_row(sys: &System, set: &RenderSettings) -> RowResult {
+    let (nch, nbins) = row_layout(sys, set);
+    let w = sys.camera.width_px;
     RowResult {
-        values,
-        spectral,
-        stats,
+        values: vec![0.0; w * nch],
+        spectral: vec![0.0; w * nbins],
+        stats: RenderStats::default(),
     }
 }
 
@@ -724,16 +742,9 @@ fn render_row_resampled(
     row: usize,
     window_branches: usize,
 ) -> RowResult {
-    let w = sys.camera.width_px;
-    let nch = sys.response.curves.len();
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
-    let mut values = vec![0.0; w * nch];
-    let mut spectral = vec![0.0; w * nbins];
-    let mut stats = RenderStats::default();
     let mut pending = Vec::new();
-    for col in 0..w {
-        let px_spectral = &mut spectral[col * nbins..(col + 1) * nbins];
-        let acc = render_pixel_resampled(
+    row_of_pixels(sys, set, |col, px_spectral, stats| {
+        render_pixel_resampled(
             sys,
             set,
             world,
@@ -741,20 +752,9 @@ fn render_row_resampled(
             (col, row, window_branches),
             &mut pending,
             px_spectral,
-            &mut stats,
-        );
-        finish_pixel(
-            set,
-            acc,
-            &mut values[col * nch..(col + 1) * nch],
-            px_spectral,
-        );
-    }
-    RowResult {
-        values,
-        spectral,
-        stats,
-    }
+            stats,
+        )
+    })
 }
 
 /// One pixel of [`UserSideSampler::Resampled`]: the channel sums over its samples (spectral
@@ -799,6 +799,12 @@ fn render_pixel_resampled(
     let mut acc = [0.0f64; 4];
     let spp = u64::from(set.spp);
     let mut batch = [None; SAMPLE_BATCH];
+    let ctx = PixelContext {
+        sys,
+        set,
+        world,
+        pixel,
+    };
     pending.clear();
     let mut window = (0u64, 0u64);
     let mut first = 0u64;
@@ -838,45 +844,29 @@ fn render_pixel_resampled(
             }
             window.1 = i + 1;
             if pending.len() >= window_branches {
-                trace_window(
-                    sys,
-                    set,
-                    world,
-                    pixel,
-                    window,
-                    pending,
-                    &mut acc,
-                    px_spectral,
-                    stats,
-                );
+                trace_window(&ctx, window, pending, &mut acc, px_spectral, stats);
                 window.0 = window.1;
             }
         }
         first += len as u64;
     }
-    trace_window(
-        sys,
-        set,
-        world,
-        pixel,
-        window,
-        pending,
-        &mut acc,
-        px_spectral,
-        stats,
-    );
+    trace_window(&ctx, window, pending, &mut acc, px_spectral, stats);
     acc
 }
 
-/// Traces the user side of the branches gathered from camera samples `window` (start, end) of
-/// `pixel` (see [`render_pixel_resampled`]), adds them to `acc` and `px_spectral`, and empties
-/// `pending`.
-#[allow(clippy::too_many_arguments)]
-fn trace_window(
-    sys: &System,
-    set: &RenderSettings,
-    world: &crate::world::World,
+/// What [`trace_window`] needs to know of the render and the pixel.
+struct PixelContext<'a> {
+    sys: &'a System,
+    set: &'a RenderSettings,
+    world: &'a crate::world::World,
     pixel: u64,
+}
+
+/// Traces the user side of the branches gathered from camera samples `window` (start, end) of
+/// the pixel (see [`render_pixel_resampled`]), adds them to `acc` and `px_spectral`, and
+/// empties `pending`.
+fn trace_window(
+    ctx: &PixelContext,
     window: (u64, u64),
     pending: &mut Vec<PendingBranch>,
     acc: &mut [f64; 4],
@@ -884,6 +874,12 @@ fn trace_window(
     stats: &mut RenderStats,
 ) {
     use crate::world::integrator::{PathRng, branch_weights};
+    let PixelContext {
+        sys,
+        set,
+        world,
+        pixel,
+    } = *ctx;
     if pending.is_empty() {
         return;
     }
@@ -959,11 +955,7 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
         .into_par_iter()
         .map(|row| {
             if cancel.is_cancelled() {
-                return RowResult {
-                    values: vec![0.0; w * nch],
-                    spectral: vec![0.0; w * nbins],
-                    stats: RenderStats::default(),
-                };
+                return empty_row(sys, set);
             }
             let r = render_row(sys, set, estimator, rule, row);
             pb.inc(1);

@@ -245,6 +245,59 @@ fn display_lights_the_scene_like_an_equal_rect_light() {
     assert!(m2 > 4.0 * s, "a 10 % brighter rect must fail: {m2} ± {s}");
 }
 
+/// The shipped eye-contact scene at the SMALL crop.
+fn eye_contact_small() -> System {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
+    let sets: Vec<String> = SMALL.iter().map(|s| s.to_string()).collect();
+    System::build(&load_scene(Some(&scene), &sets).unwrap()).unwrap()
+}
+
+/// A 64-spp render's pixel values and its user-side rays.
+fn render_64(
+    sys: &System,
+    seed: u64,
+    user_side: stscam::render::UserSideSampler,
+) -> (Vec<f64>, f64) {
+    let mut set = RenderSettings::lattice(64, seed, false);
+    set.user_side = user_side;
+    let cap = render(sys, &set);
+    let v = cap
+        .channels
+        .iter()
+        .flatten()
+        .map(|v| f64::from(*v))
+        .collect::<Vec<f64>>();
+    (v, cap.stats.scene_rays as f64)
+}
+
+/// Asserts that `a` has the expectation of `b` (independent renders): the mean per-pixel
+/// difference within 4 standard errors of zero, relative to b's level; and that `a` made 3 %
+/// too bright fails the same rule.
+fn assert_same_expectation(a: &[f64], b: &[f64], what: &str) {
+    let level = b.iter().sum::<f64>() / b.len() as f64;
+    assert!(level > 0.0);
+    let bias = |scale: f64| {
+        let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| scale * x - y).collect();
+        let (m, sem) = mean_sem(&d);
+        (m / level, sem / level)
+    };
+    let (m, sem) = bias(1.0);
+    eprintln!("{what}: mean {m:.2e} ± {sem:.2e} of the level");
+    assert!(m.abs() < 4.0 * sem, "{what}: {m} ± {sem}");
+    let (m3, sem3) = bias(1.03);
+    assert!(
+        m3.abs() > 4.0 * sem3,
+        "{what}, 3 % too bright must fail: {m3} ± {sem3}"
+    );
+}
+
+/// ‖a − b‖/‖a + b‖ of two independent renders.
+fn halves_error(a: &[f64], b: &[f64]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    let den: f64 = a.iter().zip(b).map(|(x, y)| (x + y) * (x + y)).sum();
+    (num / den).sqrt()
+}
+
 /// The padded user side (each light's sample and the BSDF direction of the first vertex, and
 /// the branch roulette's decision, stratified over a pixel's samples) against hashed numbers,
 /// on the shipped eye-contact scene (40 × 40 crop, 64 spp):
@@ -254,52 +307,12 @@ fn display_lights_the_scene_like_an_equal_rect_light() {
 ///   is at most 0.85 of that of two hashed renders (measured here 0.0195 against 0.0249, 0.78).
 #[test]
 fn padded_user_side_is_unbiased_and_less_noisy() {
-    use stscam::render::UserSideSampler;
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
-    let sets: Vec<String> = SMALL.iter().map(|s| s.to_string()).collect();
-    let sys = System::build(&load_scene(Some(&scene), &sets).unwrap()).unwrap();
-    let run = |seed: u64, user_side: UserSideSampler| {
-        let mut set = RenderSettings::lattice(64, seed, false);
-        set.user_side = user_side;
-        let cap = render(&sys, &set);
-        cap.channels
-            .iter()
-            .flatten()
-            .map(|v| f64::from(*v))
-            .collect::<Vec<f64>>()
-    };
-    let (p1, h2) = (
-        run(1, UserSideSampler::Padded),
-        run(2, UserSideSampler::Hashed),
-    );
-    let level = h2.iter().sum::<f64>() / h2.len() as f64;
-    assert!(level > 0.0);
-    let bias = |scale: f64| {
-        let d: Vec<f64> = p1.iter().zip(&h2).map(|(a, b)| scale * a - b).collect();
-        let (m, sem) = mean_sem(&d);
-        (m / level, sem / level)
-    };
-    let (m, sem) = bias(1.0);
-    eprintln!("padded - hashed: mean {m:.2e} ± {sem:.2e} of the level");
-    assert!(m.abs() < 4.0 * sem, "padded vs hashed: {m} ± {sem}");
-    let (m3, sem3) = bias(1.03);
-    assert!(
-        m3.abs() > 4.0 * sem3,
-        "3 % too bright must fail: {m3} ± {sem3}"
-    );
-    let rel = |a: &[f64], b: &[f64]| {
-        let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
-        let den: f64 = a.iter().zip(b).map(|(x, y)| (x + y) * (x + y)).sum();
-        (num / den).sqrt()
-    };
-    let padded = rel(
-        &run(3, UserSideSampler::Padded),
-        &run(4, UserSideSampler::Padded),
-    );
-    let hashed = rel(
-        &run(3, UserSideSampler::Hashed),
-        &run(4, UserSideSampler::Hashed),
-    );
+    use stscam::render::UserSideSampler::{Hashed, Padded};
+    let sys = eye_contact_small();
+    let run = |seed, user_side| render_64(&sys, seed, user_side).0;
+    assert_same_expectation(&run(1, Padded), &run(2, Hashed), "padded - hashed");
+    let padded = halves_error(&run(3, Padded), &run(4, Padded));
+    let hashed = halves_error(&run(3, Hashed), &run(4, Hashed));
     eprintln!("halves error: padded {padded:.4}, hashed {hashed:.4}");
     assert!(padded < 0.85 * hashed, "padded {padded} hashed {hashed}");
 }
@@ -309,61 +322,20 @@ fn padded_user_side_is_unbiased_and_less_noisy() {
 /// the every-branch estimator, and reaches a given error with far fewer user-side rays.
 #[test]
 fn resampled_user_side_is_unbiased_and_cheaper() {
-    use stscam::render::UserSideSampler;
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
-    let sets: Vec<String> = SMALL.iter().map(|s| s.to_string()).collect();
-    let sys = System::build(&load_scene(Some(&scene), &sets).unwrap()).unwrap();
+    use stscam::render::UserSideSampler::{self, Padded, Resampled};
+    let sys = eye_contact_small();
     // The scene has no emissive mesh: the default resolves to the resampled user side.
     assert_eq!(
         UserSideSampler::default().resolve(sys.world.as_deref()),
-        UserSideSampler::Resampled
+        Resampled
     );
-    let run = |seed: u64, user_side: UserSideSampler| {
-        let mut set = RenderSettings::lattice(64, seed, false);
-        set.user_side = user_side;
-        let cap = render(&sys, &set);
-        let v = cap
-            .channels
-            .iter()
-            .flatten()
-            .map(|v| f64::from(*v))
-            .collect::<Vec<f64>>();
-        (v, cap.stats.scene_rays as f64)
-    };
-    let ((r1, rays_r), (p2, rays_p)) = (
-        run(1, UserSideSampler::Resampled),
-        run(2, UserSideSampler::Padded),
-    );
-    let level = p2.iter().sum::<f64>() / p2.len() as f64;
-    assert!(level > 0.0);
-    let bias = |scale: f64| {
-        let d: Vec<f64> = r1.iter().zip(&p2).map(|(a, b)| scale * a - b).collect();
-        let (m, sem) = mean_sem(&d);
-        (m / level, sem / level)
-    };
-    let (m, sem) = bias(1.0);
-    eprintln!("resampled - padded: mean {m:.2e} ± {sem:.2e} of the level");
-    assert!(m.abs() < 4.0 * sem, "resampled vs padded: {m} ± {sem}");
-    let (m3, sem3) = bias(1.03);
-    assert!(
-        m3.abs() > 4.0 * sem3,
-        "3 % too bright must fail: {m3} ± {sem3}"
-    );
+    let ((r1, rays_r), (p2, rays_p)) = (render_64(&sys, 1, Resampled), render_64(&sys, 2, Padded));
+    assert_same_expectation(&r1, &p2, "resampled - padded");
     // Error of two independent renders, and its square times the user-side rays (the cost
     // that dominates; counted, so the rule does not depend on the machine).
-    let rel = |a: &[f64], b: &[f64]| {
-        let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
-        let den: f64 = a.iter().zip(b).map(|(x, y)| (x + y) * (x + y)).sum();
-        (num / den).sqrt()
-    };
-    let resampled = rel(
-        &run(3, UserSideSampler::Resampled).0,
-        &run(4, UserSideSampler::Resampled).0,
-    );
-    let padded = rel(
-        &run(3, UserSideSampler::Padded).0,
-        &run(4, UserSideSampler::Padded).0,
-    );
+    let run = |seed, user_side| render_64(&sys, seed, user_side).0;
+    let resampled = halves_error(&run(3, Resampled), &run(4, Resampled));
+    let padded = halves_error(&run(3, Padded), &run(4, Padded));
     let (cost_r, cost_p) = (resampled * resampled * rays_r, padded * padded * rays_p);
     eprintln!(
         "halves error: resampled {resampled:.4} ({rays_r} rays), padded {padded:.4} ({rays_p} rays); error² × rays {cost_r:.3e} vs {cost_p:.3e}"
