@@ -53,7 +53,7 @@ pub enum UserSideSampler {
     /// [`Self::resolve`] gives the choice for a scene.
     #[default]
     Auto,
-    /// The pixel's branches share user-side paths (the 3-D default since 2026-11-26): every camera
+    /// The pixel's branches share user-side paths (the default, through `Auto`, since 2026-11-26): every camera
     /// sample's branches are gathered per replica (plate contact), and each replica's sum is
     /// estimated from paths traced from branches chosen in proportion to their weight, about
     /// [`USER_SIDE_PATHS_PER_SAMPLE`] paths per camera sample in all, allotted to replicas by
@@ -552,13 +552,11 @@ fn render_row(
     // One monomorphised loop per kind of sample value: the display-only loop is the tight one
     // it always was.
     match (sys.world.as_deref(), estimator) {
-        (Some(world), Estimator::Bragg)
-            if set.user_side.resolve(Some(world)) == UserSideSampler::Resampled =>
-        {
+        (Some(world), Estimator::Bragg) if set.user_side == UserSideSampler::Resampled => {
             render_row_resampled(sys, set, world, rule, row, RESAMPLE_WINDOW_BRANCHES)
         }
         (Some(world), Estimator::Bragg) => {
-            let padded_n = (set.user_side.resolve(Some(world)) == UserSideSampler::Padded
+            let padded_n = (set.user_side == UserSideSampler::Padded
                 && set.sampler != SamplerKind::Independent)
                 .then_some(set.spp);
             render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
@@ -716,17 +714,22 @@ fn finish_pixel(
 struct PendingBranch {
     /// The branch's plate contact (its replica, [`crate::trace::Branch::contact`]).
     contact: u32,
-    /// The camera sample's index in the pixel.
+    /// Its camera sample's index in [`Window::samples`] (the samples in order).
     sample: u32,
     /// Front-face exit point, mm.
     exit: glam::DVec2,
     /// Energy fractions [TE, TM].
     weight: [f64; 2],
-    /// The camera sample (ray, wavelength, density).
-    s: CameraSample,
     /// Selection weight: the branch's weight to the sensor, ½(w_TE + w_TM)·cos⁴θ/p(λ)·Σ_c R_c(λ)
     /// (without the response sum when spectral bins are written, which do not use it).
     sel: f64,
+}
+
+/// The camera samples of a window of a pixel and their branches waiting for the user side.
+#[derive(Default)]
+struct Window {
+    samples: Vec<CameraSample>,
+    branches: Vec<PendingBranch>,
 }
 
 /// Tag of the resampled user side's random streams (keeps them apart from the per-branch ones).
@@ -742,7 +745,7 @@ fn render_row_resampled(
     row: usize,
     window_branches: usize,
 ) -> RowResult {
-    let mut pending = Vec::new();
+    let mut pending = Window::default();
     row_of_pixels(sys, set, |col, px_spectral, stats| {
         render_pixel_resampled(
             sys,
@@ -788,7 +791,7 @@ fn render_pixel_resampled(
     world: &crate::world::World,
     rule: Option<LatticeRule>,
     (col, row, window_branches): (usize, usize, usize),
-    pending: &mut Vec<PendingBranch>,
+    pending: &mut Window,
     px_spectral: &mut [f64],
     stats: &mut RenderStats,
 ) -> [f64; 4] {
@@ -805,7 +808,8 @@ fn render_pixel_resampled(
         world,
         pixel,
     };
-    pending.clear();
+    pending.samples.clear();
+    pending.branches.clear();
     let mut window = (0u64, 0u64);
     let mut first = 0u64;
     while first < spp {
@@ -827,15 +831,16 @@ fn render_pixel_resampled(
                     channel_weights(sys, s.lambda_nm).iter().take(nch).sum()
                 };
                 let sel_scale = s.ray.cos4 / s.pdf * response;
+                let sample = pending.samples.len() as u32;
+                pending.samples.push(*s);
                 trace_counted(sys, s, stats, |b| {
                     let sel = 0.5 * (b.weight[0] + b.weight[1]) * sel_scale;
                     if sel > 0.0 && sel.is_finite() {
-                        pending.push(PendingBranch {
+                        pending.branches.push(PendingBranch {
                             contact: b.contact,
-                            sample: i as u32,
+                            sample,
                             exit: b.exit_point_mm,
                             weight: b.weight,
-                            s: *s,
                             sel,
                         });
                     }
@@ -843,7 +848,7 @@ fn render_pixel_resampled(
                 });
             }
             window.1 = i + 1;
-            if pending.len() >= window_branches {
+            if pending.branches.len() >= window_branches {
                 trace_window(&ctx, window, pending, &mut acc, px_spectral, stats);
                 window.0 = window.1;
             }
@@ -868,7 +873,7 @@ struct PixelContext<'a> {
 fn trace_window(
     ctx: &PixelContext,
     window: (u64, u64),
-    pending: &mut Vec<PendingBranch>,
+    pending: &mut Window,
     acc: &mut [f64; 4],
     px_spectral: &mut [f64],
     stats: &mut RenderStats,
@@ -880,15 +885,17 @@ fn trace_window(
         world,
         pixel,
     } = *ctx;
-    if pending.is_empty() {
+    let Window { samples, branches } = pending;
+    if branches.is_empty() {
+        samples.clear();
         return;
     }
-    pending.sort_unstable_by_key(|p| (p.contact, p.sample));
-    let total: f64 = pending.iter().map(|p| p.sel).sum();
+    branches.sort_unstable_by_key(|p| (p.contact, p.sample));
+    let total: f64 = branches.iter().map(|p| p.sel).sum();
     let paths = USER_SIDE_PATHS_PER_SAMPLE * (window.1 - window.0) as f64;
     let pol = sys.display.polarization_weights;
     let padded = set.sampler != SamplerKind::Independent;
-    for group in pending.chunk_by(|a, b| a.contact == b.contact) {
+    for group in branches.chunk_by(|a, b| a.contact == b.contact) {
         let contact = u64::from(group[0].contact);
         let s_c: f64 = group.iter().map(|p| p.sel).sum();
         let q = paths * s_c / total;
@@ -915,18 +922,19 @@ fn trace_window(
                 cum += group[j].sel;
             }
             let p = &group[j];
+            let s = &samples[p.sample as usize];
             let mut rng = PathRng::new(&[set.seed, pixel, RESAMPLED_TAG ^ window.0, contact, kk]);
             if padded && k <= u64::from(u32::MAX) {
                 rng = rng.with_padded(pad_key, kk, k as u32);
             }
-            let l = trace_exit(sys, world, &p.s, p.exit, &mut rng, stats);
+            let l = trace_exit(sys, world, s, p.exit, &mut rng, stats);
             let (wd, wo) = branch_weights(p.weight, pol);
-            let base =
-                (s_c / k_eff) * (wd * l.display + wo * l.other) / p.sel * p.s.ray.cos4 / p.s.pdf;
-            add_sample(sys, set, acc, px_spectral, base, p.s.lambda_nm, stats);
+            let base = (s_c / k_eff) * (wd * l.display + wo * l.other) / p.sel * s.ray.cos4 / s.pdf;
+            add_sample(sys, set, acc, px_spectral, base, s.lambda_nm, stats);
         }
     }
-    pending.clear();
+    samples.clear();
+    branches.clear();
 }
 
 /// The spectral bins of `render --spectral`: about 10 nm wide, tiling the sampled band exactly,
@@ -944,13 +952,17 @@ pub fn render(sys: &System, set: &RenderSettings) -> Capture {
 
 /// Renders with a chosen estimator (both are unbiased; they differ in variance and cost).
 pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> Capture {
+    // `Auto` resolved once for the scene: the rows see the user side's estimator itself.
+    let set = &RenderSettings {
+        user_side: set.user_side.resolve(sys.world.as_deref()),
+        ..set.clone()
+    };
     let cam = &sys.camera;
     let (w, h) = (cam.width_px, cam.height_px);
     let pb = row_progress(set.progress, h, "rendering rows");
     let rule = lattice_rule(set);
     let cancel = crate::cancel::current();
-    let nch = sys.response.curves.len();
-    let nbins = set.spectral_bins.map_or(0, |b| b.2);
+    let (nch, nbins) = row_layout(sys, set);
     let rows: Vec<RowResult> = (0..h)
         .into_par_iter()
         .map(|row| {
