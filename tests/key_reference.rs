@@ -11,6 +11,9 @@
 //! struct (a section, `object.material`, …) and is walked in turn, else it is a leaf key.
 //! Fields of `[[object]]` and `[[light]]` elements are named as `--set` takes them without the
 //! index: `object.material.base_color`.
+//!
+//! The same file checks the command reference `docs/cli.md` against the binary's `--help`:
+//! every command and every option it lists must appear in that command's section.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -277,4 +280,127 @@ fn a_made_up_or_missing_key_and_a_wrong_default_are_reported() {
         !default_matches("`2`", &toml::Value::Float(2.0)),
         "2 and 2.0 are different TOML"
     );
+}
+
+/// The command reference `docs/cli.md` against the binary: every option a command's `--help`
+/// lists appears in that command's section (`## \`stscam NAME\``; subcommands such as
+/// `bench render` and `dataset merge` in their parent's section).
+#[test]
+fn every_command_and_option_is_in_cli_md() {
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/cli.md"))
+        .expect("docs/cli.md is readable");
+    let mut missing = Vec::new();
+    for command in commands(&[]) {
+        let section = cli_section(&doc, &command[0]);
+        let Some(section) = section else {
+            missing.push(format!("no section \"## `stscam {}`\"", command[0]));
+            continue;
+        };
+        for option in options(&command) {
+            if !section.contains(&option) {
+                missing.push(format!("stscam {} {option}", command.join(" ")));
+            }
+        }
+    }
+    assert!(missing.is_empty(), "docs/cli.md lacks: {missing:?}");
+}
+
+/// The help text of `stscam ARGS… --help`.
+fn help(args: &[String]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
+        .args(args)
+        .arg("--help")
+        .output()
+        .expect("stscam runs");
+    assert!(out.status.success(), "stscam {args:?} --help failed");
+    String::from_utf8(out.stdout).expect("help is UTF-8")
+}
+
+/// Every leaf command (as its argument words) below `prefix`, from the "Commands:" lists.
+fn commands(prefix: &[String]) -> Vec<Vec<String>> {
+    let text = help(prefix);
+    let mut subs = Vec::new();
+    let mut in_list = false;
+    for line in text.lines() {
+        if line.starts_with("Commands:") {
+            in_list = true;
+            continue;
+        }
+        if in_list {
+            let Some(name) = line
+                .strip_prefix("  ")
+                .and_then(|l| l.split_whitespace().next())
+            else {
+                break;
+            };
+            if line.starts_with("   ") || name == "help" {
+                continue;
+            }
+            let mut c = prefix.to_vec();
+            c.push(name.to_string());
+            subs.push(c);
+        }
+    }
+    let mut all = Vec::new();
+    if !prefix.is_empty() {
+        all.push(prefix.to_vec());
+    }
+    for c in subs {
+        all.extend(commands(&c));
+    }
+    all
+}
+
+/// The `--long` options of a command's help, `--help` and `--version` left out.
+fn options(command: &[String]) -> Vec<String> {
+    let mut out = Vec::new();
+    for line in help(command).lines() {
+        let t = line.trim_start();
+        let t = t.strip_prefix("-h, ").unwrap_or(t);
+        let t = if t.len() > 4 && t.starts_with('-') && t.as_bytes()[2] == b',' {
+            t[4..].trim_start()
+        } else {
+            t
+        };
+        if let Some(rest) = t.strip_prefix("--") {
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '-')
+                .collect();
+            if !name.is_empty() && name != "help" && name != "version" {
+                out.push(format!("--{name}"));
+            }
+        }
+    }
+    out.sort();
+    out.dedup();
+    out
+}
+
+/// The text of `## \`stscam NAME\`` (or a heading starting so) up to the next `## `.
+fn cli_section<'a>(doc: &'a str, name: &str) -> Option<&'a str> {
+    let heading = format!("## `stscam {name}");
+    let start = doc.find(&heading)?;
+    let rest = &doc[start + heading.len()..];
+    Some(rest.find("\n## ").map_or(rest, |end| &rest[..end]))
+}
+
+/// The command check sees every command, and a section without an option is reported.
+#[test]
+fn the_command_check_sees_every_command_and_can_fail() {
+    let all: Vec<String> = commands(&[]).iter().map(|c| c.join(" ")).collect();
+    for c in [
+        "render",
+        "matrix",
+        "dataset merge",
+        "bench render",
+        "validate analytic",
+    ] {
+        assert!(all.iter().any(|a| a == c), "{c} not enumerated: {all:?}");
+    }
+    let render = options(&["render".to_string()]);
+    assert!(render.contains(&"--spectral".to_string()) && render.contains(&"--set".to_string()));
+    let doc = "## `stscam render`\n\n`--set` `--out`\n\n## `stscam info`\n\n`--spectral`\n";
+    let section = cli_section(doc, "render").unwrap();
+    assert!(section.contains("--set") && !section.contains("--spectral"));
 }
