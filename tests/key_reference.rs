@@ -150,7 +150,7 @@ fn differences(code: &BTreeSet<String>, docs: &BTreeSet<String>) -> (Vec<String>
     )
 }
 
-/// The paper scene's value of every leaf key it sets.
+/// The paper scene's value of every leaf key it sets (not inside arrays of tables).
 fn paper_values() -> BTreeMap<String, toml::Value> {
     fn go(prefix: &str, t: &toml::Table, out: &mut BTreeMap<String, toml::Value>) {
         for (k, v) in t {
@@ -161,6 +161,8 @@ fn paper_values() -> BTreeMap<String, toml::Value> {
             };
             match v {
                 toml::Value::Table(inner) => go(&key, inner, out),
+                // Arrays of tables (`[[…]]` elements) have no single default.
+                toml::Value::Array(a) if a.iter().any(toml::Value::is_table) => {}
                 v => {
                     out.insert(key, v.clone());
                 }
