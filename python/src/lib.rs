@@ -84,9 +84,19 @@ fn run_job<T: Send>(
 /// a PNG); true means linear intensity (as for an EXR).
 type ImageArg = (usize, usize, usize, Vec<u8>, bool);
 
+/// A scene held as TOML text: (text, the name messages blame, the directory relative asset
+/// paths resolve against).
+type TextArg = (String, String, String);
+
 /// A scene as the Python layer passes it: (scene file or None, `--set KEY=VALUE` overrides,
-/// a target image in memory replacing `display.image`, or None).
-type SceneArg = (Option<String>, Vec<String>, Option<ImageArg>);
+/// a target image in memory replacing `display.image` or None, the scene as TOML text
+/// instead of a file or None).
+type SceneArg = (
+    Option<String>,
+    Vec<String>,
+    Option<ImageArg>,
+    Option<TextArg>,
+);
 
 /// Decoded and checked target values of an [`ImageArg`] (the CLI's checks on an image file:
 /// size within the built-in targets' range, finite values).
@@ -159,8 +169,13 @@ fn coverage_warning(sys: &System, what: &str) -> Option<String> {
 }
 
 fn load(scene: &SceneArg) -> Result<System, String> {
-    let ls = stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1)
-        .map_err(|e| e.to_string())?;
+    let ls = match &scene.3 {
+        Some((text, name, dir)) => {
+            stscam::scene::load_scene_text(Some((text, name, Path::new(dir))), &scene.1)
+        }
+        None => stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1),
+    }
+    .map_err(|e| e.to_string())?;
     let mut sys = System::build(&ls).map_err(|e| e.to_string())?;
     if let Some(img) = &scene.2 {
         let v = image_values(img)?;
@@ -693,33 +708,8 @@ fn reconstruct<'py>(
     tv: &str,
     threads: Option<usize>,
 ) -> PyResult<(Bound<'py, PyBytes>, String)> {
-    use stscam::recon::{Method, Problem, SolveOptions, admm::TvKind};
-    let method = match method {
-        "cg" => Method::Cg,
-        "admm-tv" => Method::AdmmTv,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"cg\" or \"admm-tv\""
-            )));
-        }
-    };
-    let tv = match tv {
-        "iso" => TvKind::Iso,
-        "aniso" => TvKind::Aniso,
-        t => {
-            return Err(value_error(format!(
-                "tv {t:?}: expected \"iso\" or \"aniso\""
-            )));
-        }
-    };
-    if !(tau.is_finite() && tau >= 0.0) {
-        return Err(value_error(format!(
-            "--tau {tau}: must be a non-negative number"
-        )));
-    }
-    if iters == Some(0) {
-        return Err(value_error("--iters: must be at least 1"));
-    }
+    use stscam::recon::Problem;
+    let opts = solve_options(method, iters, tau, tv)?;
     let h = csr_from(rows, cols, indptr, indices, data, "H")?;
     if object.0.checked_mul(object.1) != Some(cols) {
         return Err(value_error(format!(
@@ -758,17 +748,151 @@ fn reconstruct<'py>(
             *x -= f64::from(v);
         }
     }
-    let opts = SolveOptions {
-        method,
-        iters,
-        tau_rel: tau,
-        tv,
-    };
+    stscam::limits::check_bytes(
+        "H",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stscam::recon::setup_bytes_bound(&h, threads.unwrap_or_else(rayon::current_num_threads)),
+    )
+    .map_err(value_error)?;
     let sol = run_job(py, threads, || {
         let problem = Problem::new(&h, object.0, object.1);
         stscam::recon::solve(&problem, &g, &opts)
     })?;
     Ok((f64_bytes(py, &sol.f), json(&sol.info)?))
+}
+
+/// A reconstruction problem set up once (Hᵀ and the Gram matrix HᵀH, as `stscam reconstruct`
+/// builds them) for many captures: the Python `Operator`'s solver.
+#[pyclass(frozen, module = "stscam._native")]
+struct Solver {
+    problem: stscam::recon::Problem,
+    rows: usize,
+}
+
+#[pymethods]
+impl Solver {
+    /// Sets up H (arrays as for `reconstruct`) for an object of `object` = (width, height).
+    #[new]
+    #[pyo3(signature = (rows, cols, indptr, indices, data, object, threads))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        rows: usize,
+        cols: usize,
+        indptr: &[u8],
+        indices: &[u8],
+        data: &[u8],
+        object: (usize, usize),
+        threads: Option<usize>,
+    ) -> PyResult<Self> {
+        let h = csr_from(rows, cols, indptr, indices, data, "H")?;
+        if object.0.checked_mul(object.1) != Some(cols) {
+            return Err(value_error(format!(
+                "the object {}x{} has {} pixels but H has {cols} columns",
+                object.1,
+                object.0,
+                object.0.saturating_mul(object.1)
+            )));
+        }
+        let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
+        stscam::limits::check_bytes(
+            "H",
+            "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+            stscam::recon::setup_bytes_bound(&h, threads_n),
+        )
+        .map_err(value_error)?;
+        let problem = run_job(py, threads, || {
+            stscam::recon::Problem::new(&h, object.0, object.1)
+        })?;
+        Ok(Solver { problem, rows })
+    }
+
+    /// Solves for each of `frames` captures (float64 bytes, frame-major, the offset already
+    /// subtracted) as `stscam reconstruct` does: the objects (float64 bytes, frame-major) and
+    /// each frame's solver report (JSON).
+    #[pyo3(signature = (capture, frames, method, iters, tau, tv, threads))]
+    #[allow(clippy::too_many_arguments)]
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        capture: &[u8],
+        frames: usize,
+        method: &str,
+        iters: Option<usize>,
+        tau: f64,
+        tv: &str,
+        threads: Option<usize>,
+    ) -> PyResult<(Bound<'py, PyBytes>, Vec<String>)> {
+        let opts = solve_options(method, iters, tau, tv)?;
+        let g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
+        if Some(g.len()) != frames.checked_mul(self.rows) || frames == 0 {
+            return Err(value_error(format!(
+                "capture: {} values are not {frames} frames of H's {} rows",
+                g.len(),
+                self.rows
+            )));
+        }
+        if let Some(i) = g.iter().position(|v| !v.is_finite()) {
+            return Err(value_error(format!(
+                "capture: value {i} is not a finite number"
+            )));
+        }
+        let problem = &self.problem;
+        let rows = self.rows;
+        let sols = run_job(py, threads, || {
+            g.chunks_exact(rows)
+                .map(|gi| stscam::recon::solve(problem, gi, &opts))
+                .collect::<Vec<_>>()
+        })?;
+        let f: Vec<f64> = sols.iter().flat_map(|s| s.f.iter().copied()).collect();
+        let infos = sols
+            .iter()
+            .map(|s| json(&s.info))
+            .collect::<PyResult<_>>()?;
+        Ok((f64_bytes(py, &f), infos))
+    }
+}
+
+/// The solver options of `reconstruct`'s arguments, checked as the CLI checks its flags.
+fn solve_options(
+    method: &str,
+    iters: Option<usize>,
+    tau: f64,
+    tv: &str,
+) -> PyResult<stscam::recon::SolveOptions> {
+    use stscam::recon::{Method, SolveOptions, admm::TvKind};
+    let method = match method {
+        "cg" => Method::Cg,
+        "admm-tv" => Method::AdmmTv,
+        m => {
+            return Err(value_error(format!(
+                "method {m:?}: expected \"cg\" or \"admm-tv\""
+            )));
+        }
+    };
+    let tv = match tv {
+        "iso" => TvKind::Iso,
+        "aniso" => TvKind::Aniso,
+        t => {
+            return Err(value_error(format!(
+                "tv {t:?}: expected \"iso\" or \"aniso\""
+            )));
+        }
+    };
+    if !(tau.is_finite() && tau >= 0.0) {
+        return Err(value_error(format!(
+            "--tau {tau}: must be a non-negative number"
+        )));
+    }
+    if iters == Some(0) {
+        return Err(value_error("--iters: must be at least 1"));
+    }
+    Ok(SolveOptions {
+        method,
+        iters,
+        tau_rel: tau,
+        tv,
+    })
 }
 
 /// The simulated Hadamard calibration (as `stscam calibrate`): H_est and the report.
@@ -834,6 +958,11 @@ fn sweep(
     threads: Option<usize>,
 ) -> PyResult<String> {
     use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
+    if scene.2.is_some() || scene.3.is_some() {
+        return Err(value_error(
+            "sweep: takes a scene file and overrides; a scene from a dict or with an array target cannot be swept (write it to a TOML file)",
+        ));
+    }
     let axes = vary
         .iter()
         .map(|v| VaryAxis::parse(v))
@@ -1030,6 +1159,12 @@ fn read_png16<'py>(
     Ok((w, h, ch, PyBytes::new(py, &le)))
 }
 
+/// The shipped scenes: [(name, TOML text)].
+#[pyfunction]
+fn shipped_scenes() -> Vec<(&'static str, &'static str)> {
+    stscam::scene::SHIPPED_SCENES.to_vec()
+}
+
 /// The extension module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -1048,6 +1183,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(merge_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;
     m.add_function(wrap_pyfunction!(target, m)?)?;
+    m.add_class::<Solver>()?;
+    m.add_function(wrap_pyfunction!(shipped_scenes, m)?)?;
     m.add_function(wrap_pyfunction!(coverage, m)?)?;
     m.add_function(wrap_pyfunction!(sensor_noise, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;

@@ -21,12 +21,13 @@ import scipy.sparse
 
 from . import _native
 from .dataset import Dataset, load_dataset, load_splits
+from .operators import Operator
 
 __all__ = [
     "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
     "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "build_dataset",
-    "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise",
-    "read_exr", "write_exr", "__version__",
+    "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise", "Operator",
+    "read_exr", "write_exr", "scenes", "to_toml", "__version__",
 ]
 __version__: str = _native.VERSION
 
@@ -101,15 +102,73 @@ def target(spec: str) -> np.ndarray:
     return _f32(b, (h, w))
 
 
+def _toml_key(k: str) -> str:
+    return k if k and all(c.isalnum() or c in "-_" for c in k) else json.dumps(k)
+
+
+def _toml_inline(v: Any) -> str:
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{_toml_key(str(k))} = {_toml_inline(x)}" for k, x in v.items() if x is not None) + "}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_inline(x) for x in v) + "]"
+    if isinstance(v, (float, np.floating)) and not np.isfinite(v):
+        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
+    return _toml_value(v)
+
+
+def _is_table_list(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) > 0 and all(isinstance(x, Mapping) for x in v)
+
+
+def _toml_table(d: Mapping[str, Any], prefix: str, out: list[str]) -> None:
+    """Appends table ``d`` (named ``prefix``) as TOML lines: its plain keys, then its
+    sub-tables and arrays of tables; None values are left out (TOML has no null)."""
+    for k, v in d.items():
+        if v is None or isinstance(v, Mapping) or _is_table_list(v):
+            continue
+        out.append(f"{_toml_key(str(k))} = {_toml_inline(v)}")
+    for k, v in d.items():
+        name = f"{prefix}.{_toml_key(str(k))}" if prefix else _toml_key(str(k))
+        if isinstance(v, Mapping):
+            out.append(f"\n[{name}]")
+            _toml_table(v, name, out)
+        elif _is_table_list(v):
+            for item in v:
+                out.append(f"\n[[{name}]]")
+                _toml_table(item, name, out)
+
+
+def to_toml(d: Mapping[str, Any]) -> str:
+    """A scene dict (as :meth:`Scene.to_dict` gives) as TOML text a scene file holds."""
+    out: list[str] = []
+    _toml_table(d, "", out)
+    return "\n".join(out).lstrip("\n") + "\n"
+
+
+def scenes() -> list[str]:
+    """The names of the scenes shipped with stscam (``scenes/NAME.toml`` in the repository,
+    built into the package): ``Scene("gesture")`` or ``Scene.named("gesture")`` loads one."""
+    return [n for n, _ in _native.shipped_scenes()]
+
+
 class Scene:
-    """A scene: the embedded paper scene (``path=None``) or a TOML file merged over it, with
-    ``overrides`` (a dict of ``--set`` keys to values, e.g. ``{"sensor.crop_px": [96, 96],
-    "display.image": "letter:F@32"}``). Checked on construction (``ValueError``)."""
+    """A scene: the embedded paper scene (``path=None``), a TOML file merged over it, or a
+    shipped scene by name (``"gesture"``, see :func:`scenes`), with ``overrides`` (a dict of
+    ``--set`` keys to values, e.g. ``{"sensor.crop_px": [96, 96], "display.image":
+    "letter:F@32"}``) and optionally an ``image`` held in memory in place of
+    ``display.image`` (numpy (h, w) or (h, w, 3), with ``encoding="linear"`` or
+    ``"display"``). :meth:`from_dict` makes one from a dict with every key, including the
+    ``object`` and ``light`` lists. Checked on construction (``ValueError``)."""
 
     def __init__(self, path: Optional[str | os.PathLike] = None,
                  overrides: Optional[Mapping[str, Any]] = None, image: Any = None,
-                 encoding: Optional[str] = None):
+                 encoding: Optional[str] = None, _text: Optional[tuple[str, str, str]] = None):
         self.path: Optional[str] = None if path is None else os.fspath(path)
+        shipped = dict(_native.shipped_scenes())
+        if (_text is None and self.path is not None and self.path in shipped
+                and not os.path.exists(self.path)):
+            _text = (shipped[self.path], f"scenes/{self.path}.toml", ".")
+        self._text = _text
         self.overrides: dict[str, Any] = dict(overrides or {})
         self._sets = [f"{k}={_toml_value(v)}" for k, v in self.overrides.items()]
         self._img = None if image is None else _image_arg(image, encoding, "display.image")
@@ -120,13 +179,34 @@ class Scene:
         if self._img is not None:
             w, h, c, b, _ = self._img
             self.image = _f32(b, (h, w) if c == 1 else (h, w, 3))
-        self._arg = (self.path, self._sets, self._img)
+        self._arg = (self.path, self._sets, self._img, self._text)
         self._json = _native.scene_json(self._arg)
+
+    @classmethod
+    def named(cls, name: str, overrides: Optional[Mapping[str, Any]] = None) -> "Scene":
+        """A shipped scene by name (see :func:`scenes`)."""
+        shipped = dict(_native.shipped_scenes())
+        if name not in shipped:
+            raise ValueError(f"scene {name!r}: not a shipped scene; shipped: {', '.join(shipped)}")
+        return cls(name, overrides, _text=(shipped[name], f"scenes/{name}.toml", "."))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], overrides: Optional[Mapping[str, Any]] = None,
+                  base_dir: str | os.PathLike = ".", image: Any = None,
+                  encoding: Optional[str] = None) -> "Scene":
+        """A scene from a dict of sections, as a scene file holds them (every key, including
+        the ``object`` and ``light`` lists of tables; missing keys keep the paper scene's
+        values): the inverse of :meth:`to_dict`. Relative asset paths resolve against
+        ``base_dir``."""
+        if not isinstance(d, Mapping):
+            raise ValueError(f"scene: expected a dict, got {type(d).__name__}")
+        return cls(None, overrides, image=image, encoding=encoding,
+                   _text=(to_toml(d), "<dict>", os.fspath(base_dir)))
 
     def with_image(self, image: Any, encoding: str) -> "Scene":
         """This scene showing ``image`` (numpy (h, w) or (h, w, 3); ``encoding="linear"`` or
         ``"display"``) on the display instead of ``display.image``; kept in memory."""
-        return Scene(self.path, self.overrides, image=image, encoding=encoding)
+        return Scene(self.path, self.overrides, image=image, encoding=encoding, _text=self._text)
 
     @property
     def sets(self) -> list[str]:
@@ -336,7 +416,7 @@ def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
     if white_peak is None:
         cols, rows = info(s)["object_coverage"]["object_px"]
         white = np.ones((int(rows), int(cols)), dtype=np.float32)
-        ws = Scene(s.path, s.overrides, image=white, encoding="linear")
+        ws = s.with_image(white, "linear")
         white_peak = float(render(ws, spp=16, seed=1).image.max())
     b = _native.sensor_noise(s._arg, np.ascontiguousarray(a, dtype="<f8").tobytes(),
                              _uint(seed, "--seed <SEED>", _U64), float(white_peak))
@@ -406,7 +486,7 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     CG (``method="cg"``) or ADMM-TV, as ``stscam reconstruct``. ``H`` is any scipy sparse
     matrix (stored as float32, like ``H.npz``); ``offset`` (float32, like ``offset.npy``) is
     subtracted first; ``tau`` is relative to ‖Hᵀg‖∞ (default 0.001). Returns the object as a
-    float64 array [h, w] (``object_shape=(w, h)``; default: square), and with
+    float64 array [h, w] (``object_shape=(h, w)``, numpy's order; default: square), and with
     ``return_info=True`` also the solver's report (``recon.json``'s ``solver``)."""
     if not scipy.sparse.issparse(H):
         raise ValueError(f"H: expected a scipy sparse matrix, got {type(H).__name__}")
@@ -417,9 +497,9 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     if object_shape is None:
         side = int(round(cols ** 0.5))
         if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
         object_shape = (side, side)
-    w, hh = (int(v) for v in object_shape)
+    hh, w = (int(v) for v in object_shape)
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     off = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
@@ -464,9 +544,9 @@ def reconstruct_stack(stack, capture, method: str = "joint", iters: Optional[int
     if object_shape is None:
         side = int(round(cols ** 0.5))
         if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
         object_shape = (side, side)
-    w, hh = (int(v) for v in object_shape)
+    hh, w = (int(v) for v in object_shape)
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     joint = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
@@ -489,13 +569,14 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
               threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
     """The paper's Hadamard calibration, simulated (``stscam calibrate``): returns H_est (as
     ``H_est.npz``) and the report (``calibration.json``'s ``report``). ``matrix`` is an
-    ``H.npz`` path (default: H computed from the scene)."""
+    ``H.npz`` path (default: H computed from the scene) and ``object_shape`` its object (h, w)
+    where no ``H.json`` beside it says; a scene holding an array target calibrates that."""
     if noise not in ("sensor", "none"):
         raise ValueError(f"noise {noise!r}: expected \"sensor\" or \"none\"")
     s = _scene(scene)
     d = _native.calibrate(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                           None if matrix is None else os.fspath(matrix),
-                          None if object_shape is None else tuple(object_shape),
+                          None if object_shape is None else (int(object_shape[1]), int(object_shape[0])),
                           noise == "sensor", bool(dark_frame), bool(render),
                           float(threshold_sigma), _threads(threads))
     return _csr(d), json.loads(d["report"])

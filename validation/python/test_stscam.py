@@ -539,3 +539,93 @@ def test_frontal_px_takes_one_number_like_the_cli(tmp_path):
     assert a.frontal.shape == (12, 12)
     assert same_bits(stscam.render(s, spp=1, frontal_px="12").frontal, a.frontal)
     assert stscam.render(s, spp=1, frontal_px="16x12").frontal.shape == (12, 16)
+
+
+# --- The operator ---
+
+@pytest.fixture(scope="module")
+def small_h(scene):
+    return stscam.matrix(scene, spp=SPP)
+
+
+def test_operator_adjoint_batches_and_scipy(small_h):
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32), capture_shape=(48, 64))
+    rng = np.random.default_rng(1)
+    x = rng.random((3, 32, 32))
+    y = rng.standard_normal((3, 48, 64))
+    hx, hty = op.forward(x), op.adjoint(y)
+    assert hx.shape == (3, 48, 64) and hty.shape == (3, 32, 32)
+    for i in range(3):
+        lhs, rhs = np.vdot(hx[i], y[i]), np.vdot(x[i], hty[i])
+        assert abs(lhs - rhs) <= 1e-6 * np.linalg.norm(hx[i]) * np.linalg.norm(y[i])
+        # Batch equals a loop, and both equal scipy's product with H.
+        assert same_bits(op.forward(x[i]), hx[i])
+        assert np.array_equal(hx[i].ravel(), h.astype(np.float64) @ x[i].ravel())
+    # A wrong adjoint (H's transpose with one entry changed) fails the same test.
+    bad = h.astype(np.float64).T.tocsr()
+    bad.data[np.argmax(bad.data)] *= 2
+    lhs, rhs = np.vdot(hx[0], y[0]), np.vdot(x[0], (bad @ y[0].ravel()).reshape(32, 32))
+    assert abs(lhs - rhs) > 1e-6 * np.linalg.norm(hx[0]) * np.linalg.norm(y[0])
+    L = op.scipy()
+    assert np.array_equal(L.matvec(x[0].ravel()), hx[0].ravel())
+    assert np.array_equal(L.rmatvec(y[0].ravel()), hty[0].ravel())
+    assert np.allclose(op.capture(x[0]).ravel(), hx[0].ravel() + off)
+
+
+@pytest.mark.parametrize("method", ["cg", "admm-tv"])
+def test_operator_reconstruct_equals_reconstruct_and_batches(small_h, scene, method):
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32), capture_shape=(48, 64))
+    g = np.stack([stscam.render(scene, spp=SPP, seed=s).image for s in (7, 8)])
+    batch, infos = op.reconstruct(g, method=method, iters=8, return_info=True)
+    assert batch.shape == (2, 32, 32) and len(infos) == 2
+    for i in range(2):
+        one = stscam.reconstruct(h, g[i], method=method, iters=8, offset=off)
+        assert same_bits(batch[i], one), i
+    assert not same_bits(batch[0], batch[1])
+
+
+def test_operator_torch_gradient_and_batch(small_h):
+    torch = pytest.importorskip("torch")
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32))
+    A = op.torch()
+    x = torch.rand(2, 32, 32, dtype=torch.float64, requires_grad=True)
+    y = A(x)
+    assert y.shape == (2, 48 * 64)
+    assert torch.equal(y[1], A(x[1]))
+    assert np.array_equal(y.detach().numpy(), op.forward(x.detach().numpy()))
+    w = torch.rand(2, 48 * 64, dtype=torch.float64)
+    (y * w).sum().backward()
+    assert np.allclose(x.grad.numpy(), op.adjoint(w.numpy()), rtol=1e-12, atol=0)
+    small = stscam.Operator(h[:40, :].tocsc()[:, :16].tocsr(), None, object_shape=(4, 4))
+    assert torch.autograd.gradcheck(small.torch(), (torch.rand(1, 4, 4, dtype=torch.float64, requires_grad=True),))
+
+
+# --- Scenes in Python ---
+
+def test_scene_from_dict_round_trips_with_objects_and_lights(tmp_path):
+    s = stscam.Scene("gesture", {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
+    d = s.to_dict()
+    assert d["object"][0]["mesh"] == "hand" and len(d["light"]) == 3
+    back = stscam.Scene.from_dict(d)
+    assert back.to_dict() == d
+    assert same_bits(stscam.render(back, spp=1).image, stscam.render(s, spp=1).image)
+    # The shipped scene by name is the repository's file.
+    f = stscam.Scene(ROOT / "scenes" / "gesture.toml", {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
+    assert f.to_dict() == d
+    assert set(stscam.scenes()) >= {"paper-2022", "eye-contact", "gesture"}
+    # Objects and lights added from Python: a second object and no environment light.
+    d2 = json.loads(json.dumps(d))
+    d2["object"].append(dict(d2["object"][0], mesh="head", position_mm=[0.0, 0.0, -400.0]))
+    d2["light"] = d2["light"][:2]
+    s2 = stscam.Scene.from_dict(d2)
+    assert [o["mesh"] for o in s2.to_dict()["object"]] == ["hand", "head"]
+    assert len(s2.to_dict()["light"]) == 2
+    assert not same_bits(stscam.render(s2, spp=1).image, stscam.render(s, spp=1).image)
+    # A bad key raises the loader's one line.
+    with pytest.raises(ValueError, match="thickness_mmm"):
+        stscam.Scene.from_dict({"plate": {"thickness_mmm": 3.0}})
+    with pytest.raises(ValueError, match="not a shipped scene"):
+        stscam.Scene.named("nope")
