@@ -1159,6 +1159,13 @@ fn read_png16<'py>(
     Ok((w, h, ch, PyBytes::new(py, &le)))
 }
 
+/// Runs the `stscam` command line (`argv` with the program name first) as the binary does,
+/// with the GIL released: its exit code.
+#[pyfunction]
+fn cli(py: Python<'_>, argv: Vec<std::ffi::OsString>) -> u8 {
+    py.allow_threads(|| stscam::jobs::cli::run(argv))
+}
+
 /// The shipped scenes: [(name, TOML text)].
 #[pyfunction]
 fn shipped_scenes() -> Vec<(&'static str, &'static str)> {
@@ -1185,6 +1192,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(target, m)?)?;
     m.add_class::<Solver>()?;
     m.add_function(wrap_pyfunction!(shipped_scenes, m)?)?;
+    m.add_function(wrap_pyfunction!(cli, m)?)?;
     m.add_function(wrap_pyfunction!(coverage, m)?)?;
     m.add_function(wrap_pyfunction!(sensor_noise, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;

@@ -629,3 +629,16 @@ def test_scene_from_dict_round_trips_with_objects_and_lights(tmp_path):
         stscam.Scene.from_dict({"plate": {"thickness_mmm": 3.0}})
     with pytest.raises(ValueError, match="not a shipped scene"):
         stscam.Scene.named("nope")
+
+
+def test_stscam_command_is_the_cli(tmp_path):
+    import sys
+    cmd = Path(sys.executable).parent / "stscam"
+    runs = [[str(cmd)]] if cmd.exists() else []
+    runs.append([sys.executable, "-m", "stscam"])
+    want = cli("info", "--json", *set_args(SETS)).stdout
+    for run in runs:
+        r = subprocess.run([*run, "info", "--json", *set_args(SETS)], capture_output=True, text=True)
+        assert r.returncode == 0 and json.loads(r.stdout) == json.loads(want), r.stderr
+        bad = subprocess.run([*run, "render", "--spp", "0", "--out", str(tmp_path)], capture_output=True, text=True)
+        assert bad.returncode == 2 and bad.stderr.strip() == "error: --spp: must be at least 1"
