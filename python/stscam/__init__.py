@@ -54,10 +54,12 @@ def _uint(v: Any, flag: str, hi: int, lo: int = 0) -> int:
     ValueError with its message for a non-integer or a value outside ``lo..=hi`` (never
     OverflowError)."""
     try:
+        if isinstance(v, bool):
+            raise TypeError
         i = operator.index(v)
     except TypeError:
         raise ValueError(f"invalid value '{v}' for '{flag}': expected an integer") from None
-    if isinstance(v, bool) or not lo <= i <= hi:
+    if not lo <= i <= hi:
         raise ValueError(f"invalid value '{v}' for '{flag}': {i} is not in {lo}..={hi}")
     return i
 

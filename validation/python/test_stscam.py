@@ -324,6 +324,30 @@ def test_ctrl_c_stops_a_long_render():
         signal.signal(signal.SIGINT, previous)
 
 
+def test_ctrl_c_stops_a_long_reconstruction(small_h):
+    # The CG and ADMM-TV iterations check the cancellation token (before: only renders did).
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32))
+    g = op.capture(np.full((32, 32), 0.5))
+    op.reconstruct(g, method="admm-tv", iters=1)  # the set-up, once
+    t0 = time.monotonic()
+    op.reconstruct(g, method="admm-tv", iters=200)
+    per_iter = (time.monotonic() - t0) / 200
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            op.reconstruct(g, method="admm-tv", iters=10**9)
+        elapsed = time.monotonic() - t0
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    # 10**9 iterations would take days; the interrupt lands within ~0.1 s plus one iteration.
+    assert elapsed < 0.5 + 0.5 + 2 * per_iter, (elapsed, per_iter)
+
+
 def check_ctrl_c_stops_a_long_render():
     big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
     t0 = time.monotonic()
