@@ -207,6 +207,24 @@ impl SensorNoise {
     }
 }
 
+/// Stream tag of a dataset capture's noise: pixel i of the capture of sample seed s draws
+/// from `NoiseRng([s, NOISE_TAG, i])`.
+pub const NOISE_TAG: u64 = 0x4E4F_4953;
+
+/// The stored noisy capture of a clean one, as datasets store it: each value measured by
+/// `noise` (pixel i with `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, in
+/// capture units, as f32.
+pub fn measure_capture(noise: &SensorNoise, clean: &[f64], seed: u64) -> Vec<f32> {
+    let dark = noise.dark_offset_units();
+    clean
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            (noise.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark) as f32
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -737,6 +737,7 @@ mod tests {
             include_str!("analytic.rs"),
             include_str!("bench.rs"),
             include_str!("main.rs"),
+            include_str!("jobs/cli.rs"),
             include_str!("jobs/bench.rs"),
             include_str!("jobs/demo.rs"),
             include_str!("jobs/info.rs"),

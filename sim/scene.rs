@@ -14,6 +14,13 @@ use crate::numfmt::sig6;
 
 /// The paper's setup, compiled into the binary.
 pub const PAPER_SCENE_TOML: &str = include_str!("../scenes/paper-2022.toml");
+
+/// The scenes shipped in `scenes/` by name (file name without `.toml`), with their TOML text.
+pub const SHIPPED_SCENES: &[(&str, &str)] = &[
+    ("paper-2022", PAPER_SCENE_TOML),
+    ("eye-contact", include_str!("../scenes/eye-contact.toml")),
+    ("gesture", include_str!("../scenes/gesture.toml")),
+];
 /// Name used in messages for the embedded scene.
 pub const EMBEDDED_NAME: &str = "<embedded scenes/paper-2022.toml>";
 
@@ -552,8 +559,7 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
 /// Loads a scene: the embedded paper scene, merged with `path` if given, then the overrides.
 /// The result is validated.
 pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedScene, SceneError> {
-    let mut table = parse_table(PAPER_SCENE_TOML, EMBEDDED_NAME)?;
-    let (source, base_dir) = match path {
+    match path {
         Some(p) => {
             let file = p.display().to_string();
             let text = crate::io::read_text(p).map_err(|e| SceneError::Read {
@@ -563,10 +569,26 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
                     crate::io::IoError::Format { message, .. } => message,
                 },
             })?;
-            let user = parse_table(&text, &file)?;
-            merge(&mut table, user, "", &file)?;
             let dir = p.parent().map(Path::to_path_buf).unwrap_or_default();
-            (file, dir)
+            load_scene_text(Some((&text, &file, &dir)), overrides)
+        }
+        None => load_scene_text(None, overrides),
+    }
+}
+
+/// As [`load_scene`], for a scene held in memory: `user` is (TOML text, the name to blame in
+/// messages, the directory its relative asset paths resolve against), merged over the paper
+/// scene; `None` is the paper scene alone.
+pub fn load_scene_text(
+    user: Option<(&str, &str, &Path)>,
+    overrides: &[String],
+) -> Result<LoadedScene, SceneError> {
+    let mut table = parse_table(PAPER_SCENE_TOML, EMBEDDED_NAME)?;
+    let (source, base_dir) = match user {
+        Some((text, file, dir)) => {
+            let user = parse_table(text, file)?;
+            merge(&mut table, user, "", file)?;
+            (file.to_string(), dir.to_path_buf())
         }
         None => (EMBEDDED_NAME.to_string(), PathBuf::from(".")),
     };

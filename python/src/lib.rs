@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
 use std::time::Duration;
 
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -34,9 +34,7 @@ fn run_job<T: Send>(
 ) -> PyResult<T> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
-        if t == 0 {
-            return Err(value_error("threads: must be at least 1"));
-        }
+        stscam::limits::check_threads(t).map_err(value_error)?;
         b = b.num_threads(t);
     }
     let pool = b
@@ -80,13 +78,110 @@ fn run_job<T: Send>(
     })
 }
 
-/// A scene as the Python layer passes it: (scene file or None, `--set KEY=VALUE` overrides).
-type SceneArg = (Option<String>, Vec<String>);
+/// A target image held in memory, as the Python layer passes it: (width, height, channels 1
+/// or 3, float32 little-endian values row-major with channels interleaved, linear).
+/// `linear` false means display code values in [0, 1] (the display gamma is applied, as for
+/// a PNG); true means linear intensity (as for an EXR).
+type ImageArg = (usize, usize, usize, Vec<u8>, bool);
+
+/// A scene held as TOML text: (text, the name messages blame, the directory relative asset
+/// paths resolve against).
+type TextArg = (String, String, String);
+
+/// A scene as the Python layer passes it: (scene file or None, `--set KEY=VALUE` overrides,
+/// a target image in memory replacing `display.image` or None, the scene as TOML text
+/// instead of a file or None).
+type SceneArg = (
+    Option<String>,
+    Vec<String>,
+    Option<ImageArg>,
+    Option<TextArg>,
+);
+
+/// Decoded and checked target values of an [`ImageArg`] (the CLI's checks on an image file:
+/// size within the built-in targets' range, finite values).
+fn image_values(img: &ImageArg) -> Result<Vec<f32>, String> {
+    let (w, h, c, b, _) = img;
+    if !(1..=16384).contains(w) || !(1..=16384).contains(h) || !(*c == 1 || *c == 3) {
+        return Err(format!(
+            "display.image: an array target must be 1..=16384 pixels each way with 1 or 3 channels, got {h}x{w}x{c} (h x w x channels)"
+        ));
+    }
+    if b.len() != w * h * c * 4 {
+        return Err(format!(
+            "display.image: {} bytes do not hold {h}x{w}x{c} float32 values",
+            b.len()
+        ));
+    }
+    let v: Vec<f32> = b
+        .chunks_exact(4)
+        .map(|q| f32::from_le_bytes([q[0], q[1], q[2], q[3]]))
+        .collect();
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        let px = i / c;
+        return Err(format!(
+            "display.image: pixel ({}, {}) is not a finite number",
+            px % w,
+            px / w
+        ));
+    }
+    Ok(v)
+}
+
+/// Shows `values` (see [`ImageArg`]) on the display of `sys`, exactly as `System::build` does
+/// for an image file: the target's size, linear intensity and radiance are replaced.
+fn show_image(sys: &mut System, img: &ImageArg, values: &[f32]) {
+    use stscam::display::Display;
+    let (w, h, c, _, linear) = *img;
+    let d = &sys.scene.display;
+    let (gamma, black) = (d.gamma, d.black_level);
+    // A linear RGB target is reduced to luminance in f32 first, as the EXR loader does
+    // (`io::image_load`), so an array equals the same image written as an EXR bit for bit.
+    let luma: Vec<f32>;
+    let (values, c) = if linear && c == 3 {
+        luma = values
+            .chunks_exact(3)
+            .map(|p| {
+                (0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]))
+                    as f32
+            })
+            .collect();
+        (&luma[..], 1)
+    } else {
+        (values, c)
+    };
+    sys.display.width_px = w;
+    sys.display.height_px = h;
+    sys.display.intensity = Display::intensity_of(values, c, linear, gamma);
+    sys.display.radiance = Display::linearise(values, c, linear, gamma, black);
+}
+
+/// The CLI's warning (`stscam matrix`, `dataset`, `demo`) when part of the object has no
+/// strong replica inside the crop, prefixed by `what`; None when all of it is seen or the
+/// display is off.
+fn coverage_warning(sys: &System, what: &str) -> Option<String> {
+    if !sys.scene.display.enabled {
+        return None;
+    }
+    stscam::analysis::object_coverage(sys)
+        .warning()
+        .map(|w| format!("{what}{}", w.trim_start_matches("warning: ")))
+}
 
 fn load(scene: &SceneArg) -> Result<System, String> {
-    let ls = stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1)
-        .map_err(|e| e.to_string())?;
-    System::build(&ls).map_err(|e| e.to_string())
+    let ls = match &scene.3 {
+        Some((text, name, dir)) => {
+            stscam::scene::load_scene_text(Some((text, name, Path::new(dir))), &scene.1)
+        }
+        None => stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1),
+    }
+    .map_err(|e| e.to_string())?;
+    let mut sys = System::build(&ls).map_err(|e| e.to_string())?;
+    if let Some(img) = &scene.2 {
+        let v = image_values(img)?;
+        show_image(&mut sys, img, &v);
+    }
+    Ok(sys)
 }
 
 fn check_spp(spp: u32) -> PyResult<()> {
@@ -132,7 +227,7 @@ fn scene_json(scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -144,6 +239,7 @@ fn render<'py>(
     spectral: bool,
     frontal_px: Option<(usize, usize)>,
     user_side: &str,
+    batch: Vec<ImageArg>,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     let user_side = match user_side {
@@ -175,8 +271,13 @@ fn render<'py>(
             "--frontal-px: expected N or WxH (1..=8192 each), got {w}x{h}"
         )));
     }
-    let (cap, frontal, render_s) = run_job(py, threads, || {
-        let sys = load(&scene)?;
+    let values = batch
+        .iter()
+        .map(image_values)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(value_error)?;
+    let (cap, frontal, render_s, more) = run_job(py, threads, || {
+        let mut sys = load(&scene)?;
         let settings = RenderSettings {
             spp,
             seed,
@@ -185,12 +286,29 @@ fn render<'py>(
             spectral_bins: spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling)),
             progress: false,
         };
+        // The CLI's limits (run time and memory), for every render of the call.
+        let renders = batch.len().max(1) as u64;
+        stscam::render::check_limits(&sys, &settings, renders, "--spp")
+            .map_err(|e| e.to_string())?;
+        if let (Some((fw, fh)), true) = (frontal_px, sys.world.is_some()) {
+            stscam::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
+                .map_err(|e| e.to_string())?;
+        }
         let t0 = std::time::Instant::now();
+        let mut more = Vec::new();
+        if let Some((first, rest)) = batch.split_first() {
+            show_image(&mut sys, first, &values[0]);
+            for (img, v) in rest.iter().zip(&values[1..]) {
+                let mut s = sys.clone();
+                show_image(&mut s, img, v);
+                more.push(stscam::render::render(&s, &settings));
+            }
+        }
         let cap = stscam::render::render(&sys, &settings);
         let render_s = t0.elapsed().as_secs_f64();
         let (fw, fh) = frontal_px.unwrap_or((cap.width, cap.height));
         let frontal = stscam::world::frontal::render_frontal(&sys, fw, fh, spp, seed);
-        Ok::<_, String>((cap, frontal, render_s))
+        Ok::<_, String>((cap, frontal, render_s, more))
     })?
     .map_err(value_error)?;
     let d = PyDict::new(py);
@@ -208,6 +326,11 @@ fn render<'py>(
     d.set_item("spectral", f32_bytes(py, &spec))?;
     d.set_item("stats", json(&cap.stats)?)?;
     d.set_item("render_time_s", render_s)?;
+    let more_images: Vec<Bound<'py, PyBytes>> = more
+        .iter()
+        .map(|c| f32_bytes(py, &c.channels.concat()))
+        .collect();
+    d.set_item("batch_rest", more_images)?;
     if let Some(f) = frontal {
         let fd = PyDict::new(py);
         fd.set_item("width", f.width)?;
@@ -242,13 +365,15 @@ fn matrix<'py>(
         if let Some(d) = depth_mm {
             stscam::matrix::place_object(&mut sys, d);
         }
-        Ok::<_, String>(stscam::matrix::compute_matrix(
-            &sys,
-            &RenderSettings::lattice(spp, seed, false),
-        ))
+        let settings = RenderSettings::lattice(spp, seed, false);
+        stscam::render::check_limits(&sys, &settings, 1, "--spp").map_err(|e| e.to_string())?;
+        let warning = coverage_warning(&sys, "");
+        Ok::<_, String>((stscam::matrix::compute_matrix(&sys, &settings), warning))
     })?
     .map_err(value_error)?;
+    let (m, warning) = m;
     let d = csr_dict(py, &m.h)?;
+    d.set_item("warning", warning)?;
     d.set_item("offset", f32_bytes(py, &m.offset))?;
     d.set_item("object", m.object)?;
     d.set_item("crop", m.crop)?;
@@ -276,6 +401,8 @@ fn matrix_stack<'py>(
     let budget = (stscam::limits::MAX_JOB_BYTES / 4) as u64;
     let stack = run_job(py, threads, || {
         let sys = load(&scene)?;
+        stscam::render::check_limits(&sys, &RenderSettings::lattice(spp, seed, false), 1, "--spp")
+            .map_err(|e| e.to_string())?;
         stscam::matrix::compute_matrix_stack_within(
             &sys,
             &RenderSettings::lattice(spp, seed, false),
@@ -294,6 +421,14 @@ fn matrix_stack<'py>(
         out.push(dict);
     }
     Ok(out)
+}
+
+/// The coverage warning of a scene (as `stscam matrix` prints it, without `warning: `), or None.
+#[pyfunction]
+#[pyo3(signature = (scene))]
+fn coverage(scene: SceneArg) -> PyResult<Option<String>> {
+    let sys = load(&scene).map_err(value_error)?;
+    Ok(coverage_warning(&sys, ""))
 }
 
 /// `stscam info --json`.
@@ -445,6 +580,14 @@ fn reconstruct_stack<'py>(
             .as_ref()
             .map(|o| decode(o.as_bytes(), "offset", f32::from_le_bytes))
             .transpose()?;
+        if let Some(i) = off
+            .as_ref()
+            .and_then(|o| o.iter().position(|v| !v.is_finite()))
+        {
+            return Err(value_error(format!(
+                "{what}: offset value {i} is not a finite number"
+            )));
+        }
         if off.as_ref().is_some_and(|o| o.len() != h.rows) {
             return Err(value_error(format!(
                 "{what}: its offset has the wrong length"
@@ -485,6 +628,14 @@ fn reconstruct_stack<'py>(
     };
     if joint_offset.as_ref().is_some_and(|o| o.len() != rows) {
         return Err(value_error("offset: its length is not H's row count"));
+    }
+    if let Some(i) = joint_offset
+        .as_ref()
+        .and_then(|o| o.iter().position(|v| !v.is_finite()))
+    {
+        return Err(value_error(format!(
+            "offset: value {i} is not a finite number"
+        )));
     }
     let ls = stscam::stack::LoadedStack {
         depths_mm,
@@ -557,33 +708,8 @@ fn reconstruct<'py>(
     tv: &str,
     threads: Option<usize>,
 ) -> PyResult<(Bound<'py, PyBytes>, String)> {
-    use stscam::recon::{Method, Problem, SolveOptions, admm::TvKind};
-    let method = match method {
-        "cg" => Method::Cg,
-        "admm-tv" => Method::AdmmTv,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"cg\" or \"admm-tv\""
-            )));
-        }
-    };
-    let tv = match tv {
-        "iso" => TvKind::Iso,
-        "aniso" => TvKind::Aniso,
-        t => {
-            return Err(value_error(format!(
-                "tv {t:?}: expected \"iso\" or \"aniso\""
-            )));
-        }
-    };
-    if !(tau.is_finite() && tau >= 0.0) {
-        return Err(value_error(format!(
-            "--tau {tau}: must be a non-negative number"
-        )));
-    }
-    if iters == Some(0) {
-        return Err(value_error("--iters: must be at least 1"));
-    }
+    use stscam::recon::Problem;
+    let opts = solve_options(method, iters, tau, tv)?;
     let h = csr_from(rows, cols, indptr, indices, data, "H")?;
     if object.0.checked_mul(object.1) != Some(cols) {
         return Err(value_error(format!(
@@ -613,21 +739,160 @@ fn reconstruct<'py>(
                 o.len()
             )));
         }
+        if let Some(i) = o.iter().position(|v| !v.is_finite()) {
+            return Err(value_error(format!(
+                "offset: value {i} is not a finite number"
+            )));
+        }
         for (x, &v) in g.iter_mut().zip(&o) {
             *x -= f64::from(v);
         }
     }
-    let opts = SolveOptions {
-        method,
-        iters,
-        tau_rel: tau,
-        tv,
-    };
+    stscam::limits::check_bytes(
+        "H",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stscam::recon::setup_bytes_bound(&h, threads.unwrap_or_else(rayon::current_num_threads)),
+    )
+    .map_err(value_error)?;
     let sol = run_job(py, threads, || {
         let problem = Problem::new(&h, object.0, object.1);
         stscam::recon::solve(&problem, &g, &opts)
     })?;
     Ok((f64_bytes(py, &sol.f), json(&sol.info)?))
+}
+
+/// A reconstruction problem set up once (Hᵀ and the Gram matrix HᵀH, as `stscam reconstruct`
+/// builds them) for many captures: the Python `Operator`'s solver.
+#[pyclass(frozen, module = "stscam._native")]
+struct Solver {
+    problem: stscam::recon::Problem,
+    rows: usize,
+}
+
+#[pymethods]
+impl Solver {
+    /// Sets up H (arrays as for `reconstruct`) for an object of `object` = (width, height).
+    #[new]
+    #[pyo3(signature = (rows, cols, indptr, indices, data, object, threads))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        rows: usize,
+        cols: usize,
+        indptr: &[u8],
+        indices: &[u8],
+        data: &[u8],
+        object: (usize, usize),
+        threads: Option<usize>,
+    ) -> PyResult<Self> {
+        let h = csr_from(rows, cols, indptr, indices, data, "H")?;
+        if object.0.checked_mul(object.1) != Some(cols) {
+            return Err(value_error(format!(
+                "the object {}x{} has {} pixels but H has {cols} columns",
+                object.1,
+                object.0,
+                object.0.saturating_mul(object.1)
+            )));
+        }
+        let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
+        stscam::limits::check_bytes(
+            "H",
+            "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+            stscam::recon::setup_bytes_bound(&h, threads_n),
+        )
+        .map_err(value_error)?;
+        let problem = run_job(py, threads, || {
+            stscam::recon::Problem::new(&h, object.0, object.1)
+        })?;
+        Ok(Solver { problem, rows })
+    }
+
+    /// Solves for each of `frames` captures (float64 bytes, frame-major, the offset already
+    /// subtracted) as `stscam reconstruct` does: the objects (float64 bytes, frame-major) and
+    /// each frame's solver report (JSON).
+    #[pyo3(signature = (capture, frames, method, iters, tau, tv, threads))]
+    #[allow(clippy::too_many_arguments)]
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        capture: &[u8],
+        frames: usize,
+        method: &str,
+        iters: Option<usize>,
+        tau: f64,
+        tv: &str,
+        threads: Option<usize>,
+    ) -> PyResult<(Bound<'py, PyBytes>, Vec<String>)> {
+        let opts = solve_options(method, iters, tau, tv)?;
+        let g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
+        if Some(g.len()) != frames.checked_mul(self.rows) || frames == 0 {
+            return Err(value_error(format!(
+                "capture: {} values are not {frames} frames of H's {} rows",
+                g.len(),
+                self.rows
+            )));
+        }
+        if let Some(i) = g.iter().position(|v| !v.is_finite()) {
+            return Err(value_error(format!(
+                "capture: value {i} is not a finite number"
+            )));
+        }
+        let problem = &self.problem;
+        let rows = self.rows;
+        let sols = run_job(py, threads, || {
+            g.chunks_exact(rows)
+                .map(|gi| stscam::recon::solve(problem, gi, &opts))
+                .collect::<Vec<_>>()
+        })?;
+        let f: Vec<f64> = sols.iter().flat_map(|s| s.f.iter().copied()).collect();
+        let infos = sols
+            .iter()
+            .map(|s| json(&s.info))
+            .collect::<PyResult<_>>()?;
+        Ok((f64_bytes(py, &f), infos))
+    }
+}
+
+/// The solver options of `reconstruct`'s arguments, checked as the CLI checks its flags.
+fn solve_options(
+    method: &str,
+    iters: Option<usize>,
+    tau: f64,
+    tv: &str,
+) -> PyResult<stscam::recon::SolveOptions> {
+    use stscam::recon::{Method, SolveOptions, admm::TvKind};
+    let method = match method {
+        "cg" => Method::Cg,
+        "admm-tv" => Method::AdmmTv,
+        m => {
+            return Err(value_error(format!(
+                "method {m:?}: expected \"cg\" or \"admm-tv\""
+            )));
+        }
+    };
+    let tv = match tv {
+        "iso" => TvKind::Iso,
+        "aniso" => TvKind::Aniso,
+        t => {
+            return Err(value_error(format!(
+                "tv {t:?}: expected \"iso\" or \"aniso\""
+            )));
+        }
+    };
+    if !(tau.is_finite() && tau >= 0.0) {
+        return Err(value_error(format!(
+            "--tau {tau}: must be a non-negative number"
+        )));
+    }
+    if iters == Some(0) {
+        return Err(value_error("--iters: must be at least 1"));
+    }
+    Ok(SolveOptions {
+        method,
+        iters,
+        tau_rel: tau,
+        tv,
+    })
 }
 
 /// The simulated Hadamard calibration (as `stscam calibrate`): H_est and the report.
@@ -693,6 +958,11 @@ fn sweep(
     threads: Option<usize>,
 ) -> PyResult<String> {
     use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
+    if scene.2.is_some() || scene.3.is_some() {
+        return Err(value_error(
+            "sweep: takes a scene file and overrides; a scene from a dict or with an array target cannot be swept (write it to a TOML file)",
+        ));
+    }
     let axes = vary
         .iter()
         .map(|v| VaryAxis::parse(v))
@@ -732,14 +1002,14 @@ fn build_dataset(
     shard: Option<String>,
     resume: bool,
     threads: Option<usize>,
-) -> PyResult<String> {
+) -> PyResult<(String, Vec<String>)> {
     use stscam::dataset::{RunOptions, Shard, generate, plan};
     let shard = shard
         .map(|s| Shard::parse(&s).map_err(|m| value_error(format!("--shard: {m}"))))
         .transpose()?;
-    let s = run_job(py, threads, || {
+    let (s, warnings) = run_job(py, threads, || {
         let p = plan(&recipe)?;
-        generate(
+        let s = generate(
             &p,
             &RunOptions {
                 out: out.clone(),
@@ -747,10 +1017,16 @@ fn build_dataset(
                 resume,
                 progress: false,
             },
-        )
+        )?;
+        let w: Vec<String> = p
+            .scenes
+            .iter()
+            .filter_map(|sc| coverage_warning(&sc.system, &format!("{}: ", sc.id)))
+            .collect();
+        Ok::<_, stscam::dataset::DatasetError>((s, w))
     })?
     .map_err(value_error)?;
-    json(&s)
+    Ok((json(&s)?, warnings))
 }
 
 /// Joins finished shards into `out` (as `stscam dataset merge`); returns the summary as JSON.
@@ -780,6 +1056,122 @@ fn read_exr<'py>(
     Ok((w, h, out))
 }
 
+/// A built-in target (`stscam.target("letter:F@32")`): (width, height, display code values as
+/// float32 bytes, row-major).
+#[pyfunction]
+fn target<'py>(py: Python<'py>, spec: &str) -> PyResult<(usize, usize, Bound<'py, PyBytes>)> {
+    let t = stscam::targets::builtin_target(spec)
+        .map_err(|e| value_error(format!("display.image: {e}")))?;
+    Ok((t.width, t.height, f32_bytes(py, &t.values)))
+}
+
+/// The sensor noise model of `scene` applied to a clean capture (float64 bytes, capture
+/// units), with the exposure fixed by `white_peak` (the all-white capture's brightest value),
+/// exactly as datasets store a noisy capture (`stscam::noise::measure_capture`): float32 bytes.
+#[pyfunction]
+#[pyo3(signature = (scene, clean, seed, white_peak))]
+fn sensor_noise<'py>(
+    py: Python<'py>,
+    scene: SceneArg,
+    clean: &[u8],
+    seed: u64,
+    white_peak: f64,
+) -> PyResult<Bound<'py, PyBytes>> {
+    if !(white_peak.is_finite() && white_peak > 0.0) {
+        return Err(value_error(format!(
+            "white_peak {white_peak}: must be a positive number"
+        )));
+    }
+    let clean: Vec<f64> = decode(clean, "clean", f64::from_le_bytes)?;
+    if let Some(i) = clean.iter().position(|v| !v.is_finite()) {
+        return Err(value_error(format!(
+            "clean: value {i} is not a finite number"
+        )));
+    }
+    let sys = load(&scene).map_err(value_error)?;
+    let noise = stscam::noise::SensorNoise::new(&sys.scene.noise, white_peak);
+    let out = run_job(py, None, || {
+        stscam::noise::measure_capture(&noise, &clean, seed)
+    })?;
+    Ok(f32_bytes(py, &out))
+}
+
+/// Writes float32 channels (name, bytes) of `width` x `height` as an EXR file, as stscam
+/// writes its images (no timing attributes).
+#[pyfunction]
+fn write_exr(
+    path: PathBuf,
+    width: usize,
+    height: usize,
+    channels: Vec<(String, Vec<u8>)>,
+) -> PyResult<()> {
+    let mut chans = Vec::with_capacity(channels.len());
+    for (name, b) in &channels {
+        let data: Vec<f32> = decode(b, name, f32::from_le_bytes)?;
+        if Some(data.len()) != width.checked_mul(height) {
+            return Err(value_error(format!(
+                "channel {name}: {} values, expected {height}x{width}",
+                data.len()
+            )));
+        }
+        chans.push(stscam::io::exr::ExrChannel {
+            name: name.clone(),
+            data,
+        });
+    }
+    let bytes = stscam::io::exr::encode_exr(width, height, chans, &[]).map_err(value_error)?;
+    stscam::io::write_atomic(&path, &bytes).map_err(|e| PyOSError::new_err(e.to_string()))
+}
+
+/// Reads a 16-bit grey or RGB PNG written by stscam (dataset captures, frontal images,
+/// masks): (width, height, channels, little-endian u16 samples, channels interleaved). The
+/// file is checked like every input (a regular file of bounded size) and the decoder's memory
+/// is bounded before decoding.
+#[pyfunction]
+fn read_png16<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<(usize, usize, usize, Bound<'py, PyBytes>)> {
+    let bytes = stscam::io::input::read_input(&path, stscam::io::input::MAX_BINARY_BYTES)
+        .map_err(value_error)?;
+    let bad = |m: String| value_error(format!("{}: {m}", path.display()));
+    let limits = png::Limits { bytes: 1 << 30 };
+    let dec = png::Decoder::new_with_limits(std::io::Cursor::new(&bytes), limits);
+    let mut reader = dec
+        .read_info()
+        .map_err(|e| bad(format!("not a PNG stscam reads: {e}")))?;
+    let info = reader.info();
+    let (w, h) = (info.width as usize, info.height as usize);
+    let ch = match (info.color_type, info.bit_depth) {
+        (png::ColorType::Grayscale, png::BitDepth::Sixteen) => 1,
+        (png::ColorType::Rgb, png::BitDepth::Sixteen) => 3,
+        (c, b) => return Err(bad(format!("{c:?} {b:?}: expected 16-bit grey or RGB"))),
+    };
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| bad("too large".into()))?;
+    let mut buf = vec![0u8; size];
+    reader
+        .next_frame(&mut buf)
+        .map_err(|e| bad(format!("cannot decode: {e}")))?;
+    buf.truncate(w * h * ch * 2);
+    let le: Vec<u8> = buf.chunks_exact(2).flat_map(|b| [b[1], b[0]]).collect();
+    Ok((w, h, ch, PyBytes::new(py, &le)))
+}
+
+/// Runs the `stscam` command line (`argv` with the program name first) as the binary does,
+/// with the GIL released: its exit code.
+#[pyfunction]
+fn cli(py: Python<'_>, argv: Vec<std::ffi::OsString>) -> u8 {
+    py.allow_threads(|| stscam::jobs::cli::run(argv))
+}
+
+/// The shipped scenes: [(name, TOML text)].
+#[pyfunction]
+fn shipped_scenes() -> Vec<(&'static str, &'static str)> {
+    stscam::scene::SHIPPED_SCENES.to_vec()
+}
+
 /// The extension module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -797,5 +1189,13 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(build_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(merge_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(target, m)?)?;
+    m.add_class::<Solver>()?;
+    m.add_function(wrap_pyfunction!(shipped_scenes, m)?)?;
+    m.add_function(wrap_pyfunction!(cli, m)?)?;
+    m.add_function(wrap_pyfunction!(coverage, m)?)?;
+    m.add_function(wrap_pyfunction!(sensor_noise, m)?)?;
+    m.add_function(wrap_pyfunction!(write_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(read_png16, m)?)?;
     Ok(())
 }

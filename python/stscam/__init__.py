@@ -10,7 +10,9 @@ and column 0 at the left as seen from the camera.
 from __future__ import annotations
 
 import json
+import operator
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
@@ -18,12 +20,14 @@ import numpy as np
 import scipy.sparse
 
 from . import _native
-from .dataset import Dataset, load_dataset
+from .dataset import Dataset, load_dataset, load_splits
+from .operators import Operator
 
 __all__ = [
-    "Scene", "Render", "Frontal", "render", "matrix", "matrix_stack", "reconstruct_stack", "info", "probe", "reconstruct",
-    "calibrate", "sweep", "build_dataset", "merge_dataset", "load_dataset", "Dataset",
-    "read_exr", "__version__",
+    "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
+    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "build_dataset",
+    "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise", "Operator",
+    "read_exr", "write_exr", "scenes", "to_toml", "__version__",
 ]
 __version__: str = _native.VERSION
 
@@ -41,18 +45,170 @@ def _toml_value(v: Any) -> str:
     raise ValueError(f"--set: cannot express {v!r} ({type(v).__name__}) as a TOML value")
 
 
+_U32 = 2**32 - 1
+_U64 = 2**64 - 1
+
+
+def _uint(v: Any, flag: str, hi: int, lo: int = 0) -> int:
+    """An integer argument checked as the CLI's parser checks ``flag`` (``--spp <SPP>``):
+    ValueError with its message for a non-integer or a value outside ``lo..=hi`` (never
+    OverflowError)."""
+    try:
+        if isinstance(v, bool):
+            raise TypeError
+        i = operator.index(v)
+    except TypeError:
+        raise ValueError(f"invalid value '{v}' for '{flag}': expected an integer") from None
+    if not lo <= i <= hi:
+        raise ValueError(f"invalid value '{v}' for '{flag}': {i} is not in {lo}..={hi}")
+    return i
+
+
+def _threads(threads: Any) -> Optional[int]:
+    return None if threads is None else _uint(threads, "--threads <THREADS>", _U64)
+
+
+def _image_arg(image: Any, encoding: Optional[str], what: str = "image"):
+    """A target array as the extension takes it: (w, h, channels, float32 bytes, linear).
+
+    ``image`` is (h, w) or (h, w, 3) (or (h, w, 1)); floats are taken as they are, unsigned
+    integers as code values over their maximum (uint8 / 255, uint16 / 65535), booleans as 0/1.
+    ``encoding`` must say what the values are: ``"linear"`` (linear intensity, as an EXR) or
+    ``"display"`` (display code values in [0, 1]; the display gamma is applied, as for a PNG)."""
+    if encoding not in ("linear", "display"):
+        raise ValueError(f"{what}: encoding {encoding!r}: pass encoding=\"linear\" (linear intensity, "
+                         "as an EXR) or encoding=\"display\" (code values, display gamma applied, as a PNG)")
+    a = np.asarray(image)
+    if a.dtype == bool:
+        a = a.astype(np.float32)
+    elif a.dtype.kind == "u":
+        a = (a.astype(np.float64) / float(np.iinfo(a.dtype).max)).astype(np.float32)
+    elif a.dtype.kind == "f":
+        a = a.astype(np.float32)
+    else:
+        raise ValueError(f"{what}: dtype {a.dtype}: expected a float, unsigned integer or bool array")
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 3)):
+        raise ValueError(f"{what}: shape {a.shape}: expected (h, w) or (h, w, 3)")
+    h, w = a.shape[:2]
+    c = 1 if a.ndim == 2 else 3
+    return (int(w), int(h), c, np.ascontiguousarray(a, dtype="<f4").tobytes(), encoding == "linear")
+
+
+def target(spec: str) -> np.ndarray:
+    """A built-in target (``"letter:F@32"``, ``"siemens:36"``, ``"text:HI@64"``, …, as
+    ``display.image`` takes them) as a float32 array (h, w) of display code values in [0, 1];
+    pass it back with ``encoding="display"``."""
+    w, h, b = _native.target(str(spec))
+    return _f32(b, (h, w))
+
+
+def _toml_key(k: str) -> str:
+    return k if k and all(c.isalnum() or c in "-_" for c in k) else json.dumps(k)
+
+
+def _toml_inline(v: Any) -> str:
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{_toml_key(str(k))} = {_toml_inline(x)}" for k, x in v.items() if x is not None) + "}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_inline(x) for x in v) + "]"
+    if isinstance(v, (float, np.floating)) and not np.isfinite(v):
+        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
+    return _toml_value(v)
+
+
+def _is_table_list(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) > 0 and all(isinstance(x, Mapping) for x in v)
+
+
+def _toml_table(d: Mapping[str, Any], prefix: str, out: list[str]) -> None:
+    """Appends table ``d`` (named ``prefix``) as TOML lines: its plain keys, then its
+    sub-tables and arrays of tables; None values are left out (TOML has no null)."""
+    for k, v in d.items():
+        if v is None or isinstance(v, Mapping) or _is_table_list(v):
+            continue
+        out.append(f"{_toml_key(str(k))} = {_toml_inline(v)}")
+    for k, v in d.items():
+        name = f"{prefix}.{_toml_key(str(k))}" if prefix else _toml_key(str(k))
+        if isinstance(v, Mapping):
+            out.append(f"\n[{name}]")
+            _toml_table(v, name, out)
+        elif _is_table_list(v):
+            for item in v:
+                out.append(f"\n[[{name}]]")
+                _toml_table(item, name, out)
+
+
+def to_toml(d: Mapping[str, Any]) -> str:
+    """A scene dict (as :meth:`Scene.to_dict` gives) as TOML text a scene file holds."""
+    out: list[str] = []
+    _toml_table(d, "", out)
+    return "\n".join(out).lstrip("\n") + "\n"
+
+
+def scenes() -> list[str]:
+    """The names of the scenes shipped with stscam (``scenes/NAME.toml`` in the repository,
+    built into the package): ``Scene("gesture")`` or ``Scene.named("gesture")`` loads one."""
+    return [n for n, _ in _native.shipped_scenes()]
+
+
 class Scene:
-    """A scene: the embedded paper scene (``path=None``) or a TOML file merged over it, with
-    ``overrides`` (a dict of ``--set`` keys to values, e.g. ``{"sensor.crop_px": [96, 96],
-    "display.image": "letter:F@32"}``). Checked on construction (``ValueError``)."""
+    """A scene: the embedded paper scene (``path=None``), a TOML file merged over it, or a
+    shipped scene by name (``"gesture"``, see :func:`scenes`), with ``overrides`` (a dict of
+    ``--set`` keys to values, e.g. ``{"sensor.crop_px": [96, 96], "display.image":
+    "letter:F@32"}``) and optionally an ``image`` held in memory in place of
+    ``display.image`` (numpy (h, w) or (h, w, 3), with ``encoding="linear"`` or
+    ``"display"``). :meth:`from_dict` makes one from a dict with every key, including the
+    ``object`` and ``light`` lists. Checked on construction (``ValueError``)."""
 
     def __init__(self, path: Optional[str | os.PathLike] = None,
-                 overrides: Optional[Mapping[str, Any]] = None):
+                 overrides: Optional[Mapping[str, Any]] = None, image: Any = None,
+                 encoding: Optional[str] = None, _text: Optional[tuple[str, str, str]] = None):
         self.path: Optional[str] = None if path is None else os.fspath(path)
+        shipped = dict(_native.shipped_scenes())
+        if (_text is None and self.path is not None and self.path in shipped
+                and not os.path.exists(self.path)):
+            _text = (shipped[self.path], f"scenes/{self.path}.toml", ".")
+        self._text = _text
         self.overrides: dict[str, Any] = dict(overrides or {})
         self._sets = [f"{k}={_toml_value(v)}" for k, v in self.overrides.items()]
-        self._arg = (self.path, self._sets)
+        self._img = None if image is None else _image_arg(image, encoding, "display.image")
+        #: The target held in memory (float32 (h, w) or (h, w, 3)) replacing ``display.image``,
+        #: or None; ``encoding`` says what its values are.
+        self.image: Optional[np.ndarray] = None
+        self.encoding: Optional[str] = encoding if image is not None else None
+        if self._img is not None:
+            w, h, c, b, _ = self._img
+            self.image = _f32(b, (h, w) if c == 1 else (h, w, 3))
+        self._arg = (self.path, self._sets, self._img, self._text)
         self._json = _native.scene_json(self._arg)
+
+    @classmethod
+    def named(cls, name: str, overrides: Optional[Mapping[str, Any]] = None) -> "Scene":
+        """A shipped scene by name (see :func:`scenes`)."""
+        shipped = dict(_native.shipped_scenes())
+        if name not in shipped:
+            raise ValueError(f"scene {name!r}: not a shipped scene; shipped: {', '.join(shipped)}")
+        return cls(name, overrides, _text=(shipped[name], f"scenes/{name}.toml", "."))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], overrides: Optional[Mapping[str, Any]] = None,
+                  base_dir: str | os.PathLike = ".", image: Any = None,
+                  encoding: Optional[str] = None) -> "Scene":
+        """A scene from a dict of sections, as a scene file holds them (every key, including
+        the ``object`` and ``light`` lists of tables; missing keys keep the paper scene's
+        values): the inverse of :meth:`to_dict`. Relative asset paths resolve against
+        ``base_dir``."""
+        if not isinstance(d, Mapping):
+            raise ValueError(f"scene: expected a dict, got {type(d).__name__}")
+        return cls(None, overrides, image=image, encoding=encoding,
+                   _text=(to_toml(d), "<dict>", os.fspath(base_dir)))
+
+    def with_image(self, image: Any, encoding: str) -> "Scene":
+        """This scene showing ``image`` (numpy (h, w) or (h, w, 3); ``encoding="linear"`` or
+        ``"display"``) on the display instead of ``display.image``; kept in memory."""
+        return Scene(self.path, self.overrides, image=image, encoding=encoding, _text=self._text)
 
     @property
     def sets(self) -> list[str]:
@@ -63,8 +219,19 @@ class Scene:
         """The full scene after overrides (as ``capture.json``'s ``scene``)."""
         return json.loads(self._json)
 
+    def coverage_warning(self) -> Optional[str]:
+        """The CLI's warning when part of the object has no strong replica inside the crop
+        (``stscam matrix`` prints it), or None when every object row and column is seen."""
+        return _native.coverage(self._arg)
+
     def __repr__(self) -> str:
-        return f"Scene(path={self.path!r}, overrides={self.overrides!r})"
+        img = "" if self.image is None else f", image=<{self.image.shape} {self.encoding}>"
+        return f"Scene(path={self.path!r}, overrides={self.overrides!r}{img})"
+
+
+def _warn_coverage(w: Optional[str]) -> None:
+    if w:
+        warnings.warn(w, UserWarning, stacklevel=3)
 
 
 def _scene(scene: Optional[Scene]) -> Scene:
@@ -129,9 +296,43 @@ class Render:
         return None if self.frontal_result is None else self.frontal_result.mask
 
 
+def _frontal_px(frontal_px: Any) -> Optional[tuple[int, int]]:
+    """``frontal_px`` as the CLI's ``--frontal-px N|WxH``: one number N (N x N), a string
+    ``"N"`` or ``"WxH"``, or named ``{"h": H, "w": W}``; as (w, h)."""
+    if frontal_px is None:
+        return None
+    if isinstance(frontal_px, str):
+        parts = frontal_px.lower().split("x")
+        try:
+            vals = [int(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"--frontal-px {frontal_px}: expected N or WxH (1..=8192 each)") from None
+        if len(vals) == 1:
+            vals = vals * 2
+        if len(vals) != 2:
+            raise ValueError(f"--frontal-px {frontal_px}: expected N or WxH (1..=8192 each)")
+        w, h = vals
+    elif isinstance(frontal_px, Mapping):
+        w, h = frontal_px["w"], frontal_px["h"]
+    elif isinstance(frontal_px, (int, np.integer)):
+        w = h = frontal_px
+    else:
+        w, h = frontal_px
+    w = _uint(w, "--frontal-px <N|WxH>", 8192, 1)
+    h = _uint(h, "--frontal-px <N|WxH>", 8192, 1)
+    return (w, h)
+
+
+def _check_noise(noise: Optional[str]) -> None:
+    if noise not in (None, "none", "sensor"):
+        raise ValueError(f"noise {noise!r}: expected None, \"none\" or \"sensor\"")
+
+
 def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
-           frontal_px: Optional[tuple[int, int]] = None, user_side: str = "auto") -> Render:
+           frontal_px: Any = None, user_side: str = "auto", target: Any = None,
+           encoding: Optional[str] = None, noise: Optional[str] = None,
+           white_peak: Optional[float] = None) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
@@ -141,10 +342,19 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     about one user-side path per camera sample, drawn per replica in proportion to their
     weight), ``"padded"`` (every branch traced, the first vertex's light and BSDF samples
     stratified over a pixel's samples) or ``"hashed"`` (as ``"padded"`` with independent
-    numbers), as ``stscam render --user-side``."""
+    numbers), as ``stscam render --user-side``. ``frontal_px`` is N, ``"N"``, ``"WxH"`` or
+    ``(w, h)`` as ``--frontal-px``. ``target`` (a numpy array (h, w) or (h, w, 3) with
+    ``encoding="linear"`` or ``"display"``) is shown instead of the scene's image.
+    ``noise="sensor"`` passes the capture through the sensor model (:func:`sensor_noise` with
+    ``seed`` and ``white_peak``). The CLI's limits (``--spp``, ``--threads``, memory) are checked
+    before any work: ValueError with its message."""
     s = _scene(scene)
-    d = _native.render(s._arg, int(spp), int(seed), threads, sampler, bool(spectral),
-                       None if frontal_px is None else tuple(frontal_px), user_side)
+    _check_noise(noise)
+    if target is not None:
+        s = s.with_image(target, encoding)
+    d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
+                       _threads(threads), sampler, bool(spectral), _frontal_px(frontal_px),
+                       user_side, [])
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
     out = Render(
@@ -163,7 +373,56 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
             depth=_f32(f["depth"], (fh, fw)),
             mask=np.frombuffer(f["mask"], dtype="<u2").reshape(fh, fw).astype(np.uint16),
         )
+    if noise == "sensor":
+        out.image = sensor_noise(s, out.image, seed=seed, white_peak=white_peak).reshape(out.image.shape)
     return out
+
+
+def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
+                 spp: int = 64, seed: int = 1, threads: Optional[int] = None,
+                 sampler: str = "lattice", user_side: str = "auto",
+                 noise: Optional[str] = None, white_peak: Optional[float] = None) -> np.ndarray:
+    """Renders each of ``targets`` (an array (n, h, w) or (n, h, w, 3), or a sequence of
+    (h, w) arrays) on the scene's display in one call, the scene built once: float32
+    (n, h, w) or (n, c, h, w), image i equal to ``render(scene, target=targets[i], ...).image``
+    (same ``seed`` for each). ``noise="sensor"`` gives each its noise with seed ``seed + i``."""
+    s = _scene(scene)
+    _check_noise(noise)
+    args = [_image_arg(t, encoding, f"targets[{i}]") for i, t in enumerate(targets)]
+    if not args:
+        raise ValueError("targets: no targets")
+    d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
+                       _threads(threads), sampler, False, None, user_side, args)
+    w, h, names = d["width"], d["height"], d["channels"]
+    imgs = [_image(d["image"], len(names), h, w)] + [_image(b, len(names), h, w) for b in d["batch_rest"]]
+    out = np.stack(imgs)
+    if noise == "sensor":
+        for i in range(len(out)):
+            si = s.with_image(targets[i], encoding)
+            out[i] = sensor_noise(si, out[i], seed=int(seed) + i, white_peak=white_peak).reshape(out[i].shape)
+    return out
+
+
+def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
+                 white_peak: Optional[float] = None) -> np.ndarray:
+    """The scene's sensor model (``[noise]``: shot, read and dark noise, bit depth,
+    saturation, exposure) applied to a clean capture (any shape, capture units): float32,
+    same shape, in capture units with the mean dark offset removed, exactly as ``stscam
+    dataset`` stores a noisy capture (pixel i draws from ``NoiseRng([seed, 0x4E4F4953, i])``;
+    a dataset sample's seed is ``metadata.jsonl``'s ``seed``). The exposure is fixed by
+    ``white_peak``, the brightest value of the all-white capture (a dataset's
+    ``dataset.json`` → ``exposure.white_peak``); default: from a 16-spp render of the scene
+    with a white target of the scene's object size."""
+    s = _scene(scene)
+    a = np.asarray(clean, dtype=np.float64)
+    if white_peak is None:
+        cols, rows = info(s)["object_coverage"]["object_px"]
+        white = np.ones((int(rows), int(cols)), dtype=np.float32)
+        ws = s.with_image(white, "linear")
+        white_peak = float(render(ws, spp=16, seed=1).image.max())
+    b = _native.sensor_noise(s._arg, np.ascontiguousarray(a, dtype="<f8").tobytes(),
+                             _uint(seed, "--seed <SEED>", _U64), float(white_peak))
+    return np.frombuffer(b, dtype="<f4").reshape(a.shape).astype(np.float32)
 
 
 def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
@@ -173,8 +432,9 @@ def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     offset (capture of an all-black object), equal to ``stscam matrix``'s ``H.npz`` and
     ``offset.npy``. ``depth_mm`` moves the object plane, keeping the focus."""
     s = _scene(scene)
-    d = _native.matrix(s._arg, int(spp), int(seed),
-                       None if depth_mm is None else float(depth_mm), threads)
+    d = _native.matrix(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
+                       None if depth_mm is None else float(depth_mm), _threads(threads))
+    _warn_coverage(d["warning"])
     h = _csr(d)
     return h, np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)
 
@@ -196,7 +456,8 @@ def matrix_stack(scene: Optional[Scene] = None, depth_mm="300:650:8", spp: int =
         except (TypeError, ValueError):
             raise ValueError(f"--depth-mm {depth_mm!r}: expected depths in mm or START:STOP:STEPS") from None
     out = []
-    for d in _native.matrix_stack(s._arg, int(spp), int(seed), spec, threads):
+    for d in _native.matrix_stack(s._arg, _uint(spp, "--spp <SPP>", _U32),
+                                  _uint(seed, "--seed <SEED>", _U64), spec, _threads(threads)):
         out.append((float(d["depth_mm"]), _csr(d), np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)))
     return out
 
@@ -211,10 +472,10 @@ def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dic
     """The chief ray of pixel ``(col, row)``, equal to ``stscam probe --pixel COL,ROW --json``."""
     s = _scene(scene)
     try:
-        col, row = (int(v) for v in pixel)
+        col, row = (operator.index(v) for v in pixel)
     except (TypeError, ValueError):
         raise ValueError(f"--pixel {pixel!r}: expected COL,ROW with non-negative integers") from None
-    if col < 0 or row < 0:
+    if not (0 <= col <= _U64 and 0 <= row <= _U64):
         raise ValueError(f"--pixel {col},{row}: expected COL,ROW with non-negative integers")
     return json.loads(_native.probe(s._arg, col, row))
 
@@ -227,7 +488,7 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     CG (``method="cg"``) or ADMM-TV, as ``stscam reconstruct``. ``H`` is any scipy sparse
     matrix (stored as float32, like ``H.npz``); ``offset`` (float32, like ``offset.npy``) is
     subtracted first; ``tau`` is relative to ‖Hᵀg‖∞ (default 0.001). Returns the object as a
-    float64 array [h, w] (``object_shape=(w, h)``; default: square), and with
+    float64 array [h, w] (``object_shape=(h, w)``, numpy's order; default: square), and with
     ``return_info=True`` also the solver's report (``recon.json``'s ``solver``)."""
     if not scipy.sparse.issparse(H):
         raise ValueError(f"H: expected a scipy sparse matrix, got {type(H).__name__}")
@@ -238,16 +499,17 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     if object_shape is None:
         side = int(round(cols ** 0.5))
         if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
         object_shape = (side, side)
-    w, hh = (int(v) for v in object_shape)
+    hh, w = (int(v) for v in object_shape)
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     off = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
     f, solver = _native.reconstruct(
         rows, cols, h.indptr.astype("<i8").tobytes(), h.indices.astype("<i8").tobytes(),
-        h.data.astype("<f4").tobytes(), (w, hh), g.astype("<f8").tobytes(), off, method, iters,
-        0.001 if tau is None else float(tau), tv, threads)
+        h.data.astype("<f4").tobytes(), (w, hh), g.astype("<f8").tobytes(), off, method,
+        None if iters is None else _uint(iters, "--iters <ITERS>", _U64),
+        0.001 if tau is None else float(tau), tv, _threads(threads))
     obj = np.frombuffer(f, dtype="<f8").reshape(hh, w).astype(np.float64)
     return (obj, json.loads(solver)) if return_info else obj
 
@@ -284,15 +546,17 @@ def reconstruct_stack(stack, capture, method: str = "joint", iters: Optional[int
     if object_shape is None:
         side = int(round(cols ** 0.5))
         if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(w, h)")
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
         object_shape = (side, side)
-    w, hh = (int(v) for v in object_shape)
+    hh, w = (int(v) for v in object_shape)
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     joint = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
     planes, estimate, solver = _native.reconstruct_stack(
-        blocks, (w, hh), g.astype("<f8").tobytes(), joint, method, iters,
-        0.001 if tau is None else float(tau), 1e-5 if mu is None else float(mu), tv, threads)
+        blocks, (w, hh), g.astype("<f8").tobytes(), joint, method,
+        None if iters is None else _uint(iters, "--iters <ITERS>", _U64),
+        0.001 if tau is None else float(tau), 1e-5 if mu is None else float(mu), tv,
+        _threads(threads))
     return {
         "planes": {d: np.frombuffer(b, dtype="<f8").reshape(hh, w).astype(np.float64) for d, b in planes},
         "estimate": None if estimate is None else json.loads(estimate),
@@ -307,15 +571,16 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
               threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
     """The paper's Hadamard calibration, simulated (``stscam calibrate``): returns H_est (as
     ``H_est.npz``) and the report (``calibration.json``'s ``report``). ``matrix`` is an
-    ``H.npz`` path (default: H computed from the scene)."""
+    ``H.npz`` path (default: H computed from the scene) and ``object_shape`` its object (h, w)
+    where no ``H.json`` beside it says; a scene holding an array target calibrates that."""
     if noise not in ("sensor", "none"):
         raise ValueError(f"noise {noise!r}: expected \"sensor\" or \"none\"")
     s = _scene(scene)
-    d = _native.calibrate(s._arg, int(spp), int(seed),
+    d = _native.calibrate(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                           None if matrix is None else os.fspath(matrix),
-                          None if object_shape is None else tuple(object_shape),
+                          None if object_shape is None else (int(object_shape[1]), int(object_shape[0])),
                           noise == "sensor", bool(dark_frame), bool(render),
-                          float(threshold_sigma), threads)
+                          float(threshold_sigma), _threads(threads))
     return _csr(d), json.loads(d["report"])
 
 
@@ -328,7 +593,7 @@ def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tupl
         vary = [f"{k}={a}:{b}:{n}" for k, (a, b, n) in vary.items()]
     s = _scene(scene)
     return json.loads(_native.sweep(s._arg, list(vary), float(fov_fraction), psnr,
-                                    int(psnr_spp), threads))
+                                    _uint(psnr_spp, "--psnr-spp <PSNR_SPP>", _U32), _threads(threads)))
 
 
 def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
@@ -338,18 +603,33 @@ def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
     files are byte-identical to the CLI's. Returns the run summary."""
     if isinstance(shard, tuple):
         shard = f"{shard[0]}/{shard[1]}"
-    return json.loads(_native.build_dataset(os.fspath(recipe), os.fspath(out), shard,
-                                            bool(resume), threads))
+    summary, warns = _native.build_dataset(os.fspath(recipe), os.fspath(out), shard,
+                                           bool(resume), _threads(threads))
+    for w in warns:
+        _warn_coverage(w)
+    return json.loads(summary)
 
 
 def merge_dataset(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
                   threads: Optional[int] = None) -> dict:
     """Joins finished shards (``stscam dataset merge``)."""
     return json.loads(_native.merge_dataset([os.fspath(p) for p in shards], os.fspath(out),
-                                            threads))
+                                            _threads(threads)))
 
 
 def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """The channels of an EXR file written by stscam, float32 [h, w] each, by name."""
     w, h, chans = _native.read_exr(os.fspath(path))
     return {name: _f32(b, (h, w)) for name, b in chans}
+
+
+def write_exr(path: str | os.PathLike, channels: Mapping[str, Any]) -> None:
+    """Writes float32 channels (name → array (h, w), all one size) as an EXR file the way
+    stscam writes its images; ``display.image`` reads a ``Y`` (or ``R``, ``G``, ``B``) EXR as
+    linear intensity."""
+    arrs = {k: np.asarray(v, dtype=np.float32) for k, v in channels.items()}
+    shapes = {a.shape for a in arrs.values()}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"channels: expected 2-D arrays of one shape, got {sorted(shapes)}")
+    h, w = next(iter(shapes))
+    _native.write_exr(os.fspath(path), w, h, [(k, np.ascontiguousarray(a, "<f4").tobytes()) for k, a in arrs.items()])

@@ -6,18 +6,41 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import scipy.sparse
 
-from .dataset import Dataset as Dataset, load_dataset as load_dataset
+from .dataset import Dataset as Dataset, load_dataset as load_dataset, load_splits as load_splits
+from .operators import Operator as Operator
 
 __version__: str
+__all__ = [
+    "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
+    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "build_dataset",
+    "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise",
+    "Operator", "read_exr", "write_exr", "scenes", "to_toml", "__version__",
+]
+
+def target(spec: str) -> np.ndarray: ...
+def to_toml(d: Mapping[str, Any]) -> str: ...
+def scenes() -> list[str]: ...
 
 class Scene:
     path: Optional[str]
     overrides: dict[str, Any]
+    image: Optional[np.ndarray]
+    encoding: Optional[str]
     def __init__(self, path: Optional[str | os.PathLike[str]] = None,
-                 overrides: Optional[Mapping[str, Any]] = None) -> None: ...
+                 overrides: Optional[Mapping[str, Any]] = None, image: Any = None,
+                 encoding: Optional[str] = None,
+                 _text: Optional[tuple[str, str, str]] = None) -> None: ...
+    @classmethod
+    def named(cls, name: str, overrides: Optional[Mapping[str, Any]] = None) -> Scene: ...
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], overrides: Optional[Mapping[str, Any]] = None,
+                  base_dir: str | os.PathLike[str] = ".", image: Any = None,
+                  encoding: Optional[str] = None) -> Scene: ...
+    def with_image(self, image: Any, encoding: str) -> Scene: ...
     @property
     def sets(self) -> list[str]: ...
     def to_dict(self) -> dict[str, Any]: ...
+    def coverage_warning(self) -> Optional[str]: ...
 
 @dataclass
 class Frontal:
@@ -31,9 +54,9 @@ class Render:
     channels: list[str]
     stats: dict[str, Any]
     render_time_s: float
-    spectral: Optional[np.ndarray]
-    spectral_bins_nm: list[float]
-    frontal_result: Optional[Frontal]
+    spectral: Optional[np.ndarray] = None
+    spectral_bins_nm: list[float] = ...
+    frontal_result: Optional[Frontal] = None
     @property
     def frontal(self) -> Optional[np.ndarray]: ...
     @property
@@ -43,7 +66,15 @@ class Render:
 
 def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
-           frontal_px: Optional[tuple[int, int]] = None, user_side: str = "padded") -> Render: ...
+           frontal_px: Any = None, user_side: str = "auto", target: Any = None,
+           encoding: Optional[str] = None, noise: Optional[str] = None,
+           white_peak: Optional[float] = None) -> Render: ...
+def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
+                 spp: int = 64, seed: int = 1, threads: Optional[int] = None,
+                 sampler: str = "lattice", user_side: str = "auto",
+                 noise: Optional[str] = None, white_peak: Optional[float] = None) -> np.ndarray: ...
+def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
+                 white_peak: Optional[float] = None) -> np.ndarray: ...
 def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            depth_mm: Optional[float] = None,
            threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]: ...
@@ -76,3 +107,4 @@ def build_dataset(recipe: str | os.PathLike[str], out: str | os.PathLike[str],
 def merge_dataset(shards: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
                   threads: Optional[int] = None) -> dict[str, Any]: ...
 def read_exr(path: str | os.PathLike[str]) -> dict[str, np.ndarray]: ...
+def write_exr(path: str | os.PathLike[str], channels: Mapping[str, Any]) -> None: ...

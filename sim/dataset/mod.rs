@@ -65,7 +65,6 @@ pub const RUN_MARKER: &str = ".stscam-run.json";
 const SAMPLE_TAG: u64 = 0x5341_4D50;
 const SCENE_TAG: u64 = 0x5343_454E;
 const VARY_TAG: u64 = 0x5641_5259;
-const NOISE_TAG: u64 = 0x4E4F_4953;
 const WHITE_TAG: u64 = 0x5748_4954;
 const DEPTH_TAG: u64 = 0x4445_5054;
 
@@ -871,17 +870,7 @@ impl Exposure {
     /// `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, or as it is.
     fn measure(&self, clean: &[f64], seed: u64) -> Vec<f32> {
         match &self.noise {
-            Some(n) => {
-                let dark = n.dark_offset_units();
-                clean
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &v)| {
-                        (n.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark)
-                            as f32
-                    })
-                    .collect()
-            }
+            Some(n) => crate::noise::measure_capture(n, clean, seed),
             None => clean.iter().map(|&v| v as f32).collect(),
         }
     }

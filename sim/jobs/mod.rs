@@ -3,10 +3,12 @@
 //! library's modules, writes its files (under temporary names, renamed into place only when
 //! all of them were written) and sends its report lines to a [`Console`]; failures are a typed
 //! [`JobError`] whose code is the CLI's exit code (2 bad input, 1 a failed write or check).
-//! The binary (`sim/main.rs`) is argument parsing and exit codes only.
+//! Argument parsing and exit codes are in [`cli`], shared by the binary (`sim/main.rs`) and
+//! the Python package's `stscam` command.
 
 pub mod bench;
 pub mod calibrate;
+pub mod cli;
 pub mod compare;
 pub mod dataset;
 pub mod demo;

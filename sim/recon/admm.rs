@@ -201,7 +201,12 @@ pub fn admm_tv(p: &Problem, htg: &[f64], set: &AdmmSettings) -> AdmmResult {
             *yv += rho * d;
         }
     };
+    // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
+    let cancel = crate::cancel::current();
     for _ in 0..set.iters {
+        if cancel.is_cancelled() {
+            break;
+        }
         // f-update.
         for i in 0..2 * n {
             tmp[i] = z[i] - u[i];

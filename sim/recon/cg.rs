@@ -66,7 +66,12 @@ pub(crate) fn pcg(
     let mut rz = dot(&r, &z);
     let mut res = dot(&r, &r).sqrt() / bnorm;
     let mut k = 0;
+    // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
+    let cancel = crate::cancel::current();
     while k < iters && res > tol {
+        if cancel.is_cancelled() {
+            break;
+        }
         apply(&p, &mut q);
         let pq = dot(&p, &q);
         if pq <= 0.0 || !pq.is_finite() {

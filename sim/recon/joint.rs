@@ -121,7 +121,12 @@ pub fn joint_admm_tv(p: &Problem, planes: usize, htg: &[f64], set: &JointSetting
             *yv += rho * (d + xv);
         }
     };
+    // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
+    let cancel = crate::cancel::current();
     for _ in 0..set.iters {
+        if cancel.is_cancelled() {
+            break;
+        }
         for i in 0..2 * total {
             tmp[i] = z[i] - u[i];
         }

@@ -324,6 +324,30 @@ def test_ctrl_c_stops_a_long_render():
         signal.signal(signal.SIGINT, previous)
 
 
+def test_ctrl_c_stops_a_long_reconstruction(small_h):
+    # The CG and ADMM-TV iterations check the cancellation token (before: only renders did).
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32))
+    g = op.capture(np.full((32, 32), 0.5))
+    op.reconstruct(g, method="admm-tv", iters=1)  # the set-up, once
+    t0 = time.monotonic()
+    op.reconstruct(g, method="admm-tv", iters=200)
+    per_iter = (time.monotonic() - t0) / 200
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            op.reconstruct(g, method="admm-tv", iters=10**9)
+        elapsed = time.monotonic() - t0
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    # 10**9 iterations would take days; the interrupt lands within ~0.1 s plus one iteration.
+    assert elapsed < 0.5 + 0.5 + 2 * per_iter, (elapsed, per_iter)
+
+
 def check_ctrl_c_stops_a_long_render():
     big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
     t0 = time.monotonic()
@@ -337,3 +361,308 @@ def check_ctrl_c_stops_a_long_render():
     elapsed = time.monotonic() - t0
     timer.cancel()
     assert elapsed < 0.5 + max(2.0, 5 * one), (elapsed, one)
+
+
+# --- Datasets of every kind (2-D above; depth and 3-D here), staying inside their folder ---
+
+def test_load_depth_dataset_and_sensor_noise_equals_its_captures(tmp_path):
+    recipe = ROOT / "validation" / "python" / "depth-tiny.toml"
+    cli("dataset", recipe, "--out", tmp_path / "d")
+    card = json.load(open(tmp_path / "d" / "dataset.json"))
+    scene = stscam.Scene(overrides={"sensor.crop_px": [48, 48], "sensor.pitch_um": 44.0})
+    n = 0
+    for split in ("train", "validation", "test"):
+        ds = stscam.load_dataset(tmp_path / "d", split)
+        assert ds.kind == "depth"
+        folder = "val" if split == "validation" else split
+        lines = [json.loads(x) for x in (tmp_path / "d" / folder / "metadata.jsonl").read_text().splitlines()]
+        assert len(ds) == len(lines)
+        for i, m in enumerate(lines):
+            item = ds[i]
+            assert same_bits(item["object"], np.load(tmp_path / "d" / folder / m["object_npy"]))
+            assert same_bits(item["capture"], np.load(tmp_path / "d" / folder / m["capture_npy"]))
+            assert item["depth_mm"] == m["depth_mm"]
+            assert item["capture_full_scale"] == card["exposure"]["capture_full_scale"]
+            # The noise as a function: the clean capture H f + offset through sensor_noise with
+            # the sample's seed is the stored noisy capture, bit for bit.
+            h, off = ds.matrix(i)
+            clean = h @ item["object"].astype(np.float64).ravel() + off.astype(np.float64)
+            wp = card["exposure"]["white_peak"]
+            g = stscam.sensor_noise(scene, clean, seed=m["seed"], white_peak=wp)
+            assert same_bits(g, item["capture"].ravel())
+            # Another seed is other noise: the equality can fail.
+            assert not same_bits(stscam.sensor_noise(scene, clean, seed=m["seed"] + 1, white_peak=wp), g)
+            n += 1
+    assert n == card["samples"] == 8
+    assert set(stscam.load_splits(tmp_path / "d")) == {"train", "validation", "test"}
+    # "val", the folder's name, is the same split.
+    assert len(stscam.load_dataset(tmp_path / "d", "val")) == card["counts"]["val"]
+
+
+def test_load_3d_dataset_gives_capture_frontal_depth_and_mask(tmp_path):
+    from check_dataset import read_png16  # an independent PNG reader (zlib)
+    recipe = ROOT / "validation" / "python" / "meshes-tiny.toml"
+    cli("dataset", recipe, "--out", tmp_path / "d")
+    card = json.load(open(tmp_path / "d" / "dataset.json"))
+    for split, folder in (("train", "train"), ("validation", "val"), ("test", "test")):
+        ds = stscam.load_dataset(tmp_path / "d", split)
+        assert ds.kind == "3d" and len(ds) == card["counts"][folder]
+        for i, m in enumerate(ds.metadata):
+            item = ds[i]
+            d = tmp_path / "d" / folder
+            assert "object" not in item
+            assert same_bits(item["capture"], np.load(d / m["capture_npy"]))
+            assert same_bits(item["frontal"], np.load(d / m["frontal_npy"]))
+            assert same_bits(item["depth"], np.load(d / m["depth_npy"]))
+            assert same_bits(item["mask"], read_png16(d / m["mask_file_name"]))
+            assert item["capture_full_scale"] == card["exposure"]["capture_full_scale"]
+            assert ((item["mask"] > 0) <= np.isfinite(item["depth"])).all()
+    assert (ds[0]["mask"] > 0).any() or any((stscam.load_dataset(tmp_path / "d")[i]["mask"] > 0).any() for i in range(3))
+
+
+def test_dataset_reader_stays_inside_its_folder(tmp_path):
+    recipe = ROOT / "validation" / "python" / "depth-tiny.toml"
+    cli("dataset", recipe, "--out", tmp_path / "d")
+    secret = tmp_path / "secret.npy"
+    np.save(secret, np.zeros((48, 48), np.float32))
+    meta = tmp_path / "d" / "train" / "metadata.jsonl"
+    lines = [json.loads(x) for x in meta.read_text().splitlines()]
+    ok = stscam.load_dataset(tmp_path / "d")[0]  # untouched: loads
+    for bad in ("../../secret.npy", str(secret)):
+        lines[0]["capture_npy"] = bad
+        meta.write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+        with pytest.raises(ValueError, match="outside the dataset folder|relative path inside"):
+            stscam.load_dataset(tmp_path / "d")[0]
+    # A symbolic link inside the folder leading out of it.
+    (tmp_path / "d" / "train" / "link.npy").symlink_to(secret)
+    lines[0]["capture_npy"] = "link.npy"
+    meta.write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    with pytest.raises(ValueError, match="outside the dataset folder"):
+        stscam.load_dataset(tmp_path / "d")[0]
+    lines[0]["matrix"] = "../../../etc/H.npz"
+    meta.write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    with pytest.raises(ValueError, match="outside the dataset folder"):
+        stscam.load_dataset(tmp_path / "d").matrix(0)
+    assert ok["capture"].shape == (48, 48)
+
+
+# --- The CLI's limits in every Python entry point ---
+
+def test_limits_raise_value_error_at_once_with_the_cli_line(tmp_path):
+    t0 = time.monotonic()
+    with pytest.raises(ValueError) as e:
+        stscam.render(spp=2**40)
+    assert str(e.value) == cli_error("render", "--spp", 2**40, "--out", tmp_path / "r")
+    with pytest.raises(ValueError) as e:
+        stscam.render(threads=5000)
+    assert str(e.value) == cli_error("render", "--threads", 5000, "--out", tmp_path / "r")
+    with pytest.raises(ValueError) as e:
+        stscam.render(spp=2**32 - 1)
+    assert str(e.value) == cli_error("render", "--spp", 2**32 - 1, "--out", tmp_path / "r")
+    for call in (lambda: stscam.matrix(spp=2**40), lambda: stscam.matrix(spp=2**32 - 1),
+                 lambda: stscam.calibrate(threads=2**70), lambda: stscam.render(seed=-1),
+                 lambda: stscam.render(seed=2**64), lambda: stscam.sweep(psnr_spp=2**33),
+                 lambda: stscam.probe(pixel=(2**80, 0)), lambda: stscam.render(frontal_px=0)):
+        with pytest.raises(ValueError):  # not OverflowError, not RuntimeError
+            call()
+    assert time.monotonic() - t0 < 10
+
+
+def test_nan_stack_offset_is_refused(scene):
+    stack = stscam.matrix_stack(scene, depth_mm=[400, 480], spp=1)
+    g = np.ones(48 * 64)
+    bad = [(d, h, off.copy()) for d, h, off in stack]
+    bad[1][2][5] = np.nan
+    with pytest.raises(ValueError, match="offset value 5 is not a finite number"):
+        stscam.reconstruct_stack(bad, g, method="depth", iters=2)
+    with pytest.raises(ValueError, match="offset: value 7 is not a finite number"):
+        o = np.zeros(48 * 64, np.float32)
+        o[7] = np.inf
+        stscam.reconstruct_stack(stack, g, offset=o, iters=2)
+    with pytest.raises(ValueError, match="offset: value 3 is not a finite number"):
+        o = np.zeros(48 * 64, np.float32)
+        o[3] = np.nan
+        stscam.reconstruct(stack[0][1], g, offset=o, iters=2)
+
+
+# --- Arrays in ---
+
+def test_array_target_equals_cli_render_of_the_same_exr(tmp_path):
+    rng = np.random.default_rng(4)
+    f = rng.random((20, 28)).astype(np.float32)
+    stscam.write_exr(tmp_path / "obj.exr", {"Y": f})
+    sets = {"sensor.crop_px": [64, 48], "display.image": str(tmp_path / "obj.exr")}
+    cli("render", "--out", tmp_path / "r", "--spp", SPP, *set_args(sets))
+    want = stscam.read_exr(tmp_path / "r" / "capture.exr")["Y"]
+    small = stscam.Scene(overrides={"sensor.crop_px": [64, 48]})
+    got = stscam.render(small, spp=SPP, target=f, encoding="linear").image
+    assert same_bits(got, want)
+    # The scene keeps the array in memory; the file's scene agrees with it.
+    kept = small.with_image(f, "linear")
+    assert same_bits(stscam.render(kept, spp=SPP).image, want)
+    assert same_bits(stscam.render(stscam.Scene(overrides=sets), spp=SPP).image, want)
+    # A different array gives other numbers (the check can fail); "display" applies the gamma.
+    assert not same_bits(stscam.render(small, spp=SPP, target=f[::-1], encoding="linear").image, want)
+    assert not same_bits(stscam.render(small, spp=SPP, target=f, encoding="display").image, want)
+    # Linear RGB: reduced to luminance as the EXR reader does.
+    rgb = rng.random((20, 28, 3)).astype(np.float32)
+    stscam.write_exr(tmp_path / "rgb.exr", {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]})
+    cli("render", "--out", tmp_path / "c", "--spp", SPP, *set_args(dict(sets, **{"display.image": str(tmp_path / "rgb.exr")})))
+    assert same_bits(stscam.render(small, spp=SPP, target=rgb, encoding="linear").image,
+                     stscam.read_exr(tmp_path / "c" / "capture.exr")["Y"])
+    with pytest.raises(ValueError, match="encoding"):
+        stscam.render(small, target=f)
+    with pytest.raises(ValueError, match="not a finite number"):
+        stscam.render(small, target=np.full((4, 4), np.nan), encoding="linear")
+
+
+def test_builtin_target_as_array_dtypes_and_batch(scene):
+    F = stscam.target("letter:F@32")
+    assert F.shape == (32, 32) and F.dtype == np.float32 and set(np.unique(F)) <= {0.0, 1.0}
+    ref = stscam.render(scene, spp=SPP).image  # display.image = letter:F@32
+    assert same_bits(stscam.render(scene, spp=SPP, target=F, encoding="display").image, ref)
+    assert same_bits(stscam.render(scene, spp=SPP, target=(F * 255).astype(np.uint8), encoding="display").image, ref)
+    assert same_bits(stscam.render(scene, spp=SPP, target=(F * 65535).astype(np.uint16), encoding="display").image, ref)
+    batch = [F, F[::-1], stscam.target("siemens:8@32")]
+    out = stscam.render_batch(scene, batch, encoding="display", spp=SPP)
+    assert out.shape == (3, 48, 64)
+    for i, t in enumerate(batch):
+        assert same_bits(out[i], stscam.render(scene, spp=SPP, target=t, encoding="display").image), i
+    assert not same_bits(out[0], out[1])
+    with pytest.raises(ValueError, match="invalid target"):
+        stscam.target("letter:")
+
+
+def test_render_with_sensor_noise_is_sensor_noise_of_the_clean_render(scene):
+    clean = stscam.render(scene, spp=SPP, seed=3).image
+    noisy = stscam.render(scene, spp=SPP, seed=3, noise="sensor", white_peak=0.05).image
+    assert same_bits(noisy, stscam.sensor_noise(scene, clean, seed=3, white_peak=0.05))
+    assert not same_bits(noisy, clean)
+
+
+# --- Framing warnings and conventions ---
+
+def test_python_warns_as_the_cli_when_part_of_the_object_is_unseen(tmp_path):
+    sets = {"sensor.crop_px": [96, 96], "display.image": "letter:F@32"}
+    r = cli("matrix", "--out", tmp_path, "--spp", 1, *set_args(sets))
+    line = [x for x in r.stderr.splitlines() if x.startswith("warning: ")]
+    assert line and "object rows" in line[0]
+    with pytest.warns(UserWarning) as w:
+        stscam.matrix(stscam.Scene(overrides=sets), spp=1)
+    assert [str(x.message) for x in w] == [line[0][len("warning: "):]]
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a framed object gives no warning
+        stscam.matrix(stscam.Scene(overrides={"sensor.crop_px": [96, 160], "display.image": "letter:F@16"}), spp=1)
+
+
+def test_frontal_px_takes_one_number_like_the_cli(tmp_path):
+    path = ROOT / "scenes" / "gesture.toml"
+    s = stscam.Scene(path, {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
+    a = stscam.render(s, spp=1, frontal_px=12)
+    assert a.frontal.shape == (12, 12)
+    assert same_bits(stscam.render(s, spp=1, frontal_px="12").frontal, a.frontal)
+    assert stscam.render(s, spp=1, frontal_px="16x12").frontal.shape == (12, 16)
+
+
+# --- The operator ---
+
+@pytest.fixture(scope="module")
+def small_h(scene):
+    return stscam.matrix(scene, spp=SPP)
+
+
+def test_operator_adjoint_batches_and_scipy(small_h):
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32), capture_shape=(48, 64))
+    rng = np.random.default_rng(1)
+    x = rng.random((3, 32, 32))
+    y = rng.standard_normal((3, 48, 64))
+    hx, hty = op.forward(x), op.adjoint(y)
+    assert hx.shape == (3, 48, 64) and hty.shape == (3, 32, 32)
+    for i in range(3):
+        lhs, rhs = np.vdot(hx[i], y[i]), np.vdot(x[i], hty[i])
+        assert abs(lhs - rhs) <= 1e-6 * np.linalg.norm(hx[i]) * np.linalg.norm(y[i])
+        # Batch equals a loop, and both equal scipy's product with H.
+        assert same_bits(op.forward(x[i]), hx[i])
+        assert np.array_equal(hx[i].ravel(), h.astype(np.float64) @ x[i].ravel())
+    # A wrong adjoint (H's transpose with one entry changed) fails the same test.
+    bad = h.astype(np.float64).T.tocsr()
+    bad.data[np.argmax(bad.data)] *= 2
+    lhs, rhs = np.vdot(hx[0], y[0]), np.vdot(x[0], (bad @ y[0].ravel()).reshape(32, 32))
+    assert abs(lhs - rhs) > 1e-6 * np.linalg.norm(hx[0]) * np.linalg.norm(y[0])
+    L = op.scipy()
+    assert np.array_equal(L.matvec(x[0].ravel()), hx[0].ravel())
+    assert np.array_equal(L.rmatvec(y[0].ravel()), hty[0].ravel())
+    assert np.allclose(op.capture(x[0]).ravel(), hx[0].ravel() + off)
+
+
+@pytest.mark.parametrize("method", ["cg", "admm-tv"])
+def test_operator_reconstruct_equals_reconstruct_and_batches(small_h, scene, method):
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32), capture_shape=(48, 64))
+    g = np.stack([stscam.render(scene, spp=SPP, seed=s).image for s in (7, 8)])
+    batch, infos = op.reconstruct(g, method=method, iters=8, return_info=True)
+    assert batch.shape == (2, 32, 32) and len(infos) == 2
+    for i in range(2):
+        one = stscam.reconstruct(h, g[i], method=method, iters=8, offset=off)
+        assert same_bits(batch[i], one), i
+    assert not same_bits(batch[0], batch[1])
+
+
+def test_operator_torch_gradient_and_batch(small_h):
+    torch = pytest.importorskip("torch")
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32))
+    A = op.torch()
+    x = torch.rand(2, 32, 32, dtype=torch.float64, requires_grad=True)
+    y = A(x)
+    assert y.shape == (2, 48 * 64)
+    assert torch.equal(y[1], A(x[1]))
+    assert np.array_equal(y.detach().numpy(), op.forward(x.detach().numpy()))
+    w = torch.rand(2, 48 * 64, dtype=torch.float64)
+    (y * w).sum().backward()
+    assert np.allclose(x.grad.numpy(), op.adjoint(w.numpy()), rtol=1e-12, atol=0)
+    small = stscam.Operator(h[:40, :].tocsc()[:, :16].tocsr(), None, object_shape=(4, 4))
+    assert torch.autograd.gradcheck(small.torch(), (torch.rand(1, 4, 4, dtype=torch.float64, requires_grad=True),))
+
+
+# --- Scenes in Python ---
+
+def test_scene_from_dict_round_trips_with_objects_and_lights(tmp_path):
+    s = stscam.Scene("gesture", {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
+    d = s.to_dict()
+    assert d["object"][0]["mesh"] == "hand" and len(d["light"]) == 3
+    back = stscam.Scene.from_dict(d)
+    assert back.to_dict() == d
+    assert same_bits(stscam.render(back, spp=1).image, stscam.render(s, spp=1).image)
+    # The shipped scene by name is the repository's file.
+    f = stscam.Scene(ROOT / "scenes" / "gesture.toml", {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
+    assert f.to_dict() == d
+    assert set(stscam.scenes()) >= {"paper-2022", "eye-contact", "gesture"}
+    # Objects and lights added from Python: a second object and no environment light.
+    d2 = json.loads(json.dumps(d))
+    d2["object"].append(dict(d2["object"][0], mesh="head", position_mm=[0.0, 0.0, -400.0]))
+    d2["light"] = d2["light"][:2]
+    s2 = stscam.Scene.from_dict(d2)
+    assert [o["mesh"] for o in s2.to_dict()["object"]] == ["hand", "head"]
+    assert len(s2.to_dict()["light"]) == 2
+    assert not same_bits(stscam.render(s2, spp=1).image, stscam.render(s, spp=1).image)
+    # A bad key raises the loader's one line.
+    with pytest.raises(ValueError, match="thickness_mmm"):
+        stscam.Scene.from_dict({"plate": {"thickness_mmm": 3.0}})
+    with pytest.raises(ValueError, match="not a shipped scene"):
+        stscam.Scene.named("nope")
+
+
+def test_stscam_command_is_the_cli(tmp_path):
+    import sys
+    cmd = Path(sys.executable).parent / "stscam"
+    runs = [[str(cmd)]] if cmd.exists() else []
+    runs.append([sys.executable, "-m", "stscam"])
+    want = cli("info", "--json", *set_args(SETS)).stdout
+    for run in runs:
+        r = subprocess.run([*run, "info", "--json", *set_args(SETS)], capture_output=True, text=True)
+        assert r.returncode == 0 and json.loads(r.stdout) == json.loads(want), r.stderr
+        bad = subprocess.run([*run, "render", "--spp", "0", "--out", str(tmp_path)], capture_output=True, text=True)
+        assert bad.returncode == 2 and bad.stderr.strip() == "error: --spp: must be at least 1"
