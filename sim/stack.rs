@@ -160,11 +160,17 @@ pub struct LoadedStack {
 /// True if `path` is a stack: its sidecar (`<stem>.json`) lists `depths_mm`.
 /// The sidecar is read like every input ([`crate::io::input::read_text`]: a regular file of at
 /// most 64 MiB, so a FIFO or a device is never opened for reading).
+/// A sidecar that exists but is not a readable regular file (a FIFO, a device, a folder, too
+/// large) also counts as a stack's, so that [`load_stack`] reports it instead of the matrix
+/// being read as a plain H.
 pub fn is_stack(path: &Path) -> bool {
-    crate::io::input::read_text(&path.with_extension("json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v.get("depths_mm").is_some())
+    let side = path.with_extension("json");
+    match crate::io::input::read_text(&side) {
+        Ok(t) => serde_json::from_str::<serde_json::Value>(&t)
+            .ok()
+            .is_some_and(|v| v.get("depths_mm").is_some()),
+        Err(_) => std::fs::metadata(&side).is_ok(),
+    }
 }
 
 /// Reads a stack from its block matrix (`H_stack.npz`) and sidecar (`H_stack.json`, which

@@ -47,15 +47,15 @@ use crate::io::image_load::{LoadedImage, decode_image_bytes};
 
 /// Largest number of triangles accepted in one file (and in one scene,
 /// [`crate::world::MAX_TRIANGLES`]): a loaded and placed triangle costs about
-/// [`BYTES_PER_TRIANGLE`] until the BVH is built, so 10⁷ triangles stay within about 3 GiB.
+/// [`BYTES_PER_TRIANGLE`] until the BVH is built, so 10⁷ triangles stay within about 4 GB.
 pub const MAX_TRIANGLES: usize = 10_000_000;
 /// Largest number of vertices accepted in one file.
 pub const MAX_VERTICES: usize = 10_000_000;
-/// Peak memory of one triangle from the file to the built BVH, bytes (measured: a 10⁶-triangle
-/// OBJ of distinct quads renders at 16×16 px in about 300 MB): f64 positions and normals,
-/// indices, material and object ids, the f32 boxes, the BVH builder's nodes and the parser's
-/// own arrays.
-pub const BYTES_PER_TRIANGLE: u64 = 320;
+/// Peak memory of one triangle from the file to the built BVH, bytes (measured: an OBJ of
+/// 500,000 separate quads, 10⁶ triangles and 2·10⁶ vertices, renders at 16×16 px with a peak
+/// of 404 MB): f64 positions and normals, indices, material and object ids, the f32 boxes,
+/// the BVH builder's nodes and the parser's own arrays.
+pub const BYTES_PER_TRIANGLE: u64 = 400;
 /// Largest mesh, buffer or image file read, bytes; also the most bytes all buffers of one glTF
 /// file may declare together.
 pub const MAX_FILE_BYTES: u64 = 2 << 30;
@@ -224,7 +224,14 @@ fn read_file(path: &Path) -> Result<Vec<u8>, LoadError> {
 /// its `byteLength` is never read).
 fn read_prefix(path: &Path, limit: u64) -> Result<Vec<u8>, LoadError> {
     use std::io::Read;
-    let len = check_regular_file(path)?;
+    let meta = std::fs::metadata(path).map_err(|e| LoadError::new(path, e))?;
+    if !meta.is_file() {
+        return Err(LoadError::new(
+            path,
+            "is not a regular file (a folder, device, FIFO or socket)",
+        ));
+    }
+    let len = meta.len();
     let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
     let mut data = Vec::new();
     data.try_reserve_exact(usize::try_from(len.min(limit)).unwrap_or(usize::MAX))
@@ -364,20 +371,21 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| LoadError::new(path, format!("not a readable glTF file ({e})")))?;
     drop(bytes);
+    // Every buffer's byteLength is summed before any is read.
+    let declared_total = document
+        .buffers()
+        .fold(0u64, |t, b| t.saturating_add(b.length() as u64));
+    if declared_total > MAX_FILE_BYTES {
+        return Err(LoadError::new(
+            path,
+            format!(
+                "the buffers declare {declared_total} bytes together, more than the {MAX_FILE_BYTES} accepted"
+            ),
+        ));
+    }
     let mut buffers = Vec::new();
-    let mut declared_total = 0u64;
     for buffer in document.buffers() {
         let declared = buffer.length();
-        declared_total = declared_total.saturating_add(declared as u64);
-        if declared_total > MAX_FILE_BYTES {
-            return Err(LoadError::new(
-                path,
-                format!(
-                    "buffers up to {} declare more than {MAX_FILE_BYTES} bytes together",
-                    buffer.index()
-                ),
-            ));
-        }
         let (mut data, name) = match buffer.source() {
             gltf::buffer::Source::Bin => (
                 blob.take()
