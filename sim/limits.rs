@@ -45,9 +45,7 @@ pub fn check_coords(setting: &str, v: &[f64]) -> Result<(), LimitError> {
     } else {
         Err(LimitError::new(
             setting,
-            format!(
-                "{v:?} lies outside the working range of ±{MAX_COORD_MM:e} mm (10 km)"
-            ),
+            format!("{v:?} lies outside the working range of ±{MAX_COORD_MM:e} mm (10 km)"),
         ))
     }
 }

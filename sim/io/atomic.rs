@@ -232,7 +232,8 @@ fn roll_forward(stage: &Path, dir: &Path, delay: Option<Duration>) -> Result<(),
         if let Some(d) = delay {
             std::thread::sleep(d);
         }
-        fs::rename(stage.join(&name), dir.join(&name)).map_err(|e| IoError::io(&dir.join(&name), e))?;
+        fs::rename(stage.join(&name), dir.join(&name))
+            .map_err(|e| IoError::io(&dir.join(&name), e))?;
     }
     if let Ok(d) = File::open(dir) {
         let _ = d.sync_all();
@@ -409,6 +410,64 @@ mod tests {
                 std::ffi::OsString::from("b.txt")
             ]
         );
+    }
+
+    /// Links planted at the next temporary and staging names this process will try (and at
+    /// the target) are skipped, not followed: the file they point to is unchanged.
+    #[cfg(unix)]
+    #[test]
+    fn planted_links_at_temporary_names_are_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = dir.path().join("victim");
+        fs::write(&victim, b"precious").unwrap();
+        let out = dir.path().join("out");
+        fs::create_dir(&out).unwrap();
+        let next = SEQ.load(Ordering::Relaxed);
+        let pid = std::process::id();
+        for n in next..next + 64 {
+            let _ = std::os::unix::fs::symlink(&victim, out.join(format!(".a.bin.tmp-{pid}-{n}")));
+            let _ =
+                std::os::unix::fs::symlink(&victim, out.join(format!("{STAGE_PREFIX}{pid}-{n}")));
+        }
+        std::os::unix::fs::symlink(&victim, out.join("b.bin")).unwrap();
+        write_atomic(&out.join("a.bin"), b"A").unwrap();
+        write_all_atomic(&out, &[("b.bin", b"B"), ("c.bin", b"C")]).unwrap();
+        assert_eq!(fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(fs::read(out.join("a.bin")).unwrap(), b"A");
+        assert!(fs::symlink_metadata(out.join("b.bin")).unwrap().is_file());
+        assert_eq!(fs::read(out.join("b.bin")).unwrap(), b"B");
+        assert!(!out.join(COMMIT_LOCK).exists());
+    }
+
+    /// A staging folder of a dead process is deleted without its marker and rolled forward
+    /// with it.
+    #[test]
+    fn recovery_rolls_forward_or_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        fs::write(out.join("x.txt"), b"old").unwrap();
+        fs::write(out.join("y.txt"), b"old").unwrap();
+        // pid 0 is never a user process; u32::MAX - 1 is beyond pid_max.
+        let dead = u32::MAX - 1;
+        let a = out.join(format!("{STAGE_PREFIX}{dead}-0"));
+        fs::create_dir(&a).unwrap();
+        fs::write(a.join("x.txt"), b"half").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (0, 1));
+        assert_eq!(fs::read(out.join("x.txt")).unwrap(), b"old");
+        let b = out.join(format!("{STAGE_PREFIX}{dead}-1"));
+        fs::create_dir(&b).unwrap();
+        fs::write(b.join("y.txt"), b"new").unwrap();
+        fs::write(b.join(COMMIT_MARKER), b"").unwrap();
+        // x.txt was already renamed before the kill.
+        fs::write(out.join("x.txt"), b"new").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (1, 0));
+        assert_eq!(fs::read(out.join("y.txt")).unwrap(), b"new");
+        let mut names: Vec<_> = fs::read_dir(out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["x.txt", "y.txt"]);
     }
 
     #[test]

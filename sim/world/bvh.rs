@@ -36,7 +36,9 @@ fn largest_coincident_group(boxes: &[Aabb]) -> Option<(u32, usize)> {
     for (i, b) in boxes.iter().enumerate() {
         counts.entry(key(b)).or_insert((i as u32, 0)).1 += 1;
     }
-    counts.into_values().max_by_key(|&(first, n)| (n, std::cmp::Reverse(first)))
+    counts
+        .into_values()
+        .max_by_key(|&(first, n)| (n, std::cmp::Reverse(first)))
 }
 
 /// A ray in f64 with the shear constants of the watertight test precomputed.

@@ -346,10 +346,15 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
             },
             "sphere" => match l.radius_mm {
                 Some(r) if r > 0.0 && r <= crate::limits::MAX_COORD_MM => {}
-                Some(r) => return err(k("radius_mm"), format!(
-                        "must be positive and at most {:e} mm, got {r}",
-                        crate::limits::MAX_COORD_MM
-                    )),
+                Some(r) => {
+                    return err(
+                        k("radius_mm"),
+                        format!(
+                            "must be positive and at most {:e} mm, got {r}",
+                            crate::limits::MAX_COORD_MM
+                        ),
+                    );
+                }
                 None => return err(k("radius_mm"), "a sphere light needs radius_mm".into()),
             },
             "spot" => {

@@ -907,7 +907,10 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
         ));
     }
     if nt == 0 {
-        return Err(LoadError::new(path, "no triangles (no face has three corners)"));
+        return Err(LoadError::new(
+            path,
+            "no triangles (no face has three corners)",
+        ));
     }
     let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
     let mut reader = BufReader::new(file);

@@ -79,7 +79,12 @@ const TRI_OBJ: &str = "v 0 0 0\nv 10 0 0\nv 0 10 0\nf 1 2 3\n";
 /// A glTF quad (one mesh) with the given nodes and scene roots, buffer as a data URI.
 fn gltf_with_nodes(nodes: serde_json::Value, roots: serde_json::Value) -> String {
     let mut bin = Vec::new();
-    for p in [[0f32, 0.0, 0.0], [0.01, 0.0, 0.0], [0.01, 0.01, 0.0], [0.0, 0.01, 0.0]] {
+    for p in [
+        [0f32, 0.0, 0.0],
+        [0.01, 0.0, 0.0],
+        [0.01, 0.01, 0.0],
+        [0.0, 0.01, 0.0],
+    ] {
         for c in p {
             bin.extend_from_slice(&c.to_le_bytes());
         }
@@ -138,7 +143,10 @@ fn coordinates_beyond_the_working_range_are_refused() {
     let s = scene_with(d, "big.toml", "big.obj", "");
     refused(&s, &out, &["big.obj", "object.0.mesh", "working range"], 30);
     for (name, node) in [
-        ("t.gltf", json!({"mesh": 0, "translation": [1e38, 0.0, 0.0]})),
+        (
+            "t.gltf",
+            json!({"mesh": 0, "translation": [1e38, 0.0, 0.0]}),
+        ),
         ("s.gltf", json!({"mesh": 0, "scale": [1e38, 1e38, 1e38]})),
     ] {
         std::fs::write(d.join(name), gltf_with_nodes(json!([node]), json!([0]))).unwrap();
@@ -152,12 +160,26 @@ fn coordinates_beyond_the_working_range_are_refused() {
             format!("[display]\nenabled = false\n[[object]]\nmesh = \"quad\"\nposition_mm = [0.0, 0.0, {z}]\n"),
         )
         .unwrap();
-        refused(&p, &out, &["p.toml", "object.0.position_mm", "working range"], 30);
+        refused(
+            &p,
+            &out,
+            &["p.toml", "object.0.position_mm", "working range"],
+            30,
+        );
     }
     // Within the range: a far vertex renders (exit 0).
     std::fs::write(d.join("far.obj"), "v 0 0 0\nv 1e6 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
     let s = scene_with(d, "far.toml", "far.obj", "");
-    let o = stscam(&["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=[16,16]"]);
+    let o = stscam(&[
+        "render",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=[16,16]",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
@@ -179,25 +201,55 @@ fn material_lines_and_libraries_are_checked() {
     }
     std::fs::create_dir(d.join("dir.mtl")).unwrap();
     let mut libs = vec![("dir.mtl".to_string(), "directory")];
-    if Command::new("mkfifo").arg(d.join("fifo.mtl")).status().is_ok_and(|s| s.success()) {
+    if Command::new("mkfifo")
+        .arg(d.join("fifo.mtl"))
+        .status()
+        .is_ok_and(|s| s.success())
+    {
         libs.push(("fifo.mtl".into(), "not a regular file"));
     }
     std::os::unix::fs::symlink("/dev/zero", d.join("zero.mtl")).unwrap();
     libs.push(("zero.mtl".into(), "not a regular file"));
     for (lib, what) in libs {
-        std::fs::write(d.join("l.obj"), format!("mtllib {lib}\nusemtl a\n{TRI_OBJ}")).unwrap();
+        std::fs::write(
+            d.join("l.obj"),
+            format!("mtllib {lib}\nusemtl a\n{TRI_OBJ}"),
+        )
+        .unwrap();
         let s = scene_with(d, "l.toml", "l.obj", "");
         refused(&s, &out, &[&lib, "object.0.mesh", what], 20);
     }
     // A missing library is still tolerated (the shipped face mesh has none).
-    std::fs::write(d.join("n.obj"), format!("mtllib none.mtl\nusemtl a\n{TRI_OBJ}")).unwrap();
+    std::fs::write(
+        d.join("n.obj"),
+        format!("mtllib none.mtl\nusemtl a\n{TRI_OBJ}"),
+    )
+    .unwrap();
     let s = scene_with(d, "n.toml", "n.obj", "");
-    let o = stscam(&["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=[16,16]"]);
+    let o = stscam(&[
+        "render",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=[16,16]",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     std::fs::remove_dir_all(&out).unwrap();
-    std::fs::write(d.join("lines.obj"), "v 0 0 0\nv 10 0 0\nv 0 10 0\nl 1 2\nl 2 3\n").unwrap();
+    std::fs::write(
+        d.join("lines.obj"),
+        "v 0 0 0\nv 10 0 0\nv 0 10 0\nl 1 2\nl 2 3\n",
+    )
+    .unwrap();
     let s = scene_with(d, "li.toml", "lines.obj", "");
-    refused(&s, &out, &["lines.obj", "object.0.mesh", "no triangles"], 20);
+    refused(
+        &s,
+        &out,
+        &["lines.obj", "object.0.mesh", "no triangles"],
+        20,
+    );
 }
 
 /// A huge emission from the mesh file (MTL Ke 1e30) is refused instead of writing non-finite
@@ -207,9 +259,18 @@ fn absurd_emission_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::write(d.join("e.mtl"), "newmtl a\nKe 1e30 1e30 1e30\n").unwrap();
-    std::fs::write(d.join("e.obj"), format!("mtllib e.mtl\nusemtl a\n{TRI_OBJ}")).unwrap();
+    std::fs::write(
+        d.join("e.obj"),
+        format!("mtllib e.mtl\nusemtl a\n{TRI_OBJ}"),
+    )
+    .unwrap();
     let s = scene_with(d, "e.toml", "e.obj", "");
-    refused(&s, &d.join("out"), &["object.0.mesh", "emission", "1e12"], 30);
+    refused(
+        &s,
+        &d.join("out"),
+        &["object.0.mesh", "emission", "1e12"],
+        30,
+    );
 }
 
 fn copies_obj(path: &Path, copies: usize) {
@@ -230,24 +291,44 @@ fn coincident_triangles_and_node_dags_are_refused_quickly() {
     let out = d.join("out");
     std::fs::write(
         d.join("same.obj"),
-        format!("v 0 0 0\nv 10 0 0\nv 0 10 0\n{}", "f 1 2 3\n".repeat(30_000)),
+        format!(
+            "v 0 0 0\nv 10 0 0\nv 0 10 0\n{}",
+            "f 1 2 3\n".repeat(30_000)
+        ),
     )
     .unwrap();
     let s = scene_with(d, "same.toml", "same.obj", "");
-    refused(&s, &out, &["object.0.mesh", "30000 triangles share one bounding box"], 30);
+    refused(
+        &s,
+        &out,
+        &["object.0.mesh", "30000 triangles share one bounding box"],
+        30,
+    );
     let mut secs = Vec::new();
     for copies in [6_000, 25_000] {
         copies_obj(&d.join("q.obj"), copies);
         let s = scene_with(d, "q.toml", "q.obj", "");
         let (line, t) = refused(&s, &out, &["object.0.mesh", "share one bounding box"], 30);
-        assert!(line.contains(&format!("{} triangles", 2 * copies)), "{line}");
+        assert!(
+            line.contains(&format!("{} triangles", 2 * copies)),
+            "{line}"
+        );
         secs.push(t);
     }
     assert!(secs.iter().all(|&t| t < 10.0), "{secs:?}");
     // 32 copies (64 triangles, the bound) still render.
     copies_obj(&d.join("q.obj"), 32);
     let s = scene_with(d, "q.toml", "q.obj", "");
-    stscam_ok(&["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=[16,16]"]);
+    stscam_ok(&[
+        "render",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=[16,16]",
+    ]);
     std::fs::remove_dir_all(&out).unwrap();
     // Diamond DAG: the paths to the mesh double at every level.
     let levels = 60;
@@ -260,9 +341,18 @@ fn coincident_triangles_and_node_dags_are_refused_quickly() {
         nodes.push(json!({"children": [next]}));
     }
     nodes.push(json!({"mesh": 0}));
-    std::fs::write(d.join("dag.gltf"), gltf_with_nodes(json!(nodes), json!([0]))).unwrap();
+    std::fs::write(
+        d.join("dag.gltf"),
+        gltf_with_nodes(json!(nodes), json!([0])),
+    )
+    .unwrap();
     let s = scene_with(d, "dag.toml", "dag.gltf", "");
-    refused(&s, &out, &["dag.gltf", "object.0.mesh", "node instances"], 30);
+    refused(
+        &s,
+        &out,
+        &["dag.gltf", "object.0.mesh", "node instances"],
+        30,
+    );
 }
 
 /// A PNG of 16,384² pixels in a few hundred KB, given as a texture or an environment map, is
@@ -289,11 +379,25 @@ fn sizes_are_bounded_before_allocation() {
     }
     let size = std::fs::metadata(d.join("huge.png")).unwrap().len();
     assert!(size < 1 << 20, "{size}");
-    let tex = scene_with(d, "tex.toml", "quad", "[object.material]\nbase_color = \"huge.png\"\n");
-    let (_, t) = refused(&tex, &out, &["huge.png", "object.0.material.base_color", "16384x16384"], 30);
+    let tex = scene_with(
+        d,
+        "tex.toml",
+        "quad",
+        "[object.material]\nbase_color = \"huge.png\"\n",
+    );
+    let (_, t) = refused(
+        &tex,
+        &out,
+        &["huge.png", "object.0.material.base_color", "16384x16384"],
+        30,
+    );
     assert!(t < 5.0, "{t} s");
     let env = d.join("env.toml");
-    std::fs::write(&env, "[display]\nenabled = false\n[[light]]\nkind = \"environment\"\nmap = \"huge.png\"\n").unwrap();
+    std::fs::write(
+        &env,
+        "[display]\nenabled = false\n[[light]]\nkind = \"environment\"\nmap = \"huge.png\"\n",
+    )
+    .unwrap();
     refused(&env, &out, &["huge.png", "light.0.map", "16384x16384"], 30);
 
     // 10,000,003 triangles in one face line (20 MB): refused before parsing.
@@ -302,11 +406,17 @@ fn sizes_are_bounded_before_allocation() {
     s.push('\n');
     std::fs::write(d.join("many.obj"), s).unwrap();
     let m = scene_with(d, "many.toml", "many.obj", "");
-    refused(&m, &out, &["many.obj", "object.0.mesh", "10000003 triangles"], 30);
+    refused(
+        &m,
+        &out,
+        &["many.obj", "object.0.mesh", "10000003 triangles"],
+        30,
+    );
 
     // A buffer file far longer than its byteLength (a 3 GB sparse file after the quad's 60
     // bytes): only byteLength bytes are read, and the quad renders.
-    let g: serde_json::Value = serde_json::from_str(&gltf_with_nodes(json!([{"mesh": 0}]), json!([0]))).unwrap();
+    let g: serde_json::Value =
+        serde_json::from_str(&gltf_with_nodes(json!([{"mesh": 0}]), json!([0]))).unwrap();
     let uri = g["buffers"][0]["uri"].as_str().unwrap().to_string();
     let bin = {
         let b64 = uri.split(',').nth(1).unwrap();
@@ -322,7 +432,16 @@ fn sizes_are_bounded_before_allocation() {
     std::fs::write(d.join("long.gltf"), g1.to_string()).unwrap();
     let s = scene_with(d, "long.toml", "long.gltf", "");
     let (code, err, t) = run_timed(
-        &["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=[16,16]"],
+        &[
+            "render",
+            s.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--set",
+            "sensor.crop_px=[16,16]",
+        ],
         60,
     );
     assert_eq!(code, Some(0), "{err}");
@@ -338,7 +457,12 @@ fn sizes_are_bounded_before_allocation() {
     ]);
     std::fs::write(d.join("four.gltf"), g4.to_string()).unwrap();
     let s = scene_with(d, "four.toml", "four.gltf", "");
-    let (_, t) = refused(&s, &out, &["four.gltf", "object.0.mesh", "7600000000 bytes together"], 30);
+    let (_, t) = refused(
+        &s,
+        &out,
+        &["four.gltf", "object.0.mesh", "7600000000 bytes together"],
+        30,
+    );
     assert!(t < 5.0, "{t} s");
 }
 
@@ -372,11 +496,18 @@ fn many_heads_are_bounded() {
     let d = dir.path();
     let mut s = String::from("[display]\nenabled = false\n");
     for i in 0..1100 {
-        s.push_str(&format!("[[object]]\nmesh = \"head\"\nposition_mm = [{i}.0, 0.0, -600.0]\n"));
+        s.push_str(&format!(
+            "[[object]]\nmesh = \"head\"\nposition_mm = [{i}.0, 0.0, -600.0]\n"
+        ));
     }
     let p = d.join("heads.toml");
     std::fs::write(&p, s).unwrap();
-    refused(&p, &d.join("out"), &["heads.toml", ".mesh", "10000000 triangles"], 120);
+    refused(
+        &p,
+        &d.join("out"),
+        &["heads.toml", ".mesh", "10000000 triangles"],
+        120,
+    );
 }
 
 /// Depth stacks: `--depth-mm` beyond [1e-3, 1e7] mm is bad input (exit 2, not a failed
@@ -389,25 +520,62 @@ fn stack_inputs_are_checked() {
     for depth in ["1e300", "5e-324", "400,1e300"] {
         let out = d.join("m");
         let (code, err, _) = run_timed(
-            &["matrix", "--out", out.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=16", "--depth-mm", depth],
+            &[
+                "matrix",
+                "--out",
+                out.to_str().unwrap(),
+                "--spp",
+                "1",
+                "--set",
+                "sensor.crop_px=16",
+                "--depth-mm",
+                depth,
+            ],
             30,
         );
         assert_eq!(code, Some(2), "{depth}: {err}");
-        assert!(err.contains("--depth-mm") && err.trim_end().lines().count() == 1, "{err}");
+        assert!(
+            err.contains("--depth-mm") && err.trim_end().lines().count() == 1,
+            "{err}"
+        );
         assert!(!out.exists());
     }
     let stack = d.join("stack");
     stscam_ok(&[
-        "matrix", "--out", stack.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=24",
-        "--set", "display.image=letter:F@8", "--depth-mm", "400,550",
+        "matrix",
+        "--out",
+        stack.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=24",
+        "--set",
+        "display.image=letter:F@8",
+        "--depth-mm",
+        "400,550",
     ]);
     let cap = d.join("cap");
-    stscam_ok(&["render", "--out", cap.to_str().unwrap(), "--spp", "1", "--set", "sensor.crop_px=24", "--set", "display.image=letter:F@8"]);
+    stscam_ok(&[
+        "render",
+        "--out",
+        cap.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=24",
+        "--set",
+        "display.image=letter:F@8",
+    ]);
     let recon = |out: &Path| {
         run_timed(
             &[
-                "reconstruct", "--matrix", stack.join("H_stack.npz").to_str().unwrap(),
-                "--capture", cap.join("capture.exr").to_str().unwrap(), "--out", out.to_str().unwrap(),
+                "reconstruct",
+                "--matrix",
+                stack.join("H_stack.npz").to_str().unwrap(),
+                "--capture",
+                cap.join("capture.exr").to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
             ],
             30,
         )
@@ -422,7 +590,10 @@ fn stack_inputs_are_checked() {
     let out = d.join("r");
     let (code, err, _) = recon(&out);
     assert_eq!(code, Some(2), "{err}");
-    assert!(err.contains("offset_stack.npy") && err.contains("not finite") || err.contains("NaN"), "{err}");
+    assert!(
+        err.contains("offset_stack.npy") && err.contains("not finite") || err.contains("NaN"),
+        "{err}"
+    );
     assert!(!out.exists());
     std::fs::write(&off, &good).unwrap();
     let (code, err, _) = recon(&out);
@@ -437,7 +608,11 @@ fn stack_inputs_are_checked() {
     assert!(code == Some(2) && err.contains("H_stack"), "{err}");
     assert!(t < 10.0);
     std::fs::remove_file(&side).unwrap();
-    if Command::new("mkfifo").arg(&side).status().is_ok_and(|s| s.success()) {
+    if Command::new("mkfifo")
+        .arg(&side)
+        .status()
+        .is_ok_and(|s| s.success())
+    {
         let (code, err, t) = recon(&out);
         assert_eq!(code, Some(2), "{err}");
         assert!(t < 10.0, "{t}");

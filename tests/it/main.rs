@@ -18,6 +18,7 @@ mod matrix_calibration;
 mod mesh_scenes;
 mod mitsuba_reference;
 mod npz_independent;
+mod output_sets;
 mod probe_geometry;
 mod reconstruction;
 mod render_capture;
