@@ -21,6 +21,35 @@ pub const MAX_CAMERA_PATHS: u128 = 1 << 40;
 /// Largest memory estimate of one job's dominant arrays: 16 GiB.
 pub const MAX_JOB_BYTES: u128 = 16 << 30;
 
+/// Working range of user-side coordinates: every vertex, object position and light position
+/// must lie within ±`MAX_COORD_MM` (10 km) of the plate, and every size below it. The BVH works
+/// in f32 and its builder misbehaves on boxes near f32's overflow; 10 km is far beyond any
+/// scene this camera images (its depth of field ends within metres) and keeps f32 boxes exact
+/// to ~1 mm there.
+pub const MAX_COORD_MM: f64 = 1.0e7;
+
+/// Largest emitted radiance of a surface (RGB component times every scale), relative to the
+/// display's white: larger values overflow the f32 images (frontal.exr) once multiplied by a
+/// spectrum, and no real emitter in front of a screen is 10¹² times brighter than it.
+pub const MAX_EMISSION: f64 = 1.0e12;
+
+/// Most pixels of a texture or environment map (8192 × 4096): decoding holds at most about
+/// 32 bytes a pixel at once (the decoded rows, the f32 values and the f32 texels), so a texture
+/// takes at most 1 GiB while it is loaded and 12 bytes a pixel (384 MiB) afterwards.
+pub const MAX_TEXTURE_PIXELS: usize = 8192 * 4096;
+
+/// Checks that every component of `v` lies within ±[`MAX_COORD_MM`]; `setting` names the key.
+pub fn check_coords(setting: &str, v: &[f64]) -> Result<(), LimitError> {
+    if v.iter().all(|x| x.abs() <= MAX_COORD_MM) {
+        Ok(())
+    } else {
+        Err(LimitError::new(
+            setting,
+            format!("{v:?} lies outside the working range of ±{MAX_COORD_MM:e} mm (10 km)"),
+        ))
+    }
+}
+
 /// A job beyond a limit: the setting to blame and what is wrong, on one line.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{setting}: {message}")]

@@ -610,8 +610,11 @@ mod tests {
         assert_eq!(check_depth(412.5), Ok(()));
         assert_eq!(
             check_depth(-5.0).unwrap_err(),
-            "--depth-mm -5: depth -5 mm: must be a positive distance"
+            "--depth-mm -5: depth -5 mm: must be a distance in [0.001, 10000000] mm"
         );
+        assert!(check_depth(1e300).is_err());
+        assert!(check_depth(5e-324).is_err());
+        assert_eq!(check_depth(1e7), Ok(()));
         assert!(check_depth(f64::NAN).is_err());
         assert!(check_depth(0.0).is_err());
     }

@@ -31,6 +31,17 @@ pub const STACK_OFFSET: &str = "offset_stack.npy";
 /// Name of the stack's sidecar.
 pub const STACK_SIDECAR: &str = "H_stack.json";
 
+/// Nearest object-plane depth accepted, mm (1 µm; a depth label keeps 6 significant digits).
+pub const MIN_DEPTH_MM: f64 = 1e-3;
+/// Farthest object-plane depth accepted, mm: the working range of the user side
+/// ([`crate::limits::MAX_COORD_MM`], 10 km).
+pub const MAX_DEPTH_MM: f64 = crate::limits::MAX_COORD_MM;
+
+/// True for a finite depth within [[`MIN_DEPTH_MM`], [`MAX_DEPTH_MM`]].
+pub fn depth_in_range(d: f64) -> bool {
+    (MIN_DEPTH_MM..=MAX_DEPTH_MM).contains(&d)
+}
+
 /// Parses `D`, `D1,D2,…` or `START:STOP:STEPS` (inclusive, evenly spaced) into depths in mm,
 /// sorted ascending. Every depth must be finite and positive, with no repeats.
 pub fn parse_depths(spec: &str) -> Result<Vec<f64>, String> {
@@ -68,8 +79,10 @@ pub fn parse_depths(spec: &str) -> Result<Vec<f64>, String> {
     if depths.len() > MAX_DEPTHS {
         return Err(format!("more than {MAX_DEPTHS} depths"));
     }
-    if let Some(d) = depths.iter().find(|d| !(d.is_finite() && **d > 0.0)) {
-        return Err(format!("depth {d} mm: must be a positive distance"));
+    if let Some(d) = depths.iter().find(|d| !depth_in_range(**d)) {
+        return Err(format!(
+            "depth {d} mm: must be a distance in [{MIN_DEPTH_MM}, {MAX_DEPTH_MM}] mm"
+        ));
     }
     depths.sort_by(f64::total_cmp);
     if let Some(w) = depths.windows(2).find(|w| w[0] == w[1]) {
@@ -145,11 +158,19 @@ pub struct LoadedStack {
 }
 
 /// True if `path` is a stack: its sidecar (`<stem>.json`) lists `depths_mm`.
+/// The sidecar is read like every input ([`crate::io::input::read_text`]: a regular file of at
+/// most 64 MiB, so a FIFO or a device is never opened for reading).
+/// A sidecar that exists but is not a readable regular file (a FIFO, a device, a folder, too
+/// large) also counts as a stack's, so that [`load_stack`] reports it instead of the matrix
+/// being read as a plain H.
 pub fn is_stack(path: &Path) -> bool {
-    std::fs::read_to_string(path.with_extension("json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v.get("depths_mm").is_some())
+    let side = path.with_extension("json");
+    match crate::io::input::read_text(&side) {
+        Ok(t) => serde_json::from_str::<serde_json::Value>(&t)
+            .ok()
+            .is_some_and(|v| v.get("depths_mm").is_some()),
+        Err(_) => std::fs::metadata(&side).is_ok(),
+    }
 }
 
 /// Reads a stack from its block matrix (`H_stack.npz`) and sidecar (`H_stack.json`, which
@@ -157,10 +178,7 @@ pub fn is_stack(path: &Path) -> bool {
 /// count is depths × object pixels and that every offset has one value per row.
 pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoError> {
     let side_path = path.with_extension("json");
-    let text = std::fs::read_to_string(&side_path).map_err(|e| IoError::Io {
-        path: side_path.clone(),
-        source: e,
-    })?;
+    let text = crate::io::input::read_text(&side_path)?;
     let side: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| IoError::format(&side_path, e))?;
     let bad = |key: &str, what: &str| IoError::format(&side_path, format!("{key}: {what}"));
@@ -169,9 +187,17 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
         .and_then(|v| v.as_array())
         .ok_or_else(|| bad("depths_mm", "missing (not a depth stack)"))?
         .iter()
-        .map(|v| v.as_f64().filter(|d| d.is_finite() && *d > 0.0))
+        .map(|v| v.as_f64().filter(|d| depth_in_range(*d)))
         .collect::<Option<_>>()
-        .ok_or_else(|| bad("depths_mm", "every depth must be a positive number"))?;
+        .ok_or_else(|| {
+            bad(
+                "depths_mm",
+                &format!("every depth must be a number in [{MIN_DEPTH_MM}, {MAX_DEPTH_MM}] mm"),
+            )
+        })?;
+    if depths_mm.len() > MAX_DEPTHS {
+        return Err(bad("depths_mm", &format!("more than {MAX_DEPTHS} depths")));
+    }
     if depths_mm.is_empty() || depths_mm.windows(2).any(|w| w[0] >= w[1]) {
         return Err(bad(
             "depths_mm",
@@ -202,6 +228,8 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
         .ok_or_else(|| IoError::format(path, "cannot split the columns into depth blocks"))?;
     let read_offset = |p: &Path| -> Result<Vec<f32>, IoError> {
         let (_, v) = crate::io::npz::read_npy_f32(p)?;
+        // As the 2-D path (`matrix::load_matrix`): a NaN or infinite offset is refused.
+        crate::io::check_finite(p, "value", &v)?;
         if v.len() != h.rows {
             return Err(IoError::format(
                 p,

@@ -1,46 +1,99 @@
-//! Atomic file replacement: write to a temporary file in the target's
-//! directory, flush and fsync it, then rename it over the target, so readers
-//! never see a partially written file.
+//! Atomic file replacement, and output sets that appear together or not at all.
+//!
+//! One file ([`write_atomic`]): the bytes go to a temporary name `.<NAME>.tmp-<pid>-<n>` in the
+//! target's folder, created exclusively (`O_CREAT | O_EXCL`, so a symbolic link or any file
+//! already there is never opened or followed: the next `n` is tried), are flushed and fsynced,
+//! and the temporary file is renamed over the target.
+//!
+//! A set of files ([`write_all_atomic`]: capture, frontal, depth, mask and sidecars; H and its
+//! siblings; the members of a depth stack) goes through a per-run staging folder
+//! `.stscam-stage-<pid>-<n>` inside the output folder, created exclusively with `mkdir` (which
+//! never follows a link). Every file is written and fsynced there first; then, under the
+//! folder's commit lock `.stscam-commit` (created with `O_EXCL`; a second writer waits for it,
+//! a lock whose process is gone is taken over), a marker `.commit` is written into the
+//! staging folder and the files are renamed into place one by one, after which the staging
+//! folder and the lock are removed. So two runs writing into one folder commit one after the
+//! other: the folder ends with the complete set of the run that committed last, never a mix.
+//! A failure before the marker (full disk, read-only folder) removes the staging folder and
+//! leaves the output folder as it was (exit 1 in the CLI).
+//!
+//! A run killed (SIGKILL) before its marker leaves the previous set untouched and only its
+//! hidden staging folder; a run killed during its renames leaves the marker. Whoever next
+//! writes a set into the folder first repairs it under the lock ([`recover_folder`]): a
+//! staging folder of a dead process with a marker is rolled forward (its remaining files
+//! renamed into place, completing that run's set), one without a marker is deleted.
+//!
+//! Testing hook: `STSCAM_TEST_COMMIT_DELAY_MS=N` makes the commit sleep N ms before each
+//! rename (and before taking the lock), to widen the windows the concurrency and SIGKILL tests
+//! aim at. It changes no output.
+//!
+//! Assumptions: one local file system (rename within a folder is atomic); Linux-style `/proc`
+//! to tell a dead lock owner (elsewhere a stale lock must be removed by hand, as the error says).
 
-use std::fs::{self, File};
+use std::fs::{self, File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 
 use super::IoError;
 
-/// Writes `bytes` to `path` atomically.
-///
-/// The data goes to `.<filename>.tmp-<pid>` in the same directory, is flushed
-/// and fsynced, and is then renamed over `path`. On any error the temporary
-/// file is removed and `path` is left untouched.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+/// Name of a folder's commit lock.
+pub const COMMIT_LOCK: &str = ".stscam-commit";
+/// Prefix of a run's staging folder.
+pub const STAGE_PREFIX: &str = ".stscam-stage-";
+/// Marker written into a staging folder when its renames start.
+const COMMIT_MARKER: &str = ".commit";
+/// How long a writer waits for another run's commit lock before giving up.
+const LOCK_WAIT: Duration = Duration::from_secs(600);
+
+/// A per-process counter that makes temporary names unique within the process.
+static SEQ: AtomicU64 = AtomicU64::new(0);
+
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Creates a fresh temporary file next to `path` with `O_EXCL` (never through a link) and
+/// returns it with its name.
+fn create_temp(path: &Path) -> Result<(File, PathBuf), IoError> {
     let file_name = path
         .file_name()
         .ok_or_else(|| IoError::format(path, "path has no file name"))?;
-    let dir = match path.parent() {
-        Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(file_name);
-    tmp_name.push(format!(".tmp-{}", std::process::id()));
-    let tmp = dir.join(tmp_name);
-
-    let result = write_and_sync(&tmp, bytes).and_then(|()| fs::rename(&tmp, path));
-    match result {
-        Ok(()) => {
-            // Persist the rename itself; not all platforms can open directories,
-            // and the data is already safely in place, so failures are ignored.
-            if let Ok(d) = File::open(&dir) {
-                let _ = d.sync_all();
-            }
-            Ok(())
-        }
-        Err(e) => {
-            let _ = fs::remove_file(&tmp);
-            Err(IoError::io(path, e))
+    let dir = parent_dir(path);
+    loop {
+        let mut tmp_name = std::ffi::OsString::from(".");
+        tmp_name.push(file_name);
+        tmp_name.push(format!(
+            ".tmp-{}-{}",
+            std::process::id(),
+            SEQ.fetch_add(1, Ordering::Relaxed)
+        ));
+        let tmp = dir.join(tmp_name);
+        match OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((f, tmp)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(IoError::io(path, e)),
         }
     }
+}
+
+/// Writes `bytes` to `path` atomically.
+///
+/// The data goes to an exclusively created `.<filename>.tmp-<pid>-<n>` in the same directory,
+/// is flushed and fsynced, and is then renamed over `path`. On any error the temporary file
+/// is removed and `path` is left untouched.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_via_temp(path, bytes, true)?;
+    // Persist the rename itself; not all platforms can open directories, and the data is
+    // already safely in place, so failures are ignored.
+    if let Ok(d) = File::open(parent_dir(path)) {
+        let _ = d.sync_all();
+    }
+    Ok(())
 }
 
 /// Writes `bytes` to `path` through a temporary file and a rename, without fsync: readers and
@@ -48,77 +101,262 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 /// survive a power loss until the OS flushes it. For the many per-sample files of a dataset,
 /// where a per-file fsync would dominate the run time.
 pub fn write_atomic_unsynced(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    let tmp = temp_path(path)?;
-    let result = fs::write(&tmp, bytes).and_then(|()| fs::rename(&tmp, path));
+    write_via_temp(path, bytes, false)
+}
+
+fn write_via_temp(path: &Path, bytes: &[u8], sync: bool) -> Result<(), IoError> {
+    let (mut file, tmp) = create_temp(path)?;
+    let result = file
+        .write_all(bytes)
+        .and_then(|()| if sync { file.sync_all() } else { Ok(()) })
+        .and_then(|()| {
+            drop(file);
+            fs::rename(&tmp, path)
+        });
     result.map_err(|e| {
         let _ = fs::remove_file(&tmp);
         IoError::io(path, e)
     })
 }
 
-fn temp_path(path: &Path) -> Result<PathBuf, IoError> {
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| IoError::format(path, "path has no file name"))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(file_name);
-    tmp_name.push(format!(".tmp-{}", std::process::id()));
-    Ok(path.with_file_name(tmp_name))
+/// The test-only delay before each rename of a commit (see the module comment).
+fn commit_delay() -> Option<Duration> {
+    std::env::var("STSCAM_TEST_COMMIT_DELAY_MS")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+        .map(Duration::from_millis)
 }
 
-/// Writes several files into `dir` as one unit: `dir` is created if needed, every file is
-/// first written and synced under a temporary name, and only when all writes succeeded are
-/// they renamed into place. On failure the temporary files are removed, and `dir` too if this
-/// call created it and it is empty, so nothing new is left behind.
+/// Writes several files into `dir` as one unit (see the module comment): `dir` is created if
+/// needed, every file is first written and synced in a staging folder, and only when all
+/// writes succeeded are they renamed into place, under the folder's commit lock. On failure
+/// the staging folder is removed, and `dir` too if this call created it and it is empty, so
+/// nothing new is left behind. File names must be plain names (no folders).
 pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoError> {
     let created = !dir.exists();
     fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
-    let mut temps: Vec<(PathBuf, PathBuf)> = Vec::new();
-    let cleanup = |temps: &[(PathBuf, PathBuf)]| {
-        for (tmp, _) in temps {
-            let _ = fs::remove_file(tmp);
-        }
+    let remove_created = || {
         if created {
             let _ = fs::remove_dir(dir);
         }
     };
-    for (name, bytes) in files {
-        let path = dir.join(name);
-        let tmp = match temp_path(&path) {
-            Ok(t) => t,
-            Err(e) => {
-                cleanup(&temps);
-                return Err(e);
-            }
-        };
-        if let Err(e) = write_and_sync(&tmp, bytes) {
-            let _ = fs::remove_file(&tmp);
-            cleanup(&temps);
-            return Err(IoError::io(&path, e));
+    let stage = match create_stage(dir) {
+        Ok(s) => s,
+        Err(e) => {
+            remove_created();
+            return Err(e);
         }
-        temps.push((tmp, path));
+    };
+    let fail = |e: IoError| {
+        let _ = remove_tree(&stage);
+        remove_created();
+        Err(e)
+    };
+    for (name, bytes) in files {
+        let target = dir.join(name);
+        let plain = Path::new(name).components().count() == 1
+            && !name.starts_with(STAGE_PREFIX)
+            && *name != COMMIT_LOCK;
+        if !plain {
+            // A name with folders cannot be staged; report it as the old writer did.
+            let e = std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "output names must be plain file names",
+            );
+            return fail(IoError::io(&target, e));
+        }
+        if let Err(e) = write_new_synced(&stage.join(name), bytes) {
+            return fail(IoError::io(&target, e));
+        }
     }
     // A target that exists but is not a regular file would make its rename fail after others
     // succeeded: refuse before renaming anything.
-    if let Some((_, bad)) = temps.iter().find(|(_, p)| p.exists() && !p.is_file()) {
-        let bad = bad.clone();
-        cleanup(&temps);
-        return Err(IoError::format(&bad, "exists and is not a regular file"));
+    if let Some((name, _)) = files.iter().find(|(n, _)| {
+        let p = dir.join(n);
+        p.exists() && !p.is_file()
+    }) {
+        return fail(IoError::format(
+            &dir.join(name),
+            "exists and is not a regular file",
+        ));
     }
-    for (i, (tmp, path)) in temps.iter().enumerate() {
-        if let Err(e) = fs::rename(tmp, path) {
-            cleanup(&temps[i..]);
-            return Err(IoError::io(path, e));
+    if let Err(e) = File::open(&stage).and_then(|d| d.sync_all()) {
+        return fail(IoError::io(&stage, e));
+    }
+    let lock = match CommitLock::acquire(dir) {
+        Ok(l) => l,
+        Err(e) => return fail(e),
+    };
+    if let Err(e) = recover_locked(dir) {
+        drop(lock);
+        return fail(e);
+    }
+    if let Err(e) = write_new_synced(&stage.join(COMMIT_MARKER), b"")
+        .and_then(|()| File::open(&stage).and_then(|d| d.sync_all()))
+    {
+        drop(lock);
+        return fail(IoError::io(&stage, e));
+    }
+    let delay = commit_delay();
+    let result = roll_forward(&stage, dir, delay);
+    drop(lock);
+    result
+}
+
+/// Creates this run's staging folder inside `dir` exclusively.
+fn create_stage(dir: &Path) -> Result<PathBuf, IoError> {
+    loop {
+        let stage = dir.join(format!(
+            "{STAGE_PREFIX}{}-{}",
+            std::process::id(),
+            SEQ.fetch_add(1, Ordering::Relaxed)
+        ));
+        match fs::create_dir(&stage) {
+            Ok(()) => return Ok(stage),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(IoError::io(&stage, e)),
         }
+    }
+}
+
+/// Renames every file of a committed staging folder (but its marker) into `dir`, then removes
+/// the marker and the folder.
+fn roll_forward(stage: &Path, dir: &Path, delay: Option<Duration>) -> Result<(), IoError> {
+    let mut names: Vec<std::ffi::OsString> = fs::read_dir(stage)
+        .map_err(|e| IoError::io(stage, e))?
+        .filter_map(|e| e.ok().map(|e| e.file_name()))
+        .filter(|n| n != COMMIT_MARKER)
+        .collect();
+    names.sort();
+    for name in names {
+        if let Some(d) = delay {
+            std::thread::sleep(d);
+        }
+        fs::rename(stage.join(&name), dir.join(&name))
+            .map_err(|e| IoError::io(&dir.join(&name), e))?;
     }
     if let Ok(d) = File::open(dir) {
         let _ = d.sync_all();
     }
-    Ok(())
+    let _ = fs::remove_file(stage.join(COMMIT_MARKER));
+    fs::remove_dir(stage).map_err(|e| IoError::io(stage, e))
 }
 
-fn write_and_sync(tmp: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut file = File::create(tmp)?;
+/// Repairs `dir` after runs that were killed while writing a set into it (see the module
+/// comment): takes the commit lock, rolls forward every staging folder of a dead process that
+/// holds a commit marker and deletes every other one, and returns how many it completed and
+/// deleted. A no-op (and cheap) in a folder without staging folders.
+pub fn recover_folder(dir: &Path) -> Result<(usize, usize), IoError> {
+    let lock = CommitLock::acquire(dir)?;
+    let r = recover_locked(dir);
+    drop(lock);
+    r
+}
+
+fn recover_locked(dir: &Path) -> Result<(usize, usize), IoError> {
+    let (mut done, mut removed) = (0, 0);
+    let entries = fs::read_dir(dir).map_err(|e| IoError::io(dir, e))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(STAGE_PREFIX)) else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+        if pid.is_some_and(|p| p == std::process::id() || process_alive(p)) {
+            continue;
+        }
+        let stage = entry.path();
+        if !fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir()) {
+            continue;
+        }
+        if stage.join(COMMIT_MARKER).exists() {
+            roll_forward(&stage, dir, None)?;
+            done += 1;
+        } else {
+            remove_tree(&stage).map_err(|e| IoError::io(&stage, e))?;
+            removed += 1;
+        }
+    }
+    Ok((done, removed))
+}
+
+/// Removes a staging folder: its plain files, then the folder (never following links).
+fn remove_tree(stage: &Path) -> std::io::Result<()> {
+    for entry in fs::read_dir(stage)?.flatten() {
+        let _ = fs::remove_file(entry.path());
+    }
+    fs::remove_dir(stage)
+}
+
+/// True unless `/proc` says no process `pid` exists (where there is no `/proc`, always true:
+/// the safe side).
+fn process_alive(pid: u32) -> bool {
+    !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// The folder's commit lock: `.stscam-commit` holding the owner's pid, removed on drop.
+struct CommitLock {
+    file: PathBuf,
+}
+
+impl CommitLock {
+    fn acquire(dir: &Path) -> Result<CommitLock, IoError> {
+        let file = dir.join(COMMIT_LOCK);
+        let start = std::time::Instant::now();
+        loop {
+            match OpenOptions::new().write(true).create_new(true).open(&file) {
+                Ok(mut f) => {
+                    let lock = CommitLock { file: file.clone() };
+                    f.write_all(format!("{}\n", std::process::id()).as_bytes())
+                        .map_err(|e| IoError::io(&file, e))?;
+                    return Ok(lock);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    // The owner may be between creating and writing the file: an empty or
+                    // unreadable lock counts as alive until it has been so for a second.
+                    let owner = fs::symlink_metadata(&file)
+                        .ok()
+                        .filter(|m| m.is_file())
+                        .and_then(|_| fs::read_to_string(&file).ok())
+                        .and_then(|t| t.trim().parse::<u32>().ok());
+                    let stale = match owner {
+                        Some(pid) => !process_alive(pid),
+                        None => start.elapsed() > Duration::from_secs(1),
+                    };
+                    if stale {
+                        match fs::remove_file(&file) {
+                            Ok(()) => continue,
+                            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                            Err(e) => return Err(IoError::io(&file, e)),
+                        }
+                    }
+                    if start.elapsed() > LOCK_WAIT {
+                        return Err(IoError::format(
+                            &file,
+                            format!(
+                                "another stscam run (pid {}) has held this folder's commit lock for {} s; delete this file if no such run is working",
+                                owner.map_or("?".to_string(), |p| p.to_string()),
+                                LOCK_WAIT.as_secs()
+                            ),
+                        ));
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                Err(e) => return Err(IoError::io(&file, e)),
+            }
+        }
+    }
+}
+
+impl Drop for CommitLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.file);
+    }
+}
+
+/// Creates `path` exclusively (never through a link), writes and fsyncs it.
+fn write_new_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut file = OpenOptions::new().write(true).create_new(true).open(path)?;
     file.write_all(bytes)?;
     file.flush()?;
     file.sync_all()
@@ -172,6 +410,64 @@ mod tests {
                 std::ffi::OsString::from("b.txt")
             ]
         );
+    }
+
+    /// Links planted at the next temporary and staging names this process will try (and at
+    /// the target) are skipped, not followed: the file they point to is unchanged.
+    #[cfg(unix)]
+    #[test]
+    fn planted_links_at_temporary_names_are_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = dir.path().join("victim");
+        fs::write(&victim, b"precious").unwrap();
+        let out = dir.path().join("out");
+        fs::create_dir(&out).unwrap();
+        let next = SEQ.load(Ordering::Relaxed);
+        let pid = std::process::id();
+        for n in next..next + 64 {
+            let _ = std::os::unix::fs::symlink(&victim, out.join(format!(".a.bin.tmp-{pid}-{n}")));
+            let _ =
+                std::os::unix::fs::symlink(&victim, out.join(format!("{STAGE_PREFIX}{pid}-{n}")));
+        }
+        std::os::unix::fs::symlink(&victim, out.join("b.bin")).unwrap();
+        write_atomic(&out.join("a.bin"), b"A").unwrap();
+        write_all_atomic(&out, &[("b.bin", b"B"), ("c.bin", b"C")]).unwrap();
+        assert_eq!(fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(fs::read(out.join("a.bin")).unwrap(), b"A");
+        assert!(fs::symlink_metadata(out.join("b.bin")).unwrap().is_file());
+        assert_eq!(fs::read(out.join("b.bin")).unwrap(), b"B");
+        assert!(!out.join(COMMIT_LOCK).exists());
+    }
+
+    /// A staging folder of a dead process is deleted without its marker and rolled forward
+    /// with it.
+    #[test]
+    fn recovery_rolls_forward_or_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        fs::write(out.join("x.txt"), b"old").unwrap();
+        fs::write(out.join("y.txt"), b"old").unwrap();
+        // pid 0 is never a user process; u32::MAX - 1 is beyond pid_max.
+        let dead = u32::MAX - 1;
+        let a = out.join(format!("{STAGE_PREFIX}{dead}-0"));
+        fs::create_dir(&a).unwrap();
+        fs::write(a.join("x.txt"), b"half").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (0, 1));
+        assert_eq!(fs::read(out.join("x.txt")).unwrap(), b"old");
+        let b = out.join(format!("{STAGE_PREFIX}{dead}-1"));
+        fs::create_dir(&b).unwrap();
+        fs::write(b.join("y.txt"), b"new").unwrap();
+        fs::write(b.join(COMMIT_MARKER), b"").unwrap();
+        // x.txt was already renamed before the kill.
+        fs::write(out.join("x.txt"), b"new").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (1, 0));
+        assert_eq!(fs::read(out.join("y.txt")).unwrap(), b"new");
+        let mut names: Vec<_> = fs::read_dir(out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["x.txt", "y.txt"]);
     }
 
     #[test]

@@ -182,23 +182,25 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), String> {
 /// row-major with row 0 at the top, in the file's (name-sorted) channel order.
 pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<ExrChannel>), IoError> {
     let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
-    decode_exr(path, bytes)
+    decode_exr(path, bytes, MAX_PIXELS)
 }
 
 /// Decodes EXR `bytes` (read from `path`, which is used only in errors).
+/// Images of more than `max_pixels` pixels are refused from the header, before decoding.
 pub(crate) fn decode_exr(
     path: &Path,
     bytes: Vec<u8>,
+    max_pixels: usize,
 ) -> Result<(usize, usize, Vec<ExrChannel>), IoError> {
     let not_exr =
         |e: exr::error::Error| IoError::format(path, format!("not a readable OpenEXR file ({e})"));
     let meta = MetaData::read_from_buffered(bytes.as_slice(), false).map_err(not_exr)?;
     let pixels =
         |h: &exr::meta::header::Header| h.layer_size.width().saturating_mul(h.layer_size.height());
-    if meta.headers.iter().any(|h| pixels(h) > MAX_PIXELS) {
+    if meta.headers.iter().any(|h| pixels(h) > max_pixels) {
         return Err(IoError::format(
             path,
-            format!("EXR image has more than {MAX_PIXELS} pixels"),
+            format!("EXR image has more than the {max_pixels} pixels accepted"),
         ));
     }
     let image = read()

@@ -38,23 +38,32 @@ pub struct LoadedImage {
 /// one channel; `linear` is `true`. JPEG (baseline or progressive, any colour space the
 /// decoder converts to RGB): three channels of code value / 255, `linear` is `false`.
 pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
-    load_with(path, exr_to_gray)
+    load_with(path, exr_to_gray, MAX_PIXELS)
 }
 
 /// As [`load_image`], but an EXR with `R`, `G`, `B` channels keeps them (three linear
 /// channels) instead of being reduced to luminance: for colour textures.
 pub fn load_image_rgb(path: &Path) -> Result<LoadedImage, IoError> {
-    load_with(path, exr_to_rgb)
+    load_with(path, exr_to_rgb, MAX_PIXELS)
+}
+
+/// As [`load_image_rgb`] for a texture or environment map: at most
+/// [`crate::limits::MAX_TEXTURE_PIXELS`] pixels, checked from the header before any pixel
+/// buffer is allocated.
+pub fn load_texture_image(path: &Path) -> Result<LoadedImage, IoError> {
+    load_with(path, exr_to_rgb, crate::limits::MAX_TEXTURE_PIXELS)
 }
 
 /// Decodes an image already in memory (for example embedded in a glTF buffer or data URI)
 /// whose type is given by `ext` (`png`, `jpg`/`jpeg` or `exr`, case-insensitive), as
-/// [`load_image_rgb`] decodes a file of that type. `path_for_messages` names the image in
-/// errors only; nothing is read from it.
+/// [`load_image_rgb`] decodes a file of that type, refusing more than `max_pixels` pixels
+/// (checked from the header, before the pixels are decoded). `path_for_messages` names the
+/// image in errors only; nothing is read from it.
 pub fn decode_image_bytes(
     path_for_messages: &Path,
     ext: &str,
     bytes: Vec<u8>,
+    max_pixels: usize,
 ) -> Result<LoadedImage, IoError> {
     let decode: Decode = match ext.to_ascii_lowercase().as_str() {
         "png" => decode_png,
@@ -67,16 +76,16 @@ pub fn decode_image_bytes(
             ));
         }
     };
-    let image = decode(path_for_messages, bytes)?;
+    let image = decode(path_for_messages, bytes, max_pixels)?;
     if image.width == 0 || image.height == 0 {
         return Err(IoError::format(path_for_messages, "image is empty"));
     }
     Ok(image)
 }
 
-type Decode = fn(&Path, Vec<u8>) -> Result<LoadedImage, IoError>;
+type Decode = fn(&Path, Vec<u8>, usize) -> Result<LoadedImage, IoError>;
 
-fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {
+fn load_with(path: &Path, exr: Decode, max_pixels: usize) -> Result<LoadedImage, IoError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -93,24 +102,24 @@ fn load_with(path: &Path, exr: Decode) -> Result<LoadedImage, IoError> {
         }
     };
     let bytes = super::input::read_input(path, super::input::MAX_BINARY_BYTES)?;
-    let image = decode(path, bytes)?;
+    let image = decode(path, bytes, max_pixels)?;
     if image.width == 0 || image.height == 0 {
         return Err(IoError::format(path, "image is empty"));
     }
     Ok(image)
 }
 
-fn decode_png(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+fn decode_png(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedImage, IoError> {
     let bad =
         |e: png::DecodingError| IoError::format(path, format!("not a readable PNG file ({e})"));
     let mut decoder = Decoder::new(Cursor::new(bytes));
     decoder.set_transformations(Transformations::EXPAND);
     let mut reader = decoder.read_info().map_err(bad)?;
     let (w, h) = (reader.info().width as usize, reader.info().height as usize);
-    if w.saturating_mul(h) > MAX_PIXELS {
+    if w.saturating_mul(h) > max_pixels {
         return Err(IoError::format(
             path,
-            format!("PNG image has more than {MAX_PIXELS} pixels"),
+            format!("PNG image of {w}x{h} pixels has more than the {max_pixels} accepted"),
         ));
     }
     let size = reader
@@ -228,7 +237,7 @@ fn jpeg_result<T>(path: &Path, r: std::thread::Result<Result<T, String>>) -> Res
     }
 }
 
-fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
+fn decode_jpeg(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedImage, IoError> {
     use zune_core::bytestream::ZCursor;
     use zune_core::colorspace::ColorSpace;
     use zune_core::options::DecoderOptions;
@@ -241,6 +250,14 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     // reported the same way rather than aborting the whole run.
     let decoded = std::panic::catch_unwind(move || {
         let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+        decoder.decode_headers().map_err(|e| format!("{e:?}"))?;
+        let info = decoder.info().ok_or("no image header")?;
+        let (w, h) = (usize::from(info.width), usize::from(info.height));
+        if w.saturating_mul(h) > max_pixels {
+            return Err(format!(
+                "image of {w}x{h} pixels has more than the {max_pixels} accepted"
+            ));
+        }
         let pixels = decoder.decode().map_err(|e| format!("{e:?}"))?;
         let info = decoder.info().ok_or("no image header")?;
         Ok::<_, String>((usize::from(info.width), usize::from(info.height), pixels))
@@ -264,8 +281,8 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     })
 }
 
-fn exr_to_rgb(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
-    let (width, height, channels) = decode_exr(path, bytes)?;
+fn exr_to_rgb(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedImage, IoError> {
+    let (width, height, channels) = decode_exr(path, bytes, max_pixels)?;
     let find = |name: &str| channels.iter().find(|c| c.name == name);
     if let (Some(r), Some(g), Some(b)) = (find("R"), find("G"), find("B")) {
         let values = (0..width * height)
@@ -282,8 +299,8 @@ fn exr_to_rgb(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
     gray_from_channels(path, width, height, channels)
 }
 
-fn exr_to_gray(path: &Path, bytes: Vec<u8>) -> Result<LoadedImage, IoError> {
-    let (width, height, channels) = decode_exr(path, bytes)?;
+fn exr_to_gray(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedImage, IoError> {
+    let (width, height, channels) = decode_exr(path, bytes, max_pixels)?;
     gray_from_channels(path, width, height, channels)
 }
 

@@ -22,6 +22,25 @@ use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
 
+/// Most triangles with one identical bounding box that [`Accel::try_build`] accepts.
+pub const MAX_COINCIDENT: usize = 64;
+
+/// The largest group of identical boxes: (its first triangle, its size); None without boxes.
+fn largest_coincident_group(boxes: &[Aabb]) -> Option<(u32, usize)> {
+    let key = |b: &Aabb| {
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]].map(f32::to_bits)
+    };
+    let mut counts: std::collections::HashMap<[u32; 6], (u32, usize)> =
+        std::collections::HashMap::with_capacity(boxes.len());
+    for (i, b) in boxes.iter().enumerate() {
+        counts.entry(key(b)).or_insert((i as u32, 0)).1 += 1;
+    }
+    counts
+        .into_values()
+        .max_by_key(|&(first, n)| (n, std::cmp::Reverse(first)))
+}
+
 /// A ray in f64 with the shear constants of the watertight test precomputed.
 #[derive(Clone, Copy, Debug)]
 pub struct WatertightRay {
@@ -142,6 +161,29 @@ impl Accel {
     /// culling; hits still come from the f64 test.
     pub fn build(positions: &[DVec3], triangles: &[[u32; 3]]) -> Accel {
         let start = Instant::now();
+        let boxes = Self::boxes(positions, triangles);
+        Self::build_from(positions, triangles, boxes, start)
+    }
+
+    /// As [`Accel::build`], but first refuses a triangle list in which more than
+    /// [`MAX_COINCIDENT`] triangles have the same (f32, padded) bounding box: the builder
+    /// handles identical boxes one merge at a time, so its time grows with the size of the
+    /// largest such group times the triangle count, and its tree depth (recursed into while
+    /// compressing) with the group's size. The error is (a triangle of the largest group, the
+    /// group's size).
+    pub fn try_build(positions: &[DVec3], triangles: &[[u32; 3]]) -> Result<Accel, (u32, usize)> {
+        let start = Instant::now();
+        let boxes = Self::boxes(positions, triangles);
+        if let Some(worst) = largest_coincident_group(&boxes)
+            && worst.1 > MAX_COINCIDENT
+        {
+            return Err(worst);
+        }
+        Ok(Self::build_from(positions, triangles, boxes, start))
+    }
+
+    /// The padded f32 box of every triangle (see [`Accel::build`]).
+    fn boxes(positions: &[DVec3], triangles: &[[u32; 3]]) -> Vec<Aabb> {
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for p in positions {
             lo = lo.min(*p);
@@ -149,13 +191,21 @@ impl Accel {
         }
         let scale = (lo.abs().max(hi.abs()).max_element() + (hi - lo).max_element()).max(1000.0);
         let pad = scale / 1_048_576.0;
-        let boxes: Vec<Aabb> = triangles
+        triangles
             .iter()
             .map(|t| {
                 let [a, b, c] = t.map(|i| positions[i as usize]);
                 Aabb::new(to_f32(a.min(b).min(c) - pad), to_f32(a.max(b).max(c) + pad))
             })
-            .collect();
+            .collect()
+    }
+
+    fn build_from(
+        positions: &[DVec3],
+        triangles: &[[u32; 3]],
+        boxes: Vec<Aabb>,
+        start: Instant,
+    ) -> Accel {
         let bvh = obvhs::cwbvh::builder::build_cwbvh(
             &boxes,
             BvhBuildParams::medium_build(),

@@ -197,6 +197,8 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         if !finite_all(&o.position_mm) {
             return err(k("position_mm"), "must be finite".into());
         }
+        crate::limits::check_coords(&k("position_mm"), &o.position_mm)
+            .map_err(|e| ls.key_error(&e.setting, e.message))?;
         if !finite_all(&o.rotation_deg) {
             return err(k("rotation_deg"), "must be finite".into());
         }
@@ -294,6 +296,8 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         let needs_pos = l.kind != "environment";
         match l.position_mm {
             Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
+            Some(p) => crate::limits::check_coords(&k("position_mm"), &p)
+                .map_err(|e| ls.key_error(&e.setting, e.message))?,
             None if needs_pos => {
                 return err(
                     k("position_mm"),
@@ -319,11 +323,18 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         unit_vec(l.direction, "direction")?;
         match l.kind.as_str() {
             "rect" => match l.size_mm {
-                Some([w, h]) if w.is_finite() && h.is_finite() && w > 0.0 && h > 0.0 => {}
+                Some([w, h])
+                    if w > 0.0
+                        && h > 0.0
+                        && w <= crate::limits::MAX_COORD_MM
+                        && h <= crate::limits::MAX_COORD_MM => {}
                 Some(s) => {
                     return err(
                         k("size_mm"),
-                        format!("must be two positive sizes, got {s:?}"),
+                        format!(
+                            "must be two positive sizes up to {:e} mm, got {s:?}",
+                            crate::limits::MAX_COORD_MM
+                        ),
                     );
                 }
                 None => {
@@ -334,8 +345,16 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
                 }
             },
             "sphere" => match l.radius_mm {
-                Some(r) if r.is_finite() && r > 0.0 => {}
-                Some(r) => return err(k("radius_mm"), format!("must be positive, got {r}")),
+                Some(r) if r > 0.0 && r <= crate::limits::MAX_COORD_MM => {}
+                Some(r) => {
+                    return err(
+                        k("radius_mm"),
+                        format!(
+                            "must be positive and at most {:e} mm, got {r}",
+                            crate::limits::MAX_COORD_MM
+                        ),
+                    );
+                }
                 None => return err(k("radius_mm"), "a sphere light needs radius_mm".into()),
             },
             "spot" => {

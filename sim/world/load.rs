@@ -45,14 +45,26 @@ use super::texture::{Texture, Wrap};
 use crate::io::IoError;
 use crate::io::image_load::{LoadedImage, decode_image_bytes};
 
-/// Largest number of triangles accepted in one file.
-pub const MAX_TRIANGLES: usize = 50_000_000;
+/// Largest number of triangles accepted in one file (and in one scene,
+/// [`crate::world::MAX_TRIANGLES`]): a loaded and placed triangle costs about
+/// [`BYTES_PER_TRIANGLE`] until the BVH is built, so 10⁷ triangles stay within about 4 GB.
+pub const MAX_TRIANGLES: usize = 10_000_000;
 /// Largest number of vertices accepted in one file.
-pub const MAX_VERTICES: usize = 50_000_000;
-/// Largest mesh, buffer or image file read, bytes.
+pub const MAX_VERTICES: usize = 10_000_000;
+/// Peak memory of one triangle from the file to the built BVH, bytes (measured: an OBJ of
+/// 500,000 separate quads, 10⁶ triangles and 2·10⁶ vertices, renders at 16×16 px with a peak
+/// of 404 MB): f64 positions and normals, indices, material and object ids, the f32 boxes,
+/// the BVH builder's nodes and the parser's own arrays.
+pub const BYTES_PER_TRIANGLE: u64 = 400;
+/// Largest mesh, buffer or image file read, bytes; also the most bytes all buffers of one glTF
+/// file may declare together.
 pub const MAX_FILE_BYTES: u64 = 2 << 30;
 /// Deepest node hierarchy accepted (guards against cycles).
 const MAX_NODE_DEPTH: usize = 256;
+/// Most node visits of one glTF scene walk: a node shared by several parents is visited once
+/// per path, so a diamond-shaped hierarchy of depth d has 2^d paths; the walk stops here
+/// instead of running for ever.
+pub const MAX_NODE_VISITS: usize = 1_000_000;
 
 /// An error while loading a mesh file or one of the files it references; its message is one
 /// line and names the file concerned.
@@ -169,7 +181,13 @@ pub fn texture_from_encoded_bytes(
     ext: &str,
     name_for_messages: &Path,
 ) -> Result<Texture, IoError> {
-    decode_image_bytes(name_for_messages, ext, bytes).map(texture_from_image)
+    decode_image_bytes(
+        name_for_messages,
+        ext,
+        bytes,
+        crate::limits::MAX_TEXTURE_PIXELS,
+    )
+    .map(texture_from_image)
 }
 
 fn texture_from_image(img: LoadedImage) -> Texture {
@@ -200,6 +218,28 @@ fn check_regular_file(path: &Path) -> Result<u64, LoadError> {
 fn read_file(path: &Path) -> Result<Vec<u8>, LoadError> {
     check_regular_file(path)?;
     std::fs::read(path).map_err(|e| LoadError::new(path, e))
+}
+
+/// Reads at most the first `limit` bytes of a regular file (a glTF buffer: what lies beyond
+/// its `byteLength` is never read).
+fn read_prefix(path: &Path, limit: u64) -> Result<Vec<u8>, LoadError> {
+    use std::io::Read;
+    let meta = std::fs::metadata(path).map_err(|e| LoadError::new(path, e))?;
+    if !meta.is_file() {
+        return Err(LoadError::new(
+            path,
+            "is not a regular file (a folder, device, FIFO or socket)",
+        ));
+    }
+    let len = meta.len();
+    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
+    let mut data = Vec::new();
+    data.try_reserve_exact(usize::try_from(len.min(limit)).unwrap_or(usize::MAX))
+        .map_err(|e| LoadError::new(path, e))?;
+    file.take(limit)
+        .read_to_end(&mut data)
+        .map_err(|e| LoadError::new(path, e))?;
+    Ok(data)
 }
 
 /// Image type from the leading bytes.
@@ -331,19 +371,22 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| LoadError::new(path, format!("not a readable glTF file ({e})")))?;
     drop(bytes);
+    // Every buffer's byteLength is summed before any is read.
+    let declared_total = document
+        .buffers()
+        .fold(0u64, |t, b| t.saturating_add(b.length() as u64));
+    if declared_total > MAX_FILE_BYTES {
+        return Err(LoadError::new(
+            path,
+            format!(
+                "the buffers declare {declared_total} bytes together, more than the {MAX_FILE_BYTES} accepted"
+            ),
+        ));
+    }
     let mut buffers = Vec::new();
     for buffer in document.buffers() {
         let declared = buffer.length();
-        if declared as u64 > MAX_FILE_BYTES {
-            return Err(LoadError::new(
-                path,
-                format!(
-                    "buffer {} is larger than {MAX_FILE_BYTES} bytes",
-                    buffer.index()
-                ),
-            ));
-        }
-        let (data, name) = match buffer.source() {
+        let (mut data, name) = match buffer.source() {
             gltf::buffer::Source::Bin => (
                 blob.take()
                     .ok_or_else(|| LoadError::new(path, "GLB has no binary chunk"))?,
@@ -352,7 +395,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             gltf::buffer::Source::Uri(uri) => match resolve_uri(path, uri)? {
                 UriData::Inline(b, _) => (b, path.to_path_buf()),
                 UriData::File(p) => {
-                    let data = read_file(&p).map_err(|e| {
+                    let data = read_prefix(&p, declared as u64).map_err(|e| {
                         LoadError::new(
                             &e.path,
                             format!(
@@ -376,6 +419,8 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
                 ),
             ));
         }
+        // Bytes past `byteLength` (GLB padding, a longer file) are never used.
+        data.truncate(declared);
         buffers.push(data);
     }
     let mut ctx = GltfCtx {
@@ -410,7 +455,17 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         .rev()
         .map(|n| (n, DMat4::IDENTITY, 0))
         .collect();
+    let mut visits = 0usize;
     while let Some((node, parent, depth)) = stack.pop() {
+        visits += 1;
+        if visits > MAX_NODE_VISITS {
+            return Err(LoadError::new(
+                path,
+                format!(
+                    "the node hierarchy has more than {MAX_NODE_VISITS} node instances (nodes shared by many parents?)"
+                ),
+            ));
+        }
         if depth > MAX_NODE_DEPTH {
             return Err(LoadError::new(
                 path,
@@ -813,7 +868,50 @@ struct MtlLog {
     error: Option<LoadError>,
 }
 
+/// Counts the vertices and the triangles (a face of k corners makes k − 2) of an OBJ file by
+/// scanning its lines, without building anything: the size check before parsing.
+fn obj_counts(path: &Path) -> Result<(u64, u64), LoadError> {
+    use std::io::BufRead;
+    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
+    let mut reader = BufReader::with_capacity(1 << 16, file);
+    let (mut vertices, mut triangles) = (0u64, 0u64);
+    let mut line = Vec::new();
+    loop {
+        line.clear();
+        let n = reader
+            .read_until(b'\n', &mut line)
+            .map_err(|e| LoadError::new(path, e))?;
+        if n == 0 {
+            break;
+        }
+        let mut words = line
+            .split(|c| c.is_ascii_whitespace())
+            .filter(|w| !w.is_empty());
+        match words.next() {
+            Some(b"v") => vertices += 1,
+            Some(b"f") => triangles += (words.count() as u64).saturating_sub(2),
+            _ => {}
+        }
+    }
+    Ok((vertices, triangles))
+}
+
 fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
+    let (nv, nt) = obj_counts(path)?;
+    if nt > MAX_TRIANGLES as u64 || nv > MAX_VERTICES as u64 {
+        return Err(LoadError::new(
+            path,
+            format!(
+                "{nt} triangles and {nv} vertices: more than the {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices accepted (about {BYTES_PER_TRIANGLE} bytes a triangle)"
+            ),
+        ));
+    }
+    if nt == 0 {
+        return Err(LoadError::new(
+            path,
+            "no triangles (no face has three corners)",
+        ));
+    }
     let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
     let mut reader = BufReader::new(file);
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
@@ -827,11 +925,14 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
         let full = dir.join(mtl);
         let mut log = log.borrow_mut();
-        let opened = check_regular_file(&full)
-            .and_then(|_| std::fs::File::open(&full).map_err(|e| LoadError::new(&full, e)));
+        let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
         match opened {
             Err(e) => {
-                if options.allow_missing_mtl {
+                // Only a library that does not exist is tolerated: a folder, FIFO, device or
+                // broken file in its place is an error even then.
+                let missing = std::fs::metadata(&full)
+                    .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
+                if options.allow_missing_mtl && missing {
                     return Ok((Vec::new(), Default::default()));
                 }
                 if log.error.is_none() {
@@ -846,8 +947,8 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
                 }
                 Err(tobj::LoadError::OpenFileFailed)
             }
-            Ok(f) => {
-                let r = tobj::load_mtl_buf(&mut BufReader::new(f));
+            Ok(text) => {
+                let r = tobj::load_mtl_buf(&mut text.as_bytes());
                 match &r {
                     Ok((mats, _)) => log.loaded.push((full, mats.len())),
                     Err(e) => {
@@ -975,6 +1076,42 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     Ok(asset)
 }
 
+/// Largest material library read, bytes.
+const MAX_MTL_BYTES: u64 = crate::io::input::MAX_TEXT_BYTES;
+
+/// Reads a material library (a regular file of at most [`MAX_MTL_BYTES`]) and checks the arity
+/// of its colour lines (`Ka`, `Kd`, `Ks`, `Ke`: three numbers r g b), which the parser
+/// would otherwise panic on; an error names the line.
+fn read_mtl_text(path: &Path) -> Result<String, LoadError> {
+    let bytes = crate::io::input::read_input(path, MAX_MTL_BYTES).map_err(|e| match e {
+        IoError::Io { source, .. } => LoadError::new(path, source),
+        IoError::Format { message, .. } => LoadError::new(path, message),
+    })?;
+    let text = String::from_utf8_lossy(&bytes).into_owned();
+    check_mtl_arity(&text).map_err(|m| LoadError::new(path, m))?;
+    Ok(text)
+}
+
+/// The first colour line of an MTL text without exactly three numbers, as a message.
+fn check_mtl_arity(text: &str) -> Result<(), String> {
+    for (n, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() else {
+            continue;
+        };
+        let values = words.count();
+        if values < 3 {
+            return Err(format!(
+                "line {}: {:?}: {key} needs three numbers (r g b), got {}",
+                n + 1,
+                line.trim(),
+                values
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Resolves an MTL texture reference against the library's folder.
 fn mtl_texture_path(base: &Path, spec: &str) -> PathBuf {
     let whole = base.join(spec.trim());
@@ -1076,6 +1213,16 @@ fn validate(path: &Path, asset: &mut Asset) -> Result<(), LoadError> {
     }
     if let Some(i) = m.first_nonfinite_vertex() {
         return Err(LoadError::new(path, format!("vertex {i} is not finite")));
+    }
+    if let Some(i) = m.first_vertex_out_of_range() {
+        return Err(LoadError::new(
+            path,
+            format!(
+                "vertex {i} lies at {:?} mm, outside the working range of ±{:e} mm (check the node transforms and the unit)",
+                m.positions_mm[i].to_array(),
+                crate::limits::MAX_COORD_MM
+            ),
+        ));
     }
     let n = m.positions_mm.len();
     if m.triangles.iter().flatten().any(|&i| i as usize >= n) {

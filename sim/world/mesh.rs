@@ -146,6 +146,15 @@ impl Mesh {
     pub fn first_nonfinite_vertex(&self) -> Option<usize> {
         self.positions_mm.iter().position(|p| !p.is_finite())
     }
+
+    /// Index of the first vertex with a coordinate outside ±[`crate::limits::MAX_COORD_MM`]
+    /// (or not finite), if any.
+    pub fn first_vertex_out_of_range(&self) -> Option<usize> {
+        let r = crate::limits::MAX_COORD_MM;
+        self.positions_mm
+            .iter()
+            .position(|p| !(p.x.abs() <= r && p.y.abs() <= r && p.z.abs() <= r))
+    }
 }
 
 #[cfg(test)]

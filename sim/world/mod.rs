@@ -41,7 +41,7 @@ use crate::scene::{LoadedScene, SceneError};
 use crate::spectra::Spectrum;
 
 /// Largest total triangle count of a scene.
-pub const MAX_TRIANGLES: usize = 50_000_000;
+pub const MAX_TRIANGLES: usize = load::MAX_TRIANGLES;
 
 /// What the sidecar reports of one object.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -165,10 +165,14 @@ pub fn placed_object(
         asset.mesh.compute_normals();
     }
     asset.mesh.transform(&object_transform(o));
-    if let Some(v) = asset.mesh.first_nonfinite_vertex() {
+    if let Some(v) = asset.mesh.first_vertex_out_of_range() {
         return Err(ls.key_error(
             &format!("object.{i}.mesh"),
-            format!("vertex {v} is not finite after placement"),
+            format!(
+                "vertex {v} lies at {:?} mm after placement (scale, rotation, position_mm), outside the working range of ±{:e} mm",
+                asset.mesh.positions_mm[v].to_array(),
+                crate::limits::MAX_COORD_MM
+            ),
         ));
     }
     Ok(asset)
@@ -237,6 +241,22 @@ fn build_material(
         None => a.emissive_texture.clone(),
     };
     let asset_rgb = a.emissive.map(|c| c * a.emissive_strength);
+    // Emission from the mesh file (MTL `Ke`, glTF emissive factor × strength) times the
+    // scene's scale: finite and at most MAX_EMISSION, or the images overflow.
+    let strongest = asset_rgb.iter().fold(0.0f64, |m, v| m.max(v * scale));
+    if !(strongest.is_finite() && asset_rgb.iter().all(|v| *v >= 0.0))
+        || strongest > crate::limits::MAX_EMISSION
+    {
+        return Err(ls.key_error(
+            &format!("object.{i}.mesh"),
+            format!(
+                "material {:?}: emission {:?} (times emission_scale {scale}) must be finite, >= 0 and at most {:e}",
+                a.name,
+                asset_rgb,
+                crate::limits::MAX_EMISSION
+            ),
+        ));
+    }
     let emission = match &ov.emission {
         Some(RgbOr::Rgb(c)) => Emission::Rgb {
             rgb: c.map(|v| v * scale),
@@ -375,8 +395,20 @@ impl World {
                 (None, None) => {}
             }
         }
-        let accel =
-            (!mesh.triangles.is_empty()).then(|| Accel::build(&mesh.positions_mm, &mesh.triangles));
+        let accel = if mesh.triangles.is_empty() {
+            None
+        } else {
+            let built = Accel::try_build(&mesh.positions_mm, &mesh.triangles);
+            Some(built.map_err(|(tri, n)| {
+                ls.key_error(
+                    &format!("object.{}.mesh", tri_object[tri as usize]),
+                    format!(
+                        "{n} triangles share one bounding box (coincident copies), more than the {} accepted",
+                        bvh::MAX_COINCIDENT
+                    ),
+                )
+            })?)
+        };
         let display_light = s.display.enabled.then(|| DisplayLight::new(display));
         let mut emitters: Vec<Emitter> = (0..lights.len()).map(Emitter::Light).collect();
         if display_light.is_some() {

@@ -129,7 +129,7 @@ impl Texture {
                 format!("texture file is larger than {MAX_TEXTURE_BYTES} bytes"),
             ));
         }
-        let img = crate::io::image_load::load_image_rgb(path)?;
+        let img = crate::io::image_load::load_texture_image(path)?;
         Ok(Texture::from_pixels(
             img.width,
             img.height,

@@ -1,0 +1,245 @@
+//! Issue 29, item 2: a run's output set (capture, frontal, depth, mask, sidecar) appears whole
+//! or not at all, whatever else writes to the folder. Two concurrent renders into one folder
+//! leave the complete set of one of them; a SIGKILL before the commit leaves the previous set
+//! (and, once the folder is next written or recovered, nothing else); a SIGKILL during the
+//! renames is completed by the recovery; links planted at the output names or the lock are not
+//! followed. `STSCAM_TEST_COMMIT_DELAY_MS` (sim/io/atomic.rs) slows the commit to hit its
+//! windows.
+//!
+//! Every fixture is written into a temporary folder by the test itself.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crate::common::stscam_ok;
+
+const SCENE: &str = "[display]\nenabled = false\n[[object]]\nmesh = \"quad\"\nposition_mm = [0.0, 0.0, -400.0]\n[[light]]\nkind = \"environment\"\nscale = 0.5\n";
+
+fn args<'a>(scene: &'a str, out: &'a str, seed: &'a str) -> Vec<&'a str> {
+    vec![
+        "render",
+        scene,
+        "--out",
+        out,
+        "--spp",
+        "2",
+        "--seed",
+        seed,
+        "--set",
+        "sensor.crop_px=[24,24]",
+        "--frontal-px",
+        "24x24",
+    ]
+}
+
+fn spawn(scene: &Path, out: &Path, seed: &str, delay_ms: u64) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_stscam"))
+        .args(args(scene.to_str().unwrap(), out.to_str().unwrap(), seed))
+        .env("STSCAM_TEST_COMMIT_DELAY_MS", delay_ms.to_string())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+/// Every entry of a folder (names starting with '.' included), with its bytes.
+fn entries(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            let bytes = std::fs::read(e.path()).unwrap_or_default();
+            (e.file_name().to_string_lossy().into_owned(), bytes)
+        })
+        .collect()
+}
+
+/// The reference sets of seeds 1 and 2, rendered alone.
+fn references(d: &Path, scene: &Path) -> [BTreeMap<String, Vec<u8>>; 2] {
+    ["1", "2"].map(|seed| {
+        let out = d.join(format!("ref{seed}"));
+        stscam_ok(&args(scene.to_str().unwrap(), out.to_str().unwrap(), seed));
+        entries(&out)
+    })
+}
+
+/// The folder holds exactly one reference set (capture.json compared by its seed, the other
+/// files byte for byte) and nothing else; returns which.
+fn which_set(dir: &Path, refs: &[BTreeMap<String, Vec<u8>>; 2]) -> usize {
+    let got = entries(dir);
+    let names: Vec<_> = got.keys().cloned().collect();
+    let want: Vec<_> = refs[0].keys().cloned().collect();
+    assert_eq!(names, want, "the folder holds other files than one set");
+    let seed = |b: &[u8]| serde_json::from_slice::<serde_json::Value>(b).unwrap()["seed"].clone();
+    let matches = |r: &BTreeMap<String, Vec<u8>>| {
+        got.iter().all(|(n, b)| {
+            if n == "capture.json" {
+                seed(b) == seed(&r[n])
+            } else {
+                *b == r[n]
+            }
+        })
+    };
+    match (matches(&refs[0]), matches(&refs[1])) {
+        (true, false) => 0,
+        (false, true) => 1,
+        _ => panic!("the folder holds a mix of two runs' files"),
+    }
+}
+
+fn wait(mut c: Child) -> bool {
+    c.wait().unwrap().success()
+}
+
+/// Two renders into one folder, one slowed at its commit: both succeed and the folder holds the
+/// complete set of one of them (the one that committed last), whichever starts first.
+#[test]
+fn concurrent_renders_leave_one_complete_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let refs = references(d, &scene);
+    assert_ne!(
+        refs[0]["capture.exr"], refs[1]["capture.exr"],
+        "the seeds must differ"
+    );
+    let out = d.join("out");
+    for (slow, fast) in [("1", "2"), ("2", "1")] {
+        let a = spawn(&scene, &out, slow, 150);
+        std::thread::sleep(Duration::from_millis(30));
+        let b = spawn(&scene, &out, fast, 0);
+        assert!(wait(a) && wait(b));
+        which_set(&out, &refs);
+    }
+}
+
+/// SIGKILL at several points of a render that replaces a complete set: during the render, and
+/// during the commit's renames. Before the commit the previous set is untouched (only a hidden
+/// staging folder may remain, which the next writer or `recover_folder` deletes); during the
+/// renames the recovery completes the killed run's set. Afterwards no temporary file remains.
+#[test]
+fn sigkill_leaves_a_complete_set_after_recovery() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let refs = references(d, &scene);
+    let out = d.join("out");
+    let visible = |dir: &Path| -> BTreeMap<String, Vec<u8>> {
+        entries(dir)
+            .into_iter()
+            .filter(|(n, _)| !n.starts_with('.'))
+            .collect()
+    };
+    // (a) Killed early (loading or tracing): the previous set stays.
+    for after_ms in [5, 40, 120] {
+        let _ = std::fs::remove_dir_all(&out);
+        stscam_ok(&args(scene.to_str().unwrap(), out.to_str().unwrap(), "1"));
+        let mut c = spawn(&scene, &out, "2", 0);
+        std::thread::sleep(Duration::from_millis(after_ms));
+        c.kill().unwrap();
+        let _ = c.wait();
+        let v = visible(&out);
+        let set = which_set_visible(&v, &refs);
+        stscam::io::atomic::recover_folder(&out).unwrap();
+        assert_eq!(which_set(&out, &refs), set, "killed after {after_ms} ms");
+    }
+    // (b) Killed during the renames (slowed to 300 ms each): the marker is found, and the
+    // recovery completes the killed run's set.
+    let _ = std::fs::remove_dir_all(&out);
+    stscam_ok(&args(scene.to_str().unwrap(), out.to_str().unwrap(), "1"));
+    let mut c = spawn(&scene, &out, "2", 300);
+    let start = Instant::now();
+    let marker = loop {
+        let m = std::fs::read_dir(&out)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .find_map(|e| {
+                let p: PathBuf = e.path().join(".commit");
+                (e.file_name()
+                    .to_string_lossy()
+                    .starts_with(".stscam-stage-")
+                    && p.exists())
+                .then_some(p)
+            });
+        if let Some(m) = m {
+            break m;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "no commit seen");
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    std::thread::sleep(Duration::from_millis(700));
+    c.kill().unwrap();
+    let _ = c.wait();
+    assert!(marker.exists(), "the kill came after the commit ended");
+    let (done, removed) = stscam::io::atomic::recover_folder(&out).unwrap();
+    assert_eq!((done, removed), (1, 0));
+    assert_eq!(
+        which_set(&out, &refs),
+        1,
+        "the killed run's set was not completed"
+    );
+}
+
+/// Which reference a folder's visible files match (capture.json by seed); 2 if none.
+fn which_set_visible(
+    v: &BTreeMap<String, Vec<u8>>,
+    refs: &[BTreeMap<String, Vec<u8>>; 2],
+) -> usize {
+    let seed = |b: &[u8]| serde_json::from_slice::<serde_json::Value>(b).unwrap()["seed"].clone();
+    for (i, r) in refs.iter().enumerate() {
+        if v.len() == r.len()
+            && v.iter().all(|(n, b)| {
+                r.get(n).is_some_and(|rb| {
+                    if n == "capture.json" {
+                        seed(b) == seed(rb)
+                    } else {
+                        b == rb
+                    }
+                })
+            })
+        {
+            return i;
+        }
+    }
+    panic!(
+        "the visible files are not one complete set: {:?}",
+        v.keys().collect::<Vec<_>>()
+    );
+}
+
+/// Links planted at every output name and at the commit lock, pointing outside `--out`: the
+/// render replaces the links by its own files and no file outside `--out` changes.
+#[test]
+fn planted_links_are_not_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let refs = references(d, &scene);
+    let out = d.join("out");
+    std::fs::create_dir(&out).unwrap();
+    let outside = d.join("outside");
+    std::fs::create_dir(&outside).unwrap();
+    let mut names: Vec<String> = refs[0].keys().cloned().collect();
+    names.push(".stscam-commit".into());
+    for n in &names {
+        let victim = outside.join(n.trim_start_matches('.'));
+        std::fs::write(&victim, b"precious").unwrap();
+        std::os::unix::fs::symlink(&victim, out.join(n)).unwrap();
+    }
+    stscam_ok(&args(scene.to_str().unwrap(), out.to_str().unwrap(), "1"));
+    for (n, b) in entries(&outside) {
+        assert_eq!(b, b"precious", "{n} outside --out was changed");
+    }
+    assert_eq!(which_set(&out, &refs), 0);
+    for n in refs[0].keys() {
+        assert!(
+            std::fs::symlink_metadata(out.join(n)).unwrap().is_file(),
+            "{n} is still a link"
+        );
+    }
+}
