@@ -56,6 +56,9 @@ enum Command {
     Compare(jobs::compare::CompareOptions),
     /// Trace the chief ray of one pixel at its exact Bragg wavelength.
     Probe(jobs::probe::ProbeOptions),
+    /// Efficiency of every diffracted order of one vHOE film (Kogelnik or RCWA, bulk or contact
+    /// stack) over a wavelength range: text or JSON, and a plot with --out.
+    Grating(jobs::grating::GratingOptions),
 }
 
 #[derive(Subcommand, Debug)]
@@ -125,6 +128,7 @@ fn main() -> ExitCode {
         Command::Info(o) => jobs::info::run(o, con).map(drop),
         Command::Compare(o) => jobs::compare::run(o, con).map(drop),
         Command::Probe(o) => jobs::probe::run(o, con).map(drop),
+        Command::Grating(o) => jobs::grating::run(o, con).map(drop),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -10,6 +10,7 @@ pub mod calibrate;
 pub mod compare;
 pub mod dataset;
 pub mod demo;
+pub mod grating;
 pub mod info;
 pub mod matrix;
 pub mod probe;
