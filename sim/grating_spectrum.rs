@@ -10,7 +10,9 @@
 //! the light arriving from the glass, as at a bottom-vHOE contact next to the TIR face. The
 //! Kogelnik model ignores the interfaces in both stacks (only the media its orders leave into
 //! change); a transmitted order that cannot propagate in air is reported as trapped (direction
-//! absent).
+//! absent). Kogelnik's TE/TM (relative to the plane of diffraction, as the tracer uses them) are
+//! converted to the plane-of-incidence basis both models report
+//! (`rcwa::kogelnik_in_incidence_basis`); the undiffracted order is 1 − Σ η per polarisation.
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -221,8 +223,10 @@ fn kogelnik_point(
     for (i, g) in volume_gratings(s, gratings).iter().enumerate() {
         for order in [-1, 1] {
             if let Some(d) = g.diffract(u, 1.0, lambda_nm, order) {
-                zero[0] -= d.eta[0];
-                zero[1] -= d.eta[1];
+                // TE/TM relative to the plane of incidence, as the RCWA's.
+                let eta = rcwa::kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, u, d.eta);
+                zero[0] -= eta[0];
+                zero[1] -= eta[1];
                 orders.push(OrderValue {
                     key: OrderKey {
                         reflected: d.reflection,
@@ -230,7 +234,7 @@ fn kogelnik_point(
                         order,
                     },
                     direction: leave(d.u, d.reflection),
-                    eta: d.eta,
+                    eta,
                 });
             }
         }

@@ -71,6 +71,9 @@ enum BenchCommand {
     Bvh(jobs::bench::BenchBvhOptions),
     /// H, calibration and reconstruction speed at the scene's size (medians).
     Recon(jobs::bench::BenchReconOptions),
+    /// RCWA time per point on one core (medians) and the efficiency-table build time and
+    /// measured interpolation error for the scene's film, as JSON.
+    Grating(jobs::bench::BenchGratingOptions),
 }
 
 #[derive(Subcommand, Debug)]
@@ -121,6 +124,7 @@ fn main() -> ExitCode {
             BenchCommand::Bvh(o) => jobs::bench::run_bvh(o, con),
             BenchCommand::Recon(o) => jobs::bench::run_recon(o, con),
             BenchCommand::Render(o) => jobs::bench::run_render(o, con),
+            BenchCommand::Grating(o) => jobs::bench::run_grating(o, con),
         },
         Command::Validate {
             which: ValidateCommand::Analytic(o),
