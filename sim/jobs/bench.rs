@@ -631,17 +631,31 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
     use crate::grating_spectrum as gs;
     use crate::optics::rcwa::{self, Settings, table};
     if !(1..=MAX_RUNS).contains(&o.runs) || !(1..=1_000_000).contains(&o.probes) {
-        return Err(bad_input(format!("--runs in 1..={MAX_RUNS}, --probes in 1..=1000000")));
+        return Err(bad_input(format!(
+            "--runs in 1..={MAX_RUNS}, --probes in 1..=1000000"
+        )));
     }
     let lambdas = super::grating::parse_lambdas(&o.table_lambda_nm)?;
     let nodes = o
         .table_nodes
         .split_once(',')
-        .and_then(|(a, b)| Some((a.trim().parse::<usize>().ok()?, b.trim().parse::<usize>().ok()?)))
+        .and_then(|(a, b)| {
+            Some((
+                a.trim().parse::<usize>().ok()?,
+                b.trim().parse::<usize>().ok()?,
+            ))
+        })
         .filter(|&(a, b)| a >= 2 && b >= 2 && a * b <= 1_000_000)
-        .ok_or_else(|| bad_input(format!("--table-nodes {}: expected NX,NY >= 2", o.table_nodes)))?;
+        .ok_or_else(|| {
+            bad_input(format!(
+                "--table-nodes {}: expected NX,NY >= 2",
+                o.table_nodes
+            ))
+        })?;
     if lambdas.len() < 2 || !(o.table_u > 0.0 && o.table_u < 1.0) {
-        return Err(bad_input("--table-lambda-nm needs N >= 2 and --table-u must be in (0, 1)"));
+        return Err(bad_input(
+            "--table-lambda-nm needs N >= 2 and --table-u must be in (0, 1)",
+        ));
     }
     let (ls, _) = load(&o.scene)?;
     let s = &ls.scene;
@@ -654,7 +668,11 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
     let mut points = serde_json::Map::new();
     for (name, kind, u) in [
         ("bulk_normal", gs::StackKind::Bulk, glam::DVec2::ZERO),
-        ("bulk_conical", gs::StackKind::Bulk, glam::DVec2::new(0.15, 0.1)),
+        (
+            "bulk_conical",
+            gs::StackKind::Bulk,
+            glam::DVec2::new(0.15, 0.1),
+        ),
         ("contact_normal", gs::StackKind::Contact, glam::DVec2::ZERO),
     ] {
         let media = gs::stack_media(s, kind, lam_b);
@@ -673,15 +691,30 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
         points.insert(name.into(), v);
     }
     let spec = table::TableSpec {
-        lambda_nm: table::Axis { start: lambdas[0], stop: lambdas[lambdas.len() - 1], n: lambdas.len() },
-        u_x: table::Axis { start: -o.table_u, stop: o.table_u, n: nodes.0 },
-        u_y: table::Axis { start: -o.table_u, stop: o.table_u, n: nodes.1 },
+        lambda_nm: table::Axis {
+            start: lambdas[0],
+            stop: lambdas[lambdas.len() - 1],
+            n: lambdas.len(),
+        },
+        u_x: table::Axis {
+            start: -o.table_u,
+            stop: o.table_u,
+            n: nodes.0,
+        },
+        u_y: table::Axis {
+            start: -o.table_u,
+            stop: o.table_u,
+            n: nodes.1,
+        },
         max_order: 1,
     };
     let pool = thread_pool(o.threads)?;
     let mut tables = serde_json::Map::new();
     for kind in [gs::StackKind::Bulk, gs::StackKind::Contact] {
-        let media: Vec<_> = lambdas.iter().map(|&l| gs::stack_media(s, kind, l)).collect();
+        let media: Vec<_> = lambdas
+            .iter()
+            .map(|&l| gs::stack_media(s, kind, l))
+            .collect();
         let t0 = std::time::Instant::now();
         let t = pool
             .install(|| table::RcwaTable::build(&film, &media, &spec, &settings))

@@ -27,10 +27,19 @@ pub struct GratingOptions {
     #[arg(long, value_enum, default_value = "bulk")]
     pub stack: StackKind,
     /// Wavelengths START:STOP:N (N evenly spaced values, inclusive).
-    #[arg(long = "lambda-nm", value_name = "START:STOP:N", default_value = "500:560:61")]
+    #[arg(
+        long = "lambda-nm",
+        value_name = "START:STOP:N",
+        default_value = "500:560:61"
+    )]
     pub lambda_nm: String,
     /// Field angles X,Y in degrees: the light travels in air along (tan X, tan Y, 1)/‖·‖.
-    #[arg(long = "field-deg", value_name = "X,Y", default_value = "0,0", allow_hyphen_values = true)]
+    #[arg(
+        long = "field-deg",
+        value_name = "X,Y",
+        default_value = "0,0",
+        allow_hyphen_values = true
+    )]
     pub field_deg: String,
     /// Replace the scene's grating by this list (repeatable; all in the scene's film):
     /// recording wavelength in nm, reference angle inside the film in degrees, index modulation.
@@ -132,7 +141,13 @@ pub fn parse_lambdas(spec: &str) -> Result<Vec<f64>, Failure> {
         return Err(err("N = 1 needs START = STOP"));
     }
     Ok((0..n)
-        .map(|i| if n == 1 { a } else { a + (b - a) * i as f64 / (n - 1) as f64 })
+        .map(|i| {
+            if n == 1 {
+                a
+            } else {
+                a + (b - a) * i as f64 / (n - 1) as f64
+            }
+        })
         .collect())
 }
 
@@ -211,7 +226,11 @@ pub fn compute(o: &GratingOptions) -> Result<GratingReport, Failure> {
     for (i, p) in points.iter().enumerate() {
         for v in &p.orders {
             let c = curves.entry(v.key).or_insert_with(|| OrderCurve {
-                side: if v.key.reflected { "reflected" } else { "transmitted" },
+                side: if v.key.reflected {
+                    "reflected"
+                } else {
+                    "transmitted"
+                },
                 grating: v.key.grating,
                 order: v.key.order,
                 direction: vec![None; lambdas.len()],
@@ -261,7 +280,12 @@ pub fn plot(r: &GratingReport) -> LinePlot {
             let g = c.grating.map_or(String::new(), |g| format!(" g{}", g + 1));
             series.push(Series {
                 name: format!("{} {:+}{g} {pol}", &c.side[..1].to_uppercase(), c.order),
-                points: r.lambda_nm.iter().copied().zip(eta.iter().copied()).collect(),
+                points: r
+                    .lambda_nm
+                    .iter()
+                    .copied()
+                    .zip(eta.iter().copied())
+                    .collect(),
             });
         }
     }
@@ -283,7 +307,14 @@ pub fn plot(r: &GratingReport) -> LinePlot {
 fn print_text(r: &GratingReport, con: &Console) {
     con.out(format_args!(
         "model {:?}, stack {:?}: film {} um, n = {}; field ({}, {}) deg, u = ({:.6}, {:.6})",
-        r.model, r.stack, r.film_thickness_um, r.mean_index, r.field_deg[0], r.field_deg[1], r.u[0], r.u[1]
+        r.model,
+        r.stack,
+        r.film_thickness_um,
+        r.mean_index,
+        r.field_deg[0],
+        r.field_deg[1],
+        r.u[0],
+        r.u[1]
     ));
     for (i, g) in r.gratings.iter().enumerate() {
         con.out(format_args!(
@@ -310,7 +341,9 @@ fn print_text(r: &GratingReport, con: &Console) {
                 }
                 continue;
             };
-            let g = c.grating.map_or(String::new(), |g| format!(" (grating {})", g + 1));
+            let g = c
+                .grating
+                .map_or(String::new(), |g| format!(" (grating {})", g + 1));
             con.out(format_args!(
                 "  {:<11} {:+}{g} dir [{:+.6}, {:+.6}, {:+.6}]: TE {:.6} TM {:.6}",
                 c.side, c.order, d[0], d[1], d[2], c.eta_te[i], c.eta_tm[i]
@@ -342,7 +375,10 @@ pub fn run(o: &GratingOptions, con: &Console) -> Result<GratingReport, JobError>
                 ("grating.png".into(), png),
             ],
         )?;
-        con.err(format_args!("wrote {}/grating.{{json,svg,png}}", out.display()));
+        con.err(format_args!(
+            "wrote {}/grating.{{json,svg,png}}",
+            out.display()
+        ));
     }
     Ok(r)
 }

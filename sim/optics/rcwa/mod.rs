@@ -37,7 +37,6 @@
 mod smatrix;
 pub mod table;
 
-
 use glam::{DVec2, DVec3};
 use num_complex::Complex64 as C;
 use std::f64::consts::PI;
@@ -153,13 +152,19 @@ pub struct Solution {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RcwaError {
     /// A grating's tangential K is not parallel to the others'.
-    #[error("grating {0}: its in-plane grating vector is not parallel to grating 1's (1-D gratings only)")]
+    #[error(
+        "grating {0}: its in-plane grating vector is not parallel to grating 1's (1-D gratings only)"
+    )]
     NotParallel(usize),
     /// No common lateral period with a small supercell.
-    #[error("grating {0}: in-plane period incommensurate with grating 1's (no common period up to 12x)")]
+    #[error(
+        "grating {0}: in-plane period incommensurate with grating 1's (no common period up to 12x)"
+    )]
     Incommensurate(usize),
     /// The incident wave is evanescent in the entrance medium.
-    #[error("the incident wave (|u| = {u:.4}) cannot propagate in the entrance medium (n = {n:.4})")]
+    #[error(
+        "the incident wave (|u| = {u:.4}) cannot propagate in the entrance medium (n = {n:.4})"
+    )]
     CannotEnter {
         /// |u| of the incident wave.
         u: f64,
@@ -270,7 +275,13 @@ impl Problem<'_> {
     /// Fourier coefficients c_p of ε at depth z (nm), p = −2M…2M (index p + 2M).
     fn eps_coeffs(&self, z_nm: f64) -> Vec<C> {
         let big_m = (self.n() - 1) / 2;
-        let pf = self.lat.p.iter().map(|p| p.unsigned_abs() as usize).max().unwrap_or(0);
+        let pf = self
+            .lat
+            .p
+            .iter()
+            .map(|p| p.unsigned_abs() as usize)
+            .max()
+            .unwrap_or(0);
         let mut f = vec![C::new(0.0, 0.0); 2 * pf + 1];
         f[pf] = self.n_film;
         for (g, &p) in self.film.gratings.iter().zip(&self.lat.p) {
@@ -396,7 +407,9 @@ fn solve_with(
         return Err(RcwaError::BadInput("media indices must be positive".into()));
     }
     if film.gratings.is_empty() {
-        return Err(RcwaError::BadInput("a film needs at least one grating".into()));
+        return Err(RcwaError::BadInput(
+            "a film needs at least one grating".into(),
+        ));
     }
     if !(1..=MAX_HARMONICS).contains(&settings.harmonics) || settings.slices_per_period == 0 {
         return Err(RcwaError::BadInput(format!(

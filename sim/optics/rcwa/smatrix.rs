@@ -80,7 +80,8 @@ impl SMatrix {
     /// diagonal phase `w` (per row/column index), entry (i, j) times w_i·conj(w_j); `w` has
     /// unit modulus.
     pub fn conjugated(&self, w: &[C]) -> SMatrix {
-        let f = |a: &CMat| CMat::from_fn(a.nrows(), a.ncols(), |i, j| a[(i, j)] * w[i] * w[j].conj());
+        let f =
+            |a: &CMat| CMat::from_fn(a.nrows(), a.ncols(), |i, j| a[(i, j)] * w[i] * w[j].conj());
         SMatrix {
             s11: f(&self.s11),
             s12: f(&self.s12),

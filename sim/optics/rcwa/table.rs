@@ -138,7 +138,8 @@ impl RcwaTable {
             }
             if let Some(d) = vg.diffract(u, 1.0, lambda_nm, order) {
                 let s = Self::slot(spec, d.reflection, order);
-                let eta = super::kogelnik_in_incidence_basis(g.k_rad_per_nm, film.mean_index, u, d.eta);
+                let eta =
+                    super::kogelnik_in_incidence_basis(g.k_rad_per_nm, film.mean_index, u, d.eta);
                 out[s] += eta[0];
                 out[s + 1] += eta[1];
             }
@@ -179,7 +180,10 @@ impl RcwaTable {
         let rows: Result<Vec<Vec<f64>>, RcwaError> = (0..nodes)
             .into_par_iter()
             .map(|idx| {
-                let (il, rest) = (idx / (spec.u_x.n * spec.u_y.n), idx % (spec.u_x.n * spec.u_y.n));
+                let (il, rest) = (
+                    idx / (spec.u_x.n * spec.u_y.n),
+                    idx % (spec.u_x.n * spec.u_y.n),
+                );
                 let (ix, iy) = (rest / spec.u_y.n, rest % spec.u_y.n);
                 let lam = spec.lambda_nm.value(il);
                 let u = DVec2::new(spec.u_x.value(ix), spec.u_y.value(iy));
@@ -190,7 +194,11 @@ impl RcwaTable {
                     Err(RcwaError::CannotEnter { .. }) => return Ok(row),
                     Err(e) => return Err(e),
                 };
-                for o in sol.orders.iter().filter(|o| o.order.abs() <= spec.max_order) {
+                for o in sol
+                    .orders
+                    .iter()
+                    .filter(|o| o.order.abs() <= spec.max_order)
+                {
                     let s = Self::slot(spec, o.reflected, o.order);
                     row[s] = o.eta[0];
                     row[s + 1] = o.eta[1];
@@ -232,7 +240,12 @@ impl RcwaTable {
         t.max_error = t.measure_error(probes, 1)?;
         crate::io::write_all_atomic(
             cache_dir,
-            &[(path.file_name().and_then(|n| n.to_str()).unwrap_or("table.bin"), &t.encode(&key))],
+            &[(
+                path.file_name()
+                    .and_then(|n| n.to_str())
+                    .unwrap_or("table.bin"),
+                &t.encode(&key),
+            )],
         )
         .map_err(|e| RcwaError::BadInput(e.to_string()))?;
         Ok((t, path, false))
@@ -351,11 +364,12 @@ impl RcwaTable {
                     n_in: m0.n_in + w * (m1.n_in - m0.n_in),
                     n_out: m0.n_out + w * (m1.n_out - m0.n_out),
                 };
-                let direct = match solve(&self.film, &media, lam, DVec2::new(ux, uy), &self.settings) {
-                    Ok(d) => d,
-                    Err(RcwaError::CannotEnter { .. }) => return Ok(0.0),
-                    Err(e) => return Err(e),
-                };
+                let direct =
+                    match solve(&self.film, &media, lam, DVec2::new(ux, uy), &self.settings) {
+                        Ok(d) => d,
+                        Err(RcwaError::CannotEnter { .. }) => return Ok(0.0),
+                        Err(e) => return Err(e),
+                    };
                 let table = self.efficiency(lam, ux, uy).unwrap_or_default();
                 let mut worst: f64 = 0.0;
                 for t in &table {
@@ -364,7 +378,9 @@ impl RcwaTable {
                         .iter()
                         .find(|o| o.reflected == t.reflected && o.order == t.order)
                         .map_or([0.0, 0.0], |o| o.eta);
-                    worst = worst.max((t.eta[0] - d[0]).abs()).max((t.eta[1] - d[1]).abs());
+                    worst = worst
+                        .max((t.eta[0] - d[0]).abs())
+                        .max((t.eta[1] - d[1]).abs());
                 }
                 Ok(worst)
             })
@@ -404,12 +420,30 @@ mod tests {
     fn table_interpolates_within_its_measured_bound_and_caches() {
         let film = paper_film(16.0);
         let spec = TableSpec {
-            lambda_nm: Axis { start: 520.0, stop: 544.0, n: 13 },
-            u_x: Axis { start: -0.1, stop: 0.1, n: 5 },
-            u_y: Axis { start: -0.1, stop: 0.1, n: 9 },
+            lambda_nm: Axis {
+                start: 520.0,
+                stop: 544.0,
+                n: 13,
+            },
+            u_x: Axis {
+                start: -0.1,
+                stop: 0.1,
+                n: 5,
+            },
+            u_y: Axis {
+                start: -0.1,
+                stop: 0.1,
+                n: 9,
+            },
             max_order: 1,
         };
-        let media = vec![Stack { n_in: 1.5, n_out: 1.5 }; spec.lambda_nm.n];
+        let media = vec![
+            Stack {
+                n_in: 1.5,
+                n_out: 1.5
+            };
+            spec.lambda_nm.n
+        ];
         let settings = Settings::default();
         let dir = tempfile::tempdir().unwrap();
         let (t, path, cached) =
@@ -419,18 +453,29 @@ mod tests {
         assert!(t.max_error() < 0.02, "measured bound {}", t.max_error());
         // An independent probe set stays within 2x the stored bound.
         let again = t.measure_error(40, 99).unwrap();
-        assert!(again <= 2.0 * t.max_error() + 1e-6, "{again} vs {}", t.max_error());
+        assert!(
+            again <= 2.0 * t.max_error() + 1e-6,
+            "{again} vs {}",
+            t.max_error()
+        );
         // At a node the table is the RCWA to rounding.
         let at = t.efficiency(532.0, 0.0, 0.0).unwrap();
         let direct = solve(&film, &media[0], 532.0, DVec2::ZERO, &settings).unwrap();
         let r1 = at.iter().find(|o| o.reflected && o.order == 1).unwrap();
-        let d1 = direct.orders.iter().find(|o| o.reflected && o.order == 1).unwrap();
+        let d1 = direct
+            .orders
+            .iter()
+            .find(|o| o.reflected && o.order == 1)
+            .unwrap();
         assert!((r1.eta[0] - d1.eta[0]).abs() < 1e-12);
         // Second call: loaded from the cache, same values.
         let (t2, _, cached2) =
             RcwaTable::load_or_build(dir.path(), &film, &media, &spec, &settings, 40).unwrap();
         assert!(cached2);
-        assert_eq!(t2.efficiency(530.3, 0.01, -0.02), t.efficiency(530.3, 0.01, -0.02));
+        assert_eq!(
+            t2.efficiency(530.3, 0.01, -0.02),
+            t.efficiency(530.3, 0.01, -0.02)
+        );
         assert_eq!(t2.max_error(), t.max_error());
         // Outside the grid: None. A different design has a different key.
         assert!(t.efficiency(600.0, 0.0, 0.0).is_none());

@@ -33,7 +33,8 @@ fn airy_reflectance(n0: f64, n1: f64, n2: f64, d_nm: f64, lambda_nm: f64, u: f64
     let cz = |n: f64| C::from(n * n - u * u).sqrt();
     let (k0z, k1z, k2z) = (cz(n0), cz(n1), cz(n2));
     let rs = |a: C, b: C| (a - b) / (a + b);
-    let rp = |na: f64, a: C, nb: f64, b: C| (nb * nb * a - na * na * b) / (nb * nb * a + na * na * b);
+    let rp =
+        |na: f64, a: C, nb: f64, b: C| (nb * nb * a - na * na * b) / (nb * nb * a + na * na * b);
     let phase = (C::i() * 2.0 * k1z * 2.0 * PI / lambda_nm * d_nm).exp();
     let total = |r01: C, r12: C| {
         let r = (r01 + r12 * phase) / (1.0 + r01 * r12 * phase);
@@ -56,20 +57,33 @@ fn homogeneous_film_matches_airy_formula_both_polarisations_and_conical() {
         thickness_nm: 1234.0,
         gratings: vec![Grating::of(&g)],
     };
-    let stack = Stack { n_in: 1.7, n_out: 1.0 };
+    let stack = Stack {
+        n_in: 1.7,
+        n_out: 1.0,
+    };
     for (ux, uy) in [(0.0, 0.0), (0.0, 0.6), (0.45, 0.3), (-0.2, 0.8)] {
         let u = DVec2::new(ux, uy);
         let sol = solve(&film, &stack, 550.0, u, &Settings::default()).unwrap();
         let want = airy_reflectance(1.7, 1.5, 1.0, 1234.0, 550.0, u.length());
         let got = eta_of(&sol, true, 0);
         for p in 0..2 {
-            assert!((got[p] - want[p]).abs() < 1e-10, "u={u:?} pol {p}: {got:?} vs {want:?}");
+            assert!(
+                (got[p] - want[p]).abs() < 1e-10,
+                "u={u:?} pol {p}: {got:?} vs {want:?}"
+            );
             assert!((sol.total[p] - 1.0).abs() < 1e-10);
         }
     }
     // A wrong reference (the layer's index 1.49 instead of 1.50) is far outside the tolerance.
     let wrong = airy_reflectance(1.7, 1.49, 1.0, 1234.0, 550.0, 0.6);
-    let sol = solve(&film, &stack, 550.0, DVec2::new(0.0, 0.6), &Settings::default()).unwrap();
+    let sol = solve(
+        &film,
+        &stack,
+        550.0,
+        DVec2::new(0.0, 0.6),
+        &Settings::default(),
+    )
+    .unwrap();
     assert!((eta_of(&sol, true, 0)[0] - wrong[0]).abs() > 1e-4);
 }
 
@@ -81,16 +95,34 @@ fn kogelnik_agrees_with_rcwa_at_bragg_on_the_paper_film() {
         let g = paper(n1);
         let lam = g.bragg_wavelength_nm(DVec2::ZERO).unwrap();
         let k = g.diffract(DVec2::ZERO, 1.0, lam, 1).unwrap().eta;
-        let sol = solve(&film_of(&[g]), &bulk(1.5), lam, DVec2::ZERO, &Settings::default()).unwrap();
+        let sol = solve(
+            &film_of(&[g]),
+            &bulk(1.5),
+            lam,
+            DVec2::ZERO,
+            &Settings::default(),
+        )
+        .unwrap();
         let r = eta_of(&sol, true, 1);
         for p in 0..2 {
             let rel = (k[p] - r[p]).abs() / r[p];
-            assert!(rel < 2e-3, "n1 {n1} pol {p}: Kogelnik {} RCWA {} ({rel:.2e})", k[p], r[p]);
+            assert!(
+                rel < 2e-3,
+                "n1 {n1} pol {p}: Kogelnik {} RCWA {} ({rel:.2e})",
+                k[p],
+                r[p]
+            );
         }
         // A wrong slant (reference angle off by 1°) fails the same tolerance (TM: TE saturates).
         let wrong = VolumeGrating::from_recording(532.0, 62.2, 1.50, 16.0, n1, 0.0);
-        let kw = wrong.diffract(DVec2::ZERO, 1.0, lam, 1).map_or(0.0, |d| d.eta[1]);
-        assert!((kw - r[1]).abs() / r[1] > 2e-3, "wrong slant: {kw} vs {}", r[1]);
+        let kw = wrong
+            .diffract(DVec2::ZERO, 1.0, lam, 1)
+            .map_or(0.0, |d| d.eta[1]);
+        assert!(
+            (kw - r[1]).abs() / r[1] > 2e-3,
+            "wrong slant: {kw} vs {}",
+            r[1]
+        );
     }
 }
 
@@ -103,20 +135,45 @@ fn two_half_gratings_equal_one_grating() {
     // RCWA's superposition is what a multiplexed film needs.
     let g = paper(0.015);
     let lam = g.bragg_wavelength_nm(DVec2::ZERO).unwrap();
-    let one = solve(&film_of(&[g]), &bulk(1.5), lam, DVec2::ZERO, &Settings::default()).unwrap();
+    let one = solve(
+        &film_of(&[g]),
+        &bulk(1.5),
+        lam,
+        DVec2::ZERO,
+        &Settings::default(),
+    )
+    .unwrap();
     let h = paper(0.0075);
-    let two = solve(&film_of(&[h, h]), &bulk(1.5), lam, DVec2::ZERO, &Settings::default()).unwrap();
+    let two = solve(
+        &film_of(&[h, h]),
+        &bulk(1.5),
+        lam,
+        DVec2::ZERO,
+        &Settings::default(),
+    )
+    .unwrap();
     let (a, b) = (eta_of(&one, true, 1), eta_of(&two, true, 1));
     for p in 0..2 {
         assert!((a[p] - b[p]).abs() < 1e-9, "{a:?} vs {b:?}");
     }
     let half = h.diffract(DVec2::ZERO, 1.0, lam, 1).unwrap().eta[0];
-    assert!((a[0] - half).abs() > 0.3, "one grating {} vs a half grating {half}", a[0]);
+    assert!(
+        (a[0] - half).abs() > 0.3,
+        "one grating {} vs a half grating {half}",
+        a[0]
+    );
     // A second half grating of 1 % different slant (K_z) is a different film: the check can
     // fail (and this takes the path with one eigendecomposition per slice).
     let mut d = h;
     d.k_rad_per_nm.z *= 0.99;
-    let det = solve(&film_of(&[h, d]), &bulk(1.5), lam, DVec2::ZERO, &Settings::default()).unwrap();
+    let det = solve(
+        &film_of(&[h, d]),
+        &bulk(1.5),
+        lam,
+        DVec2::ZERO,
+        &Settings::default(),
+    )
+    .unwrap();
     assert!((eta_of(&det, true, 1)[0] - a[0]).abs() > 1e-3);
 }
 
@@ -223,7 +280,18 @@ proptest! {
 fn absorbing_film_loses_energy() {
     // α0 = 1/mm over 16 µm at normal incidence: Σ η ≈ exp(−2 α0 d) away from Bragg.
     let g = VolumeGrating::from_recording(532.0, 61.2, 1.50, 16.0, 0.015, 1.0);
-    let sol = solve(&film_of(&[g]), &bulk(1.5), 600.0, DVec2::ZERO, &Settings::default()).unwrap();
+    let sol = solve(
+        &film_of(&[g]),
+        &bulk(1.5),
+        600.0,
+        DVec2::ZERO,
+        &Settings::default(),
+    )
+    .unwrap();
     let want = (-2.0 * 1e-3 * 16.0f64).exp();
-    assert!((sol.total[0] - want).abs() < 1e-3, "{:?} vs {want}", sol.total);
+    assert!(
+        (sol.total[0] - want).abs() < 1e-3,
+        "{:?} vs {want}",
+        sol.total
+    );
 }
