@@ -12,6 +12,7 @@ pub mod cancel;
 pub mod dataset;
 pub mod demo;
 pub mod display;
+pub mod grating_spectrum;
 pub mod hadamard;
 pub mod io;
 pub mod jobs;

@@ -599,3 +599,153 @@ pub fn run_render(o: &BenchRenderOptions, con: &Console) -> Result<(), JobError>
         o.replot, o.threads, con,
     )
 }
+
+/// Options of `stscam bench grating`.
+#[derive(Args, Debug, Clone)]
+pub struct BenchGratingOptions {
+    /// The scene and its overrides (the film and grating from `[hoe]`, the glass from `[plate]`).
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Timed runs of the single-point figures.
+    #[arg(long, default_value_t = 101)]
+    pub runs: usize,
+    /// Table grid: wavelengths START:STOP:N.
+    #[arg(long = "table-lambda-nm", default_value = "500:560:61")]
+    pub table_lambda_nm: String,
+    /// Table grid: nodes along u_x and u_y, over ±`--table-u`.
+    #[arg(long = "table-nodes", default_value = "13,31", value_name = "NX,NY")]
+    pub table_nodes: String,
+    /// Table grid half-width in u (both axes).
+    #[arg(long = "table-u", default_value_t = 0.3)]
+    pub table_u: f64,
+    /// Off-grid probes measuring the table's interpolation error.
+    #[arg(long, default_value_t = 200)]
+    pub probes: usize,
+    /// Worker threads of the table (default: all cores); single points always use one.
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// `stscam bench grating`: RCWA time per point on one core (medians) and the table time.
+pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobError> {
+    use crate::grating_spectrum as gs;
+    use crate::optics::rcwa::{self, Settings, table};
+    if !(1..=MAX_RUNS).contains(&o.runs) || !(1..=1_000_000).contains(&o.probes) {
+        return Err(bad_input(format!(
+            "--runs in 1..={MAX_RUNS}, --probes in 1..=1000000"
+        )));
+    }
+    let lambdas = super::grating::parse_lambdas(&o.table_lambda_nm)?;
+    let nodes = o
+        .table_nodes
+        .split_once(',')
+        .and_then(|(a, b)| {
+            Some((
+                a.trim().parse::<usize>().ok()?,
+                b.trim().parse::<usize>().ok()?,
+            ))
+        })
+        .filter(|&(a, b)| a >= 2 && b >= 2 && a * b <= 1_000_000)
+        .ok_or_else(|| {
+            bad_input(format!(
+                "--table-nodes {}: expected NX,NY >= 2",
+                o.table_nodes
+            ))
+        })?;
+    if lambdas.len() < 2 || !(o.table_u > 0.0 && o.table_u < 1.0) {
+        return Err(bad_input(
+            "--table-lambda-nm needs N >= 2 and --table-u must be in (0, 1)",
+        ));
+    }
+    let (ls, _) = load(&o.scene)?;
+    let s = &ls.scene;
+    let gratings = gs::scene_gratings(s);
+    let film = gs::film(s, &gratings);
+    let settings = Settings::default();
+    let lam_b = gs::volume_gratings(s, &gratings)[0]
+        .bragg_wavelength_nm(glam::DVec2::ZERO)
+        .unwrap_or(s.hoe.recording_wavelength_nm);
+    let mut points = serde_json::Map::new();
+    for (name, kind, u) in [
+        ("bulk_normal", gs::StackKind::Bulk, glam::DVec2::ZERO),
+        (
+            "bulk_conical",
+            gs::StackKind::Bulk,
+            glam::DVec2::new(0.15, 0.1),
+        ),
+        ("contact_normal", gs::StackKind::Contact, glam::DVec2::ZERO),
+    ] {
+        let media = gs::stack_media(s, kind, lam_b);
+        let mut times = Vec::with_capacity(o.runs);
+        let mut slices = 0;
+        for _ in 0..o.runs {
+            let t = std::time::Instant::now();
+            let sol = rcwa::solve(&film, &media, lam_b, u, &settings)
+                .map_err(|e| bad_input(format!("bench grating: {e}")))?;
+            times.push(t.elapsed().as_secs_f64());
+            slices = sol.slices;
+        }
+        let mut v = median_ms(times);
+        v["slices"] = slices.into();
+        v["note"] = "one solve gives TE and TM".into();
+        points.insert(name.into(), v);
+    }
+    let spec = table::TableSpec {
+        lambda_nm: table::Axis {
+            start: lambdas[0],
+            stop: lambdas[lambdas.len() - 1],
+            n: lambdas.len(),
+        },
+        u_x: table::Axis {
+            start: -o.table_u,
+            stop: o.table_u,
+            n: nodes.0,
+        },
+        u_y: table::Axis {
+            start: -o.table_u,
+            stop: o.table_u,
+            n: nodes.1,
+        },
+        max_order: 1,
+    };
+    let pool = thread_pool(o.threads)?;
+    let mut tables = serde_json::Map::new();
+    for kind in [gs::StackKind::Bulk, gs::StackKind::Contact] {
+        let media: Vec<_> = lambdas
+            .iter()
+            .map(|&l| gs::stack_media(s, kind, l))
+            .collect();
+        let t0 = std::time::Instant::now();
+        let t = pool
+            .install(|| table::RcwaTable::build(&film, &media, &spec, &settings))
+            .map_err(|e| bad_input(format!("bench grating: {e}")))?;
+        let build_s = t0.elapsed().as_secs_f64();
+        let err = pool
+            .install(|| t.measure_error(o.probes, 1))
+            .map_err(|e| bad_input(format!("bench grating: {e}")))?;
+        tables.insert(
+            format!("{kind:?}").to_lowercase(),
+            serde_json::json!({
+                "nodes": lambdas.len() * nodes.0 * nodes.1,
+                "build_s": build_s,
+                "threads": pool.current_num_threads(),
+                "max_interpolation_error": err,
+                "probes": o.probes,
+            }),
+        );
+    }
+    let report = serde_json::json!({
+        "point_at_bragg_lambda_nm": lam_b,
+        "harmonics": settings.harmonics,
+        "slices_per_period": settings.slices_per_period,
+        "points_one_core": points,
+        "table": {
+            "lambda_nm": [spec.lambda_nm.start, spec.lambda_nm.stop, spec.lambda_nm.n],
+            "u_half_width": o.table_u,
+            "nodes_ux_uy": [nodes.0, nodes.1],
+            "stacks": tables,
+        },
+    });
+    con.out(format_args!("{}", to_json(&report)?));
+    Ok(())
+}

@@ -57,6 +57,9 @@ enum Command {
     Compare(jobs::compare::CompareOptions),
     /// Trace the chief ray of one pixel at its exact Bragg wavelength.
     Probe(jobs::probe::ProbeOptions),
+    /// Efficiency of every diffracted order of one vHOE film (Kogelnik or RCWA, bulk or contact
+    /// stack) over a wavelength range: text or JSON, and a plot with --out.
+    Grating(jobs::grating::GratingOptions),
 }
 
 #[derive(Subcommand, Debug)]
@@ -69,6 +72,9 @@ enum BenchCommand {
     Bvh(jobs::bench::BenchBvhOptions),
     /// H, calibration and reconstruction speed at the scene's size (medians).
     Recon(jobs::bench::BenchReconOptions),
+    /// RCWA time per point on one core (medians) and the efficiency-table build time and
+    /// measured interpolation error for the scene's film, as JSON.
+    Grating(jobs::bench::BenchGratingOptions),
 }
 
 #[derive(Subcommand, Debug)]
@@ -124,6 +130,7 @@ where
         Command::Bench { which } => match which {
             BenchCommand::Bvh(o) => jobs::bench::run_bvh(o, con),
             BenchCommand::Recon(o) => jobs::bench::run_recon(o, con),
+            BenchCommand::Grating(o) => jobs::bench::run_grating(o, con),
             BenchCommand::Render(o) => jobs::bench::run_render(o, con),
         },
         Command::Validate {
@@ -132,6 +139,7 @@ where
         Command::Info(o) => jobs::info::run(o, con).map(drop),
         Command::Compare(o) => jobs::compare::run(o, con).map(drop),
         Command::Probe(o) => jobs::probe::run(o, con).map(drop),
+        Command::Grating(o) => jobs::grating::run(o, con).map(drop),
     };
     match result {
         Ok(()) => 0,

@@ -12,6 +12,7 @@ pub mod cli;
 pub mod compare;
 pub mod dataset;
 pub mod demo;
+pub mod grating;
 pub mod info;
 pub mod matrix;
 pub mod probe;

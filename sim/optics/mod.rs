@@ -5,3 +5,4 @@ pub mod glass;
 pub mod grating;
 pub mod interface;
 pub mod kogelnik;
+pub mod rcwa;

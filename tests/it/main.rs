@@ -10,6 +10,7 @@ mod dataset;
 mod dataset3d;
 mod depth;
 mod estimators;
+mod grating_command;
 mod hardening3d;
 mod hostile;
 mod invariants;

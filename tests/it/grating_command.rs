@@ -1,0 +1,68 @@
+//! `stscam grating`: JSON shape, energy balance, the two models at Bragg, the files of `--out`,
+//! and one-line exit-2 errors for bad input.
+
+use crate::common::{files_in, stscam, stscam_json};
+
+fn order<'a>(r: &'a serde_json::Value, side: &str, m: i64) -> &'a serde_json::Value {
+    r["orders"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["side"] == side && o["order"] == m)
+        .unwrap_or_else(|| panic!("no {side} order {m}"))
+}
+
+#[test]
+fn grating_json_models_and_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("g");
+    let args = |model: &'static str| {
+        vec!["grating", "--model", model, "--lambda-nm", "530:534:3", "--json"]
+    };
+    let mut a = args("rcwa");
+    a.extend(["--out", out.to_str().unwrap()]);
+    let r = stscam_json(&a);
+    let k = stscam_json(&args("kogelnik"));
+    assert_eq!(r["lambda_nm"].as_array().unwrap().len(), 3);
+    for i in 0..3 {
+        for e in ["energy_te", "energy_tm"] {
+            assert!((r[e][i].as_f64().unwrap() - 1.0).abs() < 1e-8, "{e}: {}", r[e][i]);
+        }
+    }
+    // At Bragg (532 nm, normal incidence) the two models agree to 0.2 % in the bulk stack, and
+    // the reflected +1 order leaves at the guided angle, 61.2° from -z toward +y.
+    for pol in ["eta_te", "eta_tm"] {
+        let (a, b) = (
+            order(&r, "reflected", 1)[pol][1].as_f64().unwrap(),
+            order(&k, "reflected", 1)[pol][1].as_f64().unwrap(),
+        );
+        assert!((a - b).abs() / a < 2e-3, "{pol}: rcwa {a} kogelnik {b}");
+    }
+    let d = &order(&r, "reflected", 1)["direction"][1];
+    let angle = d[1].as_f64().unwrap().atan2(-d[2].as_f64().unwrap()).to_degrees();
+    assert!((angle - 61.2).abs() < 1e-6, "{angle}");
+    let mut names = files_in(&out);
+    names.sort();
+    assert_eq!(names, ["grating.json", "grating.png", "grating.svg"]);
+}
+
+#[test]
+fn grating_bad_input_is_one_line_exit_2() {
+    for extra in [
+        vec!["--lambda-nm", "500:560"],
+        vec!["--lambda-nm", "500:560:0"],
+        vec!["--field-deg", "90,0"],
+        vec!["--field-deg", "x"],
+        vec!["--grating", "532,61.2"],
+        vec!["--grating", "532,61.2,0.01", "--grating", "500,61.2,0.01"],
+        vec!["--harmonics", "0"],
+        vec!["--set", "hoe.film_thickness_um=-1"],
+    ] {
+        let mut a = vec!["grating"];
+        a.extend(extra.iter().copied());
+        let o = stscam(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{a:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{a:?}: {err}");
+    }
+}
