@@ -11,18 +11,19 @@
 //!   R rotates the UVs counter-clockwise as seen in the image (v grows downward):
 //!   u′ = cos r·u + sin r·v, v′ = −sin r·u + cos r·v (the extension's GLSL reference code,
 //!   `mat3(cos, −sin, 0, sin, cos, 0)` read column-major);
-//! - morph targets at weight 0 and skins are checked (below).
+//! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
+//!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
+//! - morph targets at weight 0 (the base shape).
 //!
 //! Refused, with one short line naming the feature first (a model is loaded faithfully or
 //! not at all): a required extension the loader does not read (e.g.
-//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); vertex
-//! colours (`COLOR_0`); alpha modes `MASK` and `BLEND` (cut-outs would render opaque);
-//! normal maps (`normalTexture`); morph targets with a non-zero default weight; skinned
-//! meshes; base colour and emissive textures on different coordinate sets or transforms.
+//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); alpha
+//! modes `MASK` and `BLEND` (cut-outs would render opaque); normal maps (`normalTexture`);
+//! morph targets with a non-zero default weight; skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
 //! `doubleSided: false` is accepted and rendered two-sided (documented deviation: stscam's
 //! surfaces are seen from both sides).
 
-use glam::DVec2;
+use glam::{DVec2, DVec3};
 
 /// The glTF JSON of a `.gltf` or `.glb` file's bytes (None if it is not readable JSON: the
 /// `gltf` crate then reports the problem).
@@ -85,15 +86,6 @@ pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
         uv_plan(&mat).map_err(|e| format!("{e} ({name})"))?;
     }
     for mesh in doc.meshes() {
-        for prim in mesh.primitives() {
-            if prim.get(&gltf::Semantic::Colors(0)).is_some() {
-                return Err(format!(
-                    "COLOR_0 (mesh {}): vertex colours are not supported (bake them into a \
-                     base colour texture)",
-                    mesh.index()
-                ));
-            }
-        }
         if mesh.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
             return Err(format!(
                 "morph target weights (mesh {}): a non-zero default weight is not supported \
@@ -182,6 +174,46 @@ pub fn uv_plan(mat: &gltf::Material) -> Result<UvPlan, String> {
         ),
         (Some(a), _) | (None, Some(a)) => Ok(a),
         (None, None) => Ok(UvPlan::default()),
+    }
+}
+
+/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB (empty without
+/// them). Errors (one line) if the accessor has another count or cannot be read.
+pub fn vertex_colors(
+    buffers: &[Vec<u8>],
+    prim: &gltf::Primitive,
+    n: usize,
+) -> Result<Vec<DVec3>, String> {
+    let Some(acc) = prim.get(&gltf::Semantic::Colors(0)) else {
+        return Ok(Vec::new());
+    };
+    if acc.count() != n {
+        return Err(format!(
+            "COLOR_0 (accessor {}) has {} elements for {n} vertices",
+            acc.index(),
+            acc.count()
+        ));
+    }
+    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+        reader.read_colors(0).map(|c| {
+            c.into_rgb_f32()
+                .map(|p| {
+                    let f = |v: f32| {
+                        let v = f64::from(v);
+                        if v.is_finite() { v.max(0.0) } else { 0.0 }
+                    };
+                    DVec3::new(f(p[0]), f(p[1]), f(p[2]))
+                })
+                .collect::<Vec<_>>()
+        })
+    }));
+    match read {
+        Ok(Some(c)) if c.len() == n => Ok(c),
+        _ => Err(format!(
+            "COLOR_0 (accessor {}): unreadable data (type or range)",
+            acc.index()
+        )),
     }
 }
 

@@ -412,7 +412,11 @@ impl World {
                 frame = Frame::from_normal(ng);
                 wo_l = frame.to_local(wo);
             }
-            let bsdf = FoldedBsdf::new(mat.bsdf(uv, lambda_nm), &frame, ng);
+            let bsdf = FoldedBsdf::new(
+                mat.bsdf_tinted(uv, self.color_at(tri, bary), lambda_nm),
+                &frame,
+                ng,
+            );
             let origin = p + ng * offset_eps(p);
             // Next-event estimation.
             let n_em = self.emitters.len();

@@ -658,6 +658,8 @@ fn read_primitive(
         uvs,
         material_ids: vec![material; triangles.len()],
         triangles,
+        colors: super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
+            .map_err(|m| LoadError::new(ctx.path, m))?,
     };
     transform_mesh(&mut mesh, to_mm);
     if !has_normals {
@@ -877,7 +879,6 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let (mut models, materials) =
         result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
     for m in &mut models {
-        super::obj_features::check_vertex_colours(&m.mesh).map_err(|e| LoadError::new(path, e))?;
         super::obj_features::triangulate_faces(&mut m.mesh);
     }
     let materials = materials.unwrap_or_default();
@@ -977,6 +978,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             uvs,
             material_ids: vec![mat_id; triangles.len()],
             triangles,
+            colors: super::obj_features::vertex_colours(m),
         };
         if part.normals.is_empty() {
             part.compute_normals();

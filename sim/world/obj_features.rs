@@ -1,8 +1,7 @@
 //! OBJ faces and vertex attributes beyond what `tobj` converts itself: polygons are read as
 //! polygons and triangulated by ear clipping ([`super::polygon`]; `tobj`'s own triangulation
-//! fans them, which fills concave faces), and vertex colours (`v x y z r g b`), which stscam
-//! does not render, are refused in one line unless they are all white (the neutral colour,
-//! which changes nothing).
+//! fans them, which fills concave faces), and vertex colours (`v x y z r g b`), which multiply
+//! the base colour.
 
 use glam::DVec3;
 
@@ -32,13 +31,19 @@ pub fn triangulate_faces(m: &mut tobj::Mesh) {
     m.face_arities.clear();
 }
 
-/// Refuses vertex colours other than white: the message names the feature first.
-pub fn check_vertex_colours(m: &tobj::Mesh) -> Result<(), String> {
-    if m.vertex_color.iter().any(|c| *c != 1.0) {
-        return Err(
-            "vertex colours (v x y z r g b): not supported (bake them into a map_Kd texture)"
-                .to_string(),
-        );
+/// The vertex colours of a mesh (`v x y z r g b`, read as linear RGB like glTF's `COLOR_0`;
+/// negative or non-finite components read as 0), or none if the file has none or they are all
+/// white (neutral: the mesh renders exactly as without colours).
+pub fn vertex_colours(m: &tobj::Mesh) -> Vec<DVec3> {
+    if m.vertex_color.len() != m.positions.len() || m.vertex_color.iter().all(|c| *c == 1.0) {
+        return Vec::new();
     }
-    Ok(())
+    let f = |v: f32| {
+        let v = f64::from(v);
+        if v.is_finite() { v.max(0.0) } else { 0.0 }
+    };
+    m.vertex_color
+        .chunks_exact(3)
+        .map(|c| DVec3::new(f(c[0]), f(c[1]), f(c[2])))
+        .collect()
 }

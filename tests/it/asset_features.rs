@@ -146,7 +146,6 @@ fn unsupported_features_are_refused_naming_the_feature() {
     let plain = serde_json::json!({"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}});
     assert!(load(dir.path(), "plain.gltf", &quad_gltf(plain.clone(), None)).is_ok());
     let mut cases: Vec<(&str, serde_json::Value)> = Vec::new();
-    cases.push(("COLOR_0", quad_gltf(plain.clone(), Some(("COLOR_0", 3)))));
     cases.push((
         "alphaMode Mask",
         quad_gltf(
@@ -270,17 +269,80 @@ fn concave_obj_faces_are_ear_clipped() {
     }
 }
 
-/// OBJ vertex colours other than white are refused in one line naming them first; white
-/// ones (neutral) load.
+/// Frontal image (rgb-bayer, 16×16, 8 spp) of a 200 mm quad at 400 mm in a flat white
+/// environment, the object given by `object` (TOML lines after `[[object]]`).
+fn frontal_rgb(dir: &Path, object: &str) -> Vec<Vec<f32>> {
+    let toml = format!(
+        "[display]\nenabled = false\n[sensor]\nresponse = \"rgb-bayer\"\n[[object]]\n{object}\n\
+         [[light]]\nkind = \"environment\"\nspectrum = \"flat\"\n"
+    );
+    let p = dir.join("scene.toml");
+    std::fs::write(&p, toml).unwrap();
+    let sets = [
+        "sensor.crop_px=[16,16]".to_string(),
+        "sensor.pitch_um=52.8".to_string(),
+    ];
+    let ls = stscam::scene::load_scene(Some(&p), &sets).unwrap();
+    let sys = stscam::system::System::build(&ls).unwrap();
+    let f = stscam::world::frontal::render_frontal(&sys, 16, 16, 8, 5).unwrap();
+    assert!(f.mask.iter().all(|m| *m == 1), "the quad fills the frame");
+    f.channels
+}
+
+/// Vertex colours multiply the base colour: a quad whose OBJ vertices (`v x y z r g b`) or
+/// glTF `COLOR_0` are (0.9, 0.2, 0.1) renders like the same quad with base colour
+/// (0.9, 0.2, 0.1) given in the scene instead (an independent route through the material;
+/// tolerance 1e-6 relative), and not like the white quad (the former handling ignored the
+/// colours: its R/B ratio differs by > 50 %).
 #[test]
-fn obj_vertex_colours_refused_unless_white() {
+fn vertex_colours_multiply_the_base_colour() {
     let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join("c.obj");
-    std::fs::write(&p, "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 1 0 0\nf 1 2 3\n").unwrap();
-    let e = load_asset(&p, 1.0).unwrap_err();
-    assert!(e.message.starts_with("vertex colours"), "{e}");
-    std::fs::write(&p, "v 0 0 0 1 1 1\nv 1 0 0 1 1 1\nv 0 1 0 1 1 1\nf 1 2 3\n").unwrap();
-    assert!(load_asset(&p, 1.0).is_ok());
+    let c = [0.9, 0.2, 0.1];
+    let quad = |rgb: Option<[f64; 3]>| {
+        let col = rgb.map_or(String::new(), |c| format!(" {} {} {}", c[0], c[1], c[2]));
+        format!("v -1 -1 0{col}\nv 1 -1 0{col}\nv 1 1 0{col}\nv -1 1 0{col}\nf 1 2 3 4\n")
+    };
+    std::fs::write(dir.path().join("coloured.obj"), quad(Some(c))).unwrap();
+    std::fs::write(dir.path().join("plain.obj"), quad(None)).unwrap();
+    let place = "scale = 200.0\nposition_mm = [0.0, 0.0, -400.0]";
+    let coloured = frontal_rgb(
+        dir.path(),
+        &format!(
+            "mesh = \"coloured.obj\"\n{place}\n[object.material]\nbase_color = [1.0, 1.0, 1.0]"
+        ),
+    );
+    let reference = frontal_rgb(
+        dir.path(),
+        &format!("mesh = \"plain.obj\"\n{place}\n[object.material]\nbase_color = [0.9, 0.2, 0.1]"),
+    );
+    let white = frontal_rgb(
+        dir.path(),
+        &format!("mesh = \"plain.obj\"\n{place}\n[object.material]\nbase_color = [1.0, 1.0, 1.0]"),
+    );
+    let mean = |ch: &[f32]| ch.iter().map(|v| f64::from(*v)).sum::<f64>() / ch.len() as f64;
+    for k in 0..3 {
+        let (a, b) = (mean(&coloured[k]), mean(&reference[k]));
+        assert!(
+            (a - b).abs() <= 1e-6 * b.abs().max(1e-9),
+            "channel {k}: {a} vs {b}"
+        );
+    }
+    let ratio = |ch: &[Vec<f32>]| mean(&ch[0]) / mean(&ch[2]);
+    assert!(
+        ratio(&coloured) > 1.5 * ratio(&white),
+        "{} vs {}",
+        ratio(&coloured),
+        ratio(&white)
+    );
+    // glTF COLOR_0 (RGBA floats, alpha ignored) is read per vertex.
+    let plain = serde_json::json!({"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}});
+    let a = load(
+        dir.path(),
+        "c.gltf",
+        &quad_gltf(plain, Some(("COLOR_0", 3))),
+    )
+    .unwrap();
+    assert_eq!(a.mesh.colors, vec![glam::DVec3::X; 4]);
 }
 
 /// A mesh file and an object with non-Latin-1 names render (exit 0) and the names survive in
