@@ -43,6 +43,11 @@ fn document_json(bytes: &[u8]) -> Option<serde_json::Value> {
 /// Checks `extensionsRequired` before anything else is parsed: the first extension the loader
 /// does not read is refused in one line that names it first.
 pub fn check_required_extensions(bytes: &[u8]) -> Result<(), String> {
+    // Most files require nothing: skip the JSON parse (a .gltf with data URIs can be large).
+    let key = b"extensionsRequired";
+    if !bytes.windows(key.len()).any(|w| w == key) {
+        return Ok(());
+    }
     let Some(doc) = document_json(bytes) else {
         return Ok(());
     };
