@@ -102,7 +102,9 @@ pub fn encode_exr(
     }
     for (key, value) in attrs {
         let value = match value {
-            ExrAttr::Text(s) => AttributeValue::Text(latin1_text(s, "attribute value")?),
+            ExrAttr::Text(s) => {
+                AttributeValue::Text(latin1_text(&escape_non_latin1(s), "attribute value")?)
+            }
             ExrAttr::F64(v) => AttributeValue::F64(*v),
             ExrAttr::I32(v) => AttributeValue::I32(*v),
         };
@@ -125,6 +127,28 @@ pub fn encode_exr(
     let mut bytes = cursor.into_inner();
     sort_header_attributes(&mut bytes)?;
     Ok(bytes)
+}
+
+/// `s` with every character outside Latin-1 written as a JSON escape `\uXXXX` (a UTF-16
+/// surrogate pair above U+FFFF), since EXR `string` attributes hold Latin-1 bytes. A JSON text
+/// (the `stscam.scene` attribute) stays valid JSON with the same value, because such
+/// characters can only occur inside its strings; Latin-1 text is unchanged.
+pub fn escape_non_latin1(s: &str) -> std::borrow::Cow<'_, str> {
+    if s.chars().all(|c| u32::from(c) <= 0xFF) {
+        return std::borrow::Cow::Borrowed(s);
+    }
+    let mut out = String::with_capacity(s.len() + 16);
+    for c in s.chars() {
+        if u32::from(c) <= 0xFF {
+            out.push(c);
+        } else {
+            let mut units = [0u16; 2];
+            for u in c.encode_utf16(&mut units) {
+                out.push_str(&format!("\\u{:04x}", u));
+            }
+        }
+    }
+    std::borrow::Cow::Owned(out)
 }
 
 /// Converts a non-empty Latin-1 string to an EXR `Text`.
@@ -281,6 +305,28 @@ mod tests {
         assert_eq!(spectral_channel_name(550.0), "S0.550,000nm");
         assert_eq!(spectral_channel_name(400.0), "S0.400,000nm");
         assert_eq!(spectral_channel_name(1000.5), "S0.1000,500nm");
+    }
+
+    /// Non-Latin-1 characters become JSON escapes that parse back to the same text; the
+    /// unescaped text is refused by the EXR `Text` type (the former failure).
+    #[test]
+    fn non_latin1_attribute_values_are_escaped() {
+        let json = r#"{"name":"顔 😀 é"}"#;
+        let e = escape_non_latin1(json);
+        assert_eq!(e, r#"{"name":"\u9854 \ud83d\ude00 é"}"#);
+        let v: serde_json::Value = serde_json::from_str(&e).unwrap();
+        assert_eq!(v["name"], "顔 😀 é");
+        assert!(latin1_text(json, "value").is_err());
+        let attrs = [("stscam.scene".to_string(), ExrAttr::Text(json.into()))];
+        let ch = vec![ExrChannel {
+            name: "Y".into(),
+            data: vec![0.0],
+        }];
+        assert!(encode_exr(1, 1, ch, &attrs).is_ok());
+        assert!(matches!(
+            escape_non_latin1("é"),
+            std::borrow::Cow::Borrowed(_)
+        ));
     }
 
     #[test]

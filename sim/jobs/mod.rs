@@ -42,7 +42,10 @@ impl Console {
     /// One line of the job's output proper (a table, JSON).
     pub fn out(&self, line: std::fmt::Arguments) {
         if *self == Console::Terminal {
-            println!("{line}");
+            // A closed pipe (`stscam probe … --json | head -1`) is not an error of the job:
+            // the line is dropped instead of panicking in `println!`.
+            use std::io::Write;
+            let _ = writeln!(std::io::stdout().lock(), "{line}");
         }
     }
 

@@ -8,9 +8,11 @@
 //! `ALL_EMITTERS_MAX` of them (no selection noise: a screen close to a hand and a ceiling
 //! light far above it are both estimated at every vertex), otherwise one chosen uniformly, and
 //! traces a shadow ray per sample; the environment is sampled cosine-weighted about the
-//! shading normal; the BSDF is then sampled for the next direction. `max_depth` interactions at
-//! most (1 = direct lighting only); Russian roulette from the fourth interaction on, with
-//! survival probability max(throughput) (unbiased). One wavelength per path, scalar spectra.
+//! shading normal; the BSDF is then sampled for the next direction. Where the shading normal
+//! differs from the geometric one, both strategies use the folded BSDF of [`super::shading`]
+//! (the part of the lobe below the geometric surface mirrored back above it), so no energy is
+//! lost. `max_depth` interactions at most (1 = direct lighting only); Russian roulette from
+//! the fourth interaction on, with survival probability max(throughput) (unbiased). One wavelength per path, scalar spectra.
 //! Emissive mesh triangles are found only by BSDF sampling (weight 1; they are not
 //! next-event-estimation targets). Surfaces are two-sided (the side the ray arrives on is the
 //! front); emission is one-sided (the side the triangle's winding faces).
@@ -35,6 +37,7 @@
 use glam::{DVec2, DVec3};
 
 use super::bsdf::Frame;
+use super::shading::FoldedBsdf;
 use super::{Emitter, World};
 use crate::display::Display;
 use crate::sampler::{mix64, to_unit};
@@ -409,7 +412,11 @@ impl World {
                 frame = Frame::from_normal(ng);
                 wo_l = frame.to_local(wo);
             }
-            let bsdf = mat.bsdf(uv, lambda_nm);
+            let bsdf = FoldedBsdf::new(
+                mat.bsdf_tinted(uv, self.color_at(tri, bary), lambda_nm),
+                &frame,
+                ng,
+            );
             let origin = p + ng * offset_eps(p);
             // Next-event estimation.
             let n_em = self.emitters.len();

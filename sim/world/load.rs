@@ -9,14 +9,17 @@
 //! read (strips and fans are converted to triangle lists per glTF §3.7.2.1, dropping triangles
 //! that repeat an index); POINTS and LINE* primitives are skipped. Missing indices mean
 //! sequential vertices; missing normals are computed (area-weighted) after the transform;
-//! TEXCOORD_0 is the only texture coordinate set read. Materials: metallic-roughness base
+//! the texture coordinate set the material's textures use is read, with its
+//! `KHR_texture_transform` applied (module [`super::gltf_features`], which also refuses the
+//! features not rendered, naming them first). Materials: metallic-roughness base
 //! colour factor (alpha ignored) and texture, metallic and roughness factors, emissive factor
 //! and texture, `KHR_materials_emissive_strength` (1 if absent); a primitive without a material
 //! gets the glTF default material (base colour 1, metallic 1, roughness 1). Images are decoded
 //! here (PNG, JPEG, EXR) from files next to the .gltf, data URIs or buffer views; colour
 //! textures are sRGB-decoded (glTF §3.9.2). Sampler wrap modes are kept.
 //!
-//! OBJ + MTL (via `tobj`, polygons triangulated as fans, one index per vertex): positions are
+//! OBJ + MTL (via `tobj`; polygons ear-clipped by [`super::obj_features`]; one index per
+//! vertex): positions are
 //! multiplied by the caller's `obj_unit_mm` (OBJ has no unit); texture coordinates are flipped
 //! to the glTF convention (v ← 1 − v); materials are `Diffuse` with `Kd` as the linear base
 //! colour (0.8 grey if absent), `map_Kd` as the base colour texture, `Ke`/`map_Ke` as emission;
@@ -368,8 +371,10 @@ struct GltfCtx<'a> {
 
 fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     let bytes = read_file(path)?;
+    super::gltf_features::check_required_extensions(&bytes).map_err(|m| LoadError::new(path, m))?;
     let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| LoadError::new(path, format!("not a readable glTF file ({e})")))?;
+    super::gltf_features::check_document(&document).map_err(|m| LoadError::new(path, m))?;
     drop(bytes);
     // Every buffer's byteLength is summed before any is read.
     let declared_total = document
@@ -599,8 +604,9 @@ fn read_primitive(
     if let Some(a) = &normals_acc {
         check_accessor(ctx, a, "NORMAL", D::Vec3, &[T::F32])?;
     }
+    let uv_plan = super::gltf_features::uv_plan(&prim.material()).unwrap_or_default();
     let uv_acc = prim
-        .get(&gltf::Semantic::TexCoords(0))
+        .get(&gltf::Semantic::TexCoords(uv_plan.set))
         .filter(|a| a.count() == n);
     if let Some(a) = &uv_acc {
         check_accessor(ctx, a, "TEXCOORD_0", D::Vec2, &[T::F32, T::U8, T::U16])?;
@@ -645,9 +651,9 @@ fn read_primitive(
         };
         let uvs: Vec<DVec2> = if has_uv {
             reader
-                .read_tex_coords(0)?
+                .read_tex_coords(uv_plan.set)?
                 .into_f32()
-                .map(|p| DVec2::new(f64::from(p[0]), f64::from(p[1])))
+                .map(|p| uv_plan.apply(DVec2::new(f64::from(p[0]), f64::from(p[1]))))
                 .collect()
         } else {
             Vec::new()
@@ -707,6 +713,8 @@ fn read_primitive(
         uvs,
         material_ids: vec![material; triangles.len()],
         triangles,
+        colors: super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
+            .map_err(|m| LoadError::new(ctx.path, m))?,
     };
     transform_mesh(&mut mesh, to_mm);
     if !has_normals {
@@ -917,7 +925,8 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
     let log = RefCell::new(MtlLog::default());
     let opts = tobj::LoadOptions {
-        triangulate: true,
+        // Polygons are triangulated below by ear clipping (`obj_features`).
+        triangulate: false,
         single_index: true,
         ignore_points: true,
         ignore_lines: true,
@@ -968,8 +977,11 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     if let Some(e) = log.error {
         return Err(e);
     }
-    let (models, materials) =
+    let (mut models, materials) =
         result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
+    for m in &mut models {
+        super::obj_features::triangulate_faces(&mut m.mesh);
+    }
     let materials = materials.unwrap_or_default();
     // Size checks before building the f64 arrays.
     let (mut nv, mut nt) = (0usize, 0usize);
@@ -1067,6 +1079,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             uvs,
             material_ids: vec![mat_id; triangles.len()],
             triangles,
+            colors: super::obj_features::vertex_colours(m),
         };
         if part.normals.is_empty() {
             part.compute_normals();

@@ -70,6 +70,8 @@ pub struct Material {
     pub emission: Emission,
     /// Nearest-texel texture lookups instead of bilinear.
     pub nearest: bool,
+    /// The linear RGB behind `Reflectance::Rgb` (for vertex colours), if it is one.
+    pub base_rgb: Option<[f64; 3]>,
 }
 
 fn lookup(t: &Texture, uv: DVec2, nearest: bool) -> [f64; 3] {
@@ -125,9 +127,32 @@ impl Material {
         }
     }
 
+    /// Reflectance at `uv` with the base colour multiplied by a vertex colour `tint` (linear
+    /// RGB, upsampled per lookup); a measured spectrum is not tinted (it replaces the base
+    /// colour).
+    pub fn base_tinted(&self, uv: DVec2, tint: Option<[f64; 3]>, lambda_nm: f64) -> f64 {
+        let Some(k) = tint else {
+            return self.base(uv, lambda_nm);
+        };
+        let rgb = match (&self.reflectance, self.base_rgb) {
+            (Reflectance::Rgb(_), Some(c)) => c,
+            (Reflectance::Texture(t, f), _) => {
+                let c = lookup(t, uv, self.nearest);
+                [c[0] * f[0], c[1] * f[1], c[2] * f[2]]
+            }
+            _ => return self.base(uv, lambda_nm),
+        };
+        reflectance_from_rgb([rgb[0] * k[0], rgb[1] * k[1], rgb[2] * k[2]]).eval(lambda_nm)
+    }
+
     /// The BSDF at a hit.
     pub fn bsdf(&self, uv: DVec2, lambda_nm: f64) -> Bsdf {
-        let base = self.base(uv, lambda_nm);
+        self.bsdf_tinted(uv, None, lambda_nm)
+    }
+
+    /// The BSDF at a hit whose base colour is multiplied by the vertex colour `tint`.
+    pub fn bsdf_tinted(&self, uv: DVec2, tint: Option<[f64; 3]>, lambda_nm: f64) -> Bsdf {
+        let base = self.base_tinted(uv, tint, lambda_nm);
         match self.model {
             SurfaceModel::Diffuse => Bsdf::Diffuse { albedo: base },
             SurfaceModel::MetallicRoughness => Bsdf::MetallicRoughness {

@@ -76,6 +76,9 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     /// Material index of each triangle, into the asset's `materials`.
     pub material_ids: Vec<u32>,
+    /// Linear RGB vertex colours multiplying the base colour (glTF `COLOR_0`, OBJ
+    /// `v x y z r g b`): same length as `positions_mm`, or empty (white).
+    pub colors: Vec<DVec3>,
 }
 
 /// A loaded mesh file or built-in shape.
@@ -103,6 +106,15 @@ impl Mesh {
                 self.uvs.resize(self.positions_mm.len(), DVec2::ZERO);
             } else {
                 self.uvs.extend_from_slice(&other.uvs);
+            }
+        }
+        if !self.colors.is_empty() || !other.colors.is_empty() {
+            // Vertices without colours are white (neutral).
+            self.colors.resize(base as usize, DVec3::ONE);
+            if other.colors.is_empty() {
+                self.colors.resize(self.positions_mm.len(), DVec3::ONE);
+            } else {
+                self.colors.extend_from_slice(&other.colors);
             }
         }
         self.triangles
@@ -186,5 +198,12 @@ mod tests {
         a.append(&m, 3);
         assert_eq!(a.triangles[1], [3, 4, 5]);
         assert_eq!(a.material_ids, vec![0, 3]);
+        assert!(a.colors.is_empty());
+        // Colours on one part only: the other part's vertices are white.
+        let mut c = m.clone();
+        c.colors = vec![DVec3::X; 3];
+        let mut ac = m.clone();
+        ac.append(&c, 0);
+        assert_eq!(ac.colors, [vec![DVec3::ONE; 3], vec![DVec3::X; 3]].concat());
     }
 }

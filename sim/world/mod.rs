@@ -16,11 +16,15 @@ pub mod bsdf;
 pub mod bvh;
 pub mod desc;
 pub mod frontal;
+pub mod gltf_features;
 pub mod integrator;
 pub mod light;
 pub mod load;
 pub mod material;
 pub mod mesh;
+pub mod obj_features;
+pub mod polygon;
+pub mod shading;
 pub mod shapes;
 pub mod spectra3d;
 pub mod texture;
@@ -284,6 +288,12 @@ fn build_material(
         metallic: ov.metallic.unwrap_or(a.metallic),
         emission,
         nearest: ov.texture_filter.as_deref() == Some("nearest"),
+        base_rgb: match (&ov.base_color, &ov.reflectance, &a.base_color_texture) {
+            (_, Some(_), _) => None,
+            (Some(RgbOr::Rgb(c)), _, _) => Some(*c),
+            (Some(RgbOr::Text(_)), _, _) | (None, _, Some(_)) => None,
+            (None, None, None) => Some(a.base_color),
+        },
     })
 }
 
@@ -429,6 +439,17 @@ impl World {
             emitters,
             max_depth: s.sampling.max_depth,
         })
+    }
+
+    /// Vertex colour at a hit (None if the mesh has none).
+    #[inline]
+    pub fn color_at(&self, tri: u32, bary: [f64; 3]) -> Option<[f64; 3]> {
+        if self.mesh.colors.is_empty() {
+            return None;
+        }
+        let t = self.mesh.triangles[tri as usize];
+        let c = t.map(|i| self.mesh.colors[i as usize]);
+        Some((c[0] * bary[0] + c[1] * bary[1] + c[2] * bary[2]).to_array())
     }
 
     /// Texture coordinate at a hit.

@@ -1,6 +1,7 @@
 //! All integration tests in one crate: one binary to build and link instead of one per file.
 
 mod analytic_field;
+mod asset_features;
 mod bvh;
 mod cancel;
 mod cli_errors;
@@ -24,5 +25,6 @@ mod probe_geometry;
 mod reconstruction;
 mod render_capture;
 mod scenes3d_physics;
+mod shading_furnace;
 mod stress;
 mod sweep;

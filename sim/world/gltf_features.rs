@@ -1,0 +1,273 @@
+//! glTF features beyond the loader's core (Khronos glTF 2.0 specification 2.0.1 and the
+//! `KHR_texture_transform` extension): what is supported, and a clear refusal for what is not,
+//! so that no feature is rendered silently wrong.
+//!
+//! Supported here:
+//! - any texture coordinate set (`texCoord` of the base colour and emissive textures, which
+//!   must agree, as the mesh carries one set);
+//! - `KHR_texture_transform` on those textures (used or required): the affine map
+//!   uv′ = T(offset)·R(rotation)·S(scale)·uv is applied to the vertices' coordinates on load,
+//!   which is exact because texture coordinates are interpolated linearly over a triangle.
+//!   R rotates the UVs counter-clockwise as seen in the image (v grows downward):
+//!   u′ = cos r·u + sin r·v, v′ = −sin r·u + cos r·v (the extension's GLSL reference code,
+//!   `mat3(cos, −sin, 0, sin, cos, 0)` read column-major);
+//! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
+//!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
+//! - morph targets at weight 0 (the base shape).
+//!
+//! Refused, with one short line naming the feature first (a model is loaded faithfully or
+//! not at all): a required extension the loader does not read (e.g.
+//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); alpha
+//! modes `MASK` and `BLEND` (cut-outs would render opaque); normal maps (`normalTexture`);
+//! morph targets with a non-zero default weight; skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
+//! `doubleSided: false` is accepted and rendered two-sided (documented deviation: stscam's
+//! surfaces are seen from both sides).
+
+use glam::{DVec2, DVec3};
+
+/// The glTF JSON of a `.gltf` or `.glb` file's bytes (None if it is not readable JSON: the
+/// `gltf` crate then reports the problem).
+fn document_json(bytes: &[u8]) -> Option<serde_json::Value> {
+    let json = if bytes.starts_with(b"glTF") {
+        let len = u32::from_le_bytes(bytes.get(12..16)?.try_into().ok()?) as usize;
+        if bytes.get(16..20)? != b"JSON" {
+            return None;
+        }
+        bytes.get(20..20usize.checked_add(len)?)?
+    } else {
+        bytes
+    };
+    serde_json::from_slice(json).ok()
+}
+
+/// Checks `extensionsRequired` before anything else is parsed: the first extension the loader
+/// does not read is refused in one line that names it first.
+pub fn check_required_extensions(bytes: &[u8]) -> Result<(), String> {
+    // Most files require nothing: skip the JSON parse (a .gltf with data URIs can be large).
+    let key = b"extensionsRequired";
+    if !bytes.windows(key.len()).any(|w| w == key) {
+        return Ok(());
+    }
+    let Some(doc) = document_json(bytes) else {
+        return Ok(());
+    };
+    let Some(req) = doc.get("extensionsRequired").and_then(|v| v.as_array()) else {
+        return Ok(());
+    };
+    for ext in req.iter().filter_map(|v| v.as_str()) {
+        if !gltf::json::extensions::ENABLED_EXTENSIONS.contains(&ext) {
+            return Err(format!(
+                "{ext}: this required glTF extension is not supported (export the model \
+                 without it, e.g. `gltf-transform copy` decompresses Draco and meshopt)"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses the features this loader does not render (module documentation), naming the
+/// feature first.
+pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
+    for mat in doc.materials() {
+        let name = mat.name().map_or_else(
+            || format!("material {}", mat.index().unwrap_or(0)),
+            |n| format!("material {n:?}"),
+        );
+        match mat.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => {}
+            mode => {
+                return Err(format!(
+                    "alphaMode {mode:?} ({name}): alpha cut-outs and blending are not \
+                     supported (set the material opaque or remove the transparent parts)"
+                ));
+            }
+        }
+        if mat.normal_texture().is_some() {
+            return Err(format!(
+                "normalTexture ({name}): normal maps are not supported (bake them into the \
+                 geometry or remove the map)"
+            ));
+        }
+        uv_plan(&mat).map_err(|e| format!("{e} ({name})"))?;
+    }
+    for mesh in doc.meshes() {
+        if mesh.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
+            return Err(format!(
+                "morph target weights (mesh {}): a non-zero default weight is not supported \
+                 (apply the shape keys before export)",
+                mesh.index()
+            ));
+        }
+    }
+    for node in doc.nodes() {
+        if node.skin().is_some() && node.mesh().is_some() {
+            return Err(format!(
+                "skin (node {}): skinned meshes are not supported (apply the armature before \
+                 export)",
+                node.index()
+            ));
+        }
+        if node.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
+            return Err(format!(
+                "morph target weights (node {}): a non-zero weight is not supported (apply \
+                 the shape keys before export)",
+                node.index()
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Which texture coordinates a material reads: the set and the `KHR_texture_transform`
+/// affine map (2 × 3, row-major: u′ = m[0]·(u, v, 1), v′ = m[1]·(u, v, 1)), if any.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UvPlan {
+    /// The `TEXCOORD_n` set.
+    pub set: u32,
+    /// The texture transform (None: identity).
+    pub transform: Option<[[f64; 3]; 2]>,
+}
+
+impl UvPlan {
+    /// Applies the transform to a coordinate.
+    #[inline]
+    pub fn apply(&self, uv: DVec2) -> DVec2 {
+        match self.transform {
+            None => uv,
+            Some(m) => DVec2::new(
+                m[0][0] * uv.x + m[0][1] * uv.y + m[0][2],
+                m[1][0] * uv.x + m[1][1] * uv.y + m[1][2],
+            ),
+        }
+    }
+}
+
+/// The affine map of `KHR_texture_transform` (offset, rotation in radians, scale).
+pub fn texture_transform(offset: [f64; 2], rotation: f64, scale: [f64; 2]) -> [[f64; 3]; 2] {
+    let (s, c) = rotation.sin_cos();
+    [
+        [c * scale[0], s * scale[1], offset[0]],
+        [-s * scale[0], c * scale[1], offset[1]],
+    ]
+}
+
+fn info_plan(info: &gltf::texture::Info) -> UvPlan {
+    let mut set = info.tex_coord();
+    let transform = info.texture_transform().map(|t| {
+        if let Some(s) = t.tex_coord() {
+            set = s;
+        }
+        let f = |v: [f32; 2]| v.map(f64::from);
+        texture_transform(f(t.offset()), f64::from(t.rotation()), f(t.scale()))
+    });
+    UvPlan { set, transform }
+}
+
+/// The texture coordinates a material's base colour and emissive textures read (set 0 and no
+/// transform without textures); an error if the two differ.
+pub fn uv_plan(mat: &gltf::Material) -> Result<UvPlan, String> {
+    let base = mat
+        .pbr_metallic_roughness()
+        .base_color_texture()
+        .map(|i| info_plan(&i));
+    let emissive = mat.emissive_texture().map(|i| info_plan(&i));
+    match (base, emissive) {
+        (Some(a), Some(b)) if a != b => Err(
+            "texCoord/KHR_texture_transform: the base colour and emissive textures use \
+             different texture coordinates, which is not supported"
+                .to_string(),
+        ),
+        (Some(a), _) | (None, Some(a)) => Ok(a),
+        (None, None) => Ok(UvPlan::default()),
+    }
+}
+
+/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB (empty without
+/// them). Errors (one line) if the accessor has another count or cannot be read.
+pub fn vertex_colors(
+    buffers: &[Vec<u8>],
+    prim: &gltf::Primitive,
+    n: usize,
+) -> Result<Vec<DVec3>, String> {
+    let Some(acc) = prim.get(&gltf::Semantic::Colors(0)) else {
+        return Ok(Vec::new());
+    };
+    if acc.count() != n {
+        return Err(format!(
+            "COLOR_0 (accessor {}) has {} elements for {n} vertices",
+            acc.index(),
+            acc.count()
+        ));
+    }
+    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+        reader.read_colors(0).map(|c| {
+            c.into_rgb_f32()
+                .map(|p| {
+                    let f = |v: f32| {
+                        let v = f64::from(v);
+                        if v.is_finite() { v.max(0.0) } else { 0.0 }
+                    };
+                    DVec3::new(f(p[0]), f(p[1]), f(p[2]))
+                })
+                .collect::<Vec<_>>()
+        })
+    }));
+    match read {
+        Ok(Some(c)) if c.len() == n => Ok(c),
+        _ => Err(format!(
+            "COLOR_0 (accessor {}): unreadable data (type or range)",
+            acc.index()
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The transform against the extension's composition T·R·S written out by hand for a
+    /// quarter turn: scale (2, 3), rotation π/2, offset (0.5, 0.25) maps (1, 0) to
+    /// (0.5, 0.25) + R·(2, 0) = (0.5, 0.25) + (0, −2) and (0, 1) to (0.5, 0.25) + R·(0, 3) =
+    /// (0.5 + 3, 0.25). A transform built in the wrong order (S·R·T) fails.
+    #[test]
+    fn texture_transform_composes_t_r_s() {
+        let p = UvPlan {
+            set: 0,
+            transform: Some(texture_transform(
+                [0.5, 0.25],
+                std::f64::consts::FRAC_PI_2,
+                [2.0, 3.0],
+            )),
+        };
+        let a = p.apply(DVec2::new(1.0, 0.0));
+        let b = p.apply(DVec2::new(0.0, 1.0));
+        assert!((a - DVec2::new(0.5, -1.75)).length() < 1e-12, "{a}");
+        assert!((b - DVec2::new(3.5, 0.25)).length() < 1e-12, "{b}");
+        // Wrong order: scale after the offset.
+        let wrong = |uv: DVec2| (uv + DVec2::new(0.5, 0.25)) * DVec2::new(2.0, 3.0);
+        assert!((wrong(DVec2::new(1.0, 0.0)) - a).length() > 0.1);
+    }
+
+    #[test]
+    fn required_extension_is_named_first() {
+        let j = br#"{"asset":{"version":"2.0"},"extensionsRequired":["KHR_materials_emissive_strength","KHR_draco_mesh_compression"]}"#;
+        let e = check_required_extensions(j).unwrap_err();
+        assert!(e.starts_with("KHR_draco_mesh_compression:"), "{e}");
+        assert!(!e.contains('\n'));
+        let ok = br#"{"asset":{"version":"2.0"},"extensionsRequired":["KHR_texture_transform"]}"#;
+        assert!(check_required_extensions(ok).is_ok());
+        // The same JSON inside a GLB container.
+        let mut glb = b"glTF".to_vec();
+        glb.extend(2u32.to_le_bytes());
+        glb.extend(((20 + j.len()) as u32).to_le_bytes());
+        glb.extend((j.len() as u32).to_le_bytes());
+        glb.extend(b"JSON");
+        glb.extend(j);
+        assert!(
+            check_required_extensions(&glb)
+                .unwrap_err()
+                .starts_with("KHR_draco")
+        );
+    }
+}
