@@ -619,3 +619,37 @@ fn stack_inputs_are_checked() {
     }
     assert!(!out.exists());
 }
+
+/// A mesh dataset folder holding an OBJ of more than 10⁷ triangles (a 20 MB file) is refused
+/// before the file is parsed: exit 2, one line naming the recipe key and the file, no output.
+#[test]
+fn mesh_dataset_with_a_huge_mesh_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("meshes")).unwrap();
+    let mut s = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\nf");
+    s.push_str(&" 1".repeat(10_000_005));
+    s.push('\n');
+    std::fs::write(d.join("meshes/many.obj"), s).unwrap();
+    let recipe = d.join("r.toml");
+    std::fs::write(
+        &recipe,
+        "name = \"x\"\nseed = 5\nsamples = 2\nmode = \"render\"\nspp = 1\nnoise = \"none\"\n\
+         [scene]\nset = [\"display.enabled=false\", \"sensor.crop_px=[16,16]\"]\n\
+         [split]\ntrain = 0.5\nval = 0.25\ntest = 0.25\n[objects]\nsize_px = 8\n\
+         [[objects.sources]]\ngenerator = \"meshes\"\nfolder = \"meshes\"\n\
+         distance_mm = [450.0, 650.0]\nenvironment = [0.0, 0.0]\n",
+    )
+    .unwrap();
+    let out = d.join("out");
+    let (code, err, t) = run_timed(
+        &["dataset", recipe.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        60,
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("objects.sources[0].folder") && err.contains("many.obj"), "{err}");
+    assert!(err.contains("10000003 triangles"), "{err}");
+    assert!(t < 20.0, "{t} s");
+    assert!(!out.exists());
+}
