@@ -426,7 +426,7 @@ impl LoadedScene {
     /// The name to blame for a key: `--set` if it was overridden, else the scene source.
     pub fn origin_of(&self, key: &str) -> String {
         if is_overridden(&self.overridden, key) {
-            format!("--set {key}")
+            format!("--set {}", set_form(key))
         } else {
             self.source.clone()
         }
@@ -448,19 +448,20 @@ impl LoadedScene {
     }
 }
 
-/// `hoe.grating[1].index_modulation` → `hoe.grating.1.index_modulation` (the `--set` form).
+/// `hoe.grating[1].index_modulation` → `hoe.grating.1.index_modulation` (the `--set` form of
+/// a grating entry's key; other keys unchanged).
 fn set_form(key: &str) -> String {
-    key.replace("].", ".").replace('[', ".").replace(']', "")
+    if key.starts_with("hoe.grating[") {
+        key.replace("].", ".").replace('[', ".").replace(']', "")
+    } else {
+        key.to_string()
+    }
 }
 
 /// Whether `key` (possibly with a `.field` or `[index]` suffix) was set by `--set`.
 fn is_overridden(overridden: &BTreeSet<String>, key: &str) -> bool {
     let dotted = set_form(key);
-    let key = if key.starts_with("hoe.grating[") {
-        dotted.as_str()
-    } else {
-        key
-    };
+    let key = dotted.as_str();
     overridden.iter().any(|k| {
         key == k
             || key
@@ -753,7 +754,22 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
         loaded.base_dir = PathBuf::from(".");
     }
     validate(&loaded)?;
+    canonical_single_grating(&mut loaded.scene.hoe);
     Ok(loaded)
+}
+
+/// A one-entry `[[hoe.grating]]` list with the object beam normal to the film is the same film
+/// as the single-grating keys: it is stored in that form, so the scene (and every output that
+/// records it) is the same whichever form the file used.
+fn canonical_single_grating(h: &mut HoeDesc) {
+    if let [g] = h.grating.as_slice() {
+        if g.object_angle_deg == 0.0 {
+            h.recording_wavelength_nm = Some(g.recording_wavelength_nm);
+            h.reference_angle_deg = Some(g.reference_angle_deg);
+            h.index_modulation = Some(g.index_modulation);
+            h.grating.clear();
+        }
+    }
 }
 
 /// `object[0].mesh` → `object.0.mesh`: keys inside `[[object]]` and `[[light]]` are named as

@@ -16,6 +16,7 @@ mod jobs;
 mod matrix_calibration;
 mod mesh_scenes;
 mod mitsuba_reference;
+mod multiplex;
 mod npz_independent;
 mod probe_geometry;
 mod reconstruction;
