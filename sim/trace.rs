@@ -355,3 +355,70 @@ pub fn trace_camera_path_until(
     }
     summary
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A two-grating film (scenes/two-grating.toml, here with strong gratings n1 = 0.03 each
+    /// so that both couple a lot): over random camera rays and wavelengths the branches carry
+    /// at most the light that entered (Σ weights ≤ 1 per polarisation), both gratings' replicas
+    /// occur, and no two branches of a path share a replica key.
+    #[test]
+    fn two_gratings_conserve_energy_and_keep_replicas_apart() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/two-grating.toml");
+        let sets = [
+            "hoe.grating.0.index_modulation=0.03".to_string(),
+            "hoe.grating.1.index_modulation=0.03".to_string(),
+        ];
+        let sys =
+            crate::system::System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap())
+                .unwrap();
+        let mut seen = [0usize; 2];
+        let mut state = 12345u64;
+        let mut next = || {
+            state = crate::sampler::mix64(state);
+            crate::sampler::to_unit(state)
+        };
+        for _ in 0..4000 {
+            let ray = sys.camera.generate_ray(
+                (next() * sys.camera.width_px as f64) as usize,
+                (next() * sys.camera.height_px as f64) as usize,
+                [next(), next()],
+                [next(), next()],
+            );
+            let lam = 420.0 + 180.0 * next();
+            let mut sum = [0.0, 0.0];
+            let mut keys = Vec::new();
+            trace_camera_path(
+                &sys.waveguide,
+                sys.display.z_mm,
+                sys.limits,
+                ray.origin,
+                ray.dir,
+                lam,
+                |b| {
+                    sum[0] += b.weight[0];
+                    sum[1] += b.weight[1];
+                    if let BranchKind::Replica(_) = b.kind {
+                        keys.push(b.replica_key());
+                        if b.weight[0] > 1e-3 {
+                            seen[b.grating as usize] += 1;
+                        }
+                    }
+                },
+            );
+            assert!(
+                sum[0] <= 1.0 + 1e-12 && sum[1] <= 1.0 + 1e-12,
+                "{sum:?} at {lam} nm"
+            );
+            let n = keys.len();
+            keys.sort_unstable();
+            keys.dedup();
+            assert_eq!(keys.len(), n, "replica keys collide");
+        }
+        assert!(seen[0] > 100 && seen[1] > 100, "{seen:?}");
+        assert_eq!(replica_key(0, 7), 7);
+        assert_ne!(replica_key(1, 7), replica_key(0, 7));
+    }
+}

@@ -514,4 +514,84 @@ mod tests {
         assert!((s.pdf(535.25, 540.0) - s.pdf(544.75, 540.0)).abs() < 1e-15);
         assert_eq!(s.table_count(), 2);
     }
+
+    /// A two-grating mixture: one set of (lopsided) tables per grating.
+    fn two() -> WavelengthSampler {
+        let tri: Vec<f64> = (0..40).map(|i| 20.0 - (i as f64 - 19.5).abs()).collect();
+        let lopsided: Vec<f64> = (0..40).map(|i| if i < 20 { 1.0 } else { 3.0 }).collect();
+        WavelengthSampler::new_multiplexed(
+            380.0,
+            780.0,
+            0.1,
+            -10.0,
+            0.5,
+            &[
+                (vec![(540.0, tri.clone()), (500.0, lopsided.clone())], true),
+                (vec![(460.0, lopsided), (440.0, tri)], true),
+            ],
+        )
+    }
+
+    /// One grating: the mixture's draws are the single-band sampler's, bit for bit.
+    #[test]
+    fn one_grating_mixture_is_the_single_band_sampler() {
+        let s = sampler();
+        for i in 0..10_000 {
+            let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
+            for lb in [Some(531.3), Some(497.0), None] {
+                let a = s.sample_mixed(u, lb, 0.1);
+                let b = s.sample_multiplexed(u, &[lb], 0.1);
+                assert_eq!(
+                    (a.0.to_bits(), a.1.to_bits()),
+                    (b.0.to_bits(), b.1.to_bits())
+                );
+            }
+        }
+    }
+
+    /// Two gratings: the mixture density integrates to 1, the draws follow it (χ² over both
+    /// bands) and each draw's pdf is the density; a density missing one component (the failing
+    /// input: what the estimator would use if it forgot the other grating) fails the χ² test.
+    #[test]
+    fn two_grating_mixture_follows_its_density() {
+        let s = two();
+        let lb = [Some(538.0), Some(451.0)];
+        let (a, b, n) = (300.0, 800.0, 400_000);
+        let integral: f64 = (0..n)
+            .map(|i| s.pdf_multiplexed(a + (b - a) * (i as f64 + 0.5) / n as f64, &lb))
+            .sum::<f64>()
+            * (b - a)
+            / n as f64;
+        assert!((integral - 1.0).abs() < 1e-3, "{integral}");
+        let draws = 200_000usize;
+        let lo = 430.0;
+        let bins = 130; // 1 nm bins over 430–560 nm: both bands.
+        let mut counts = vec![0u64; bins];
+        for i in 0..draws {
+            let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
+            let (lam, pdf) = s.sample_multiplexed(u, &lb, 0.1);
+            assert!((pdf - s.pdf_multiplexed(lam, &lb)).abs() < 1e-15);
+            if lam >= lo && lam < lo + bins as f64 {
+                counts[(lam - lo) as usize] += 1;
+            }
+        }
+        let chi2 = |pdf: &dyn Fn(f64) -> f64| -> f64 {
+            let mut chi2 = 0.0;
+            for (k, &c) in counts.iter().enumerate() {
+                let m = 200;
+                let p: f64 = (0..m)
+                    .map(|j| pdf(lo + k as f64 + (j as f64 + 0.5) / m as f64))
+                    .sum::<f64>()
+                    / m as f64;
+                let expect = p * draws as f64;
+                chi2 += (c as f64 - expect).powi(2) / expect.max(1.0);
+            }
+            chi2
+        };
+        // 129 dof, 99.9 % critical value ≈ 181.
+        let good = chi2(&|l| s.pdf_multiplexed(l, &lb));
+        assert!(good < 181.0, "χ² = {good}");
+        let only_first = chi2(&|l| s.pdf_multiplexed(l, &[lb[0], None]));
+        assert!(only_first > 181.0, "one component only: χ² = {only_first}");
+    }
 }
