@@ -17,11 +17,18 @@ use crate::optics::interface::critical_angle;
 use crate::system::System;
 use crate::trace::{Branch, BranchKind, plate_crossing, trace_camera_path};
 
-/// One replica of a probed chief ray.
+/// One replica of a probed chief ray: (grating, contact).
 #[derive(Clone, Debug, Serialize)]
 pub struct ProbeReplica {
-    /// Index (0 = nearest the top vHOE).
+    /// The grating (index in the film's list) that couples this replica.
+    pub grating: u32,
+    /// Index among this grating's replicas (0 = nearest the top vHOE).
     pub index: u32,
+    /// Plate contacts along the guided path before the replica left it (identifies it across
+    /// the field, with the grating).
+    pub contact: u32,
+    /// The wavelength it was traced at: this grating's Bragg wavelength for the ray, nm.
+    pub lambda_nm: f64,
     /// Bottom-vHOE contact on the back face (x, y, z = w), mm.
     pub bottom_contact_mm: [f64; 3],
     /// Where the branch leaves the front face toward the user (x, y, 0), mm.
@@ -36,12 +43,32 @@ pub struct ProbeReplica {
     pub weight_tm: f64,
 }
 
-/// Result of `probe`.
+/// What one grating does with a probed chief ray.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProbeGrating {
+    /// Grating index in the film's list.
+    pub grating: u32,
+    /// Exact Bragg wavelength of the chief ray for this grating, nm.
+    pub lambda_nm: f64,
+    /// Polar angle of this grating's guided ray inside the glass, degrees.
+    pub guided_angle_deg: f64,
+    /// Its replica pitch 2w·tanΘ', mm.
+    pub replica_pitch_mm: f64,
+    /// Its replicas (entries of [`ProbeResult::replicas`] with this grating).
+    pub replicas: usize,
+    /// Its total weight to the object (display polarisation).
+    pub weight: f64,
+}
+
+/// Result of `probe`. The top-level wavelength, guided angle and pitch are those of the first
+/// grating with a Bragg wavelength for the ray (the only one in a single-grating film);
+/// `gratings` has every grating's, and `replicas` every (grating, contact), each traced at its
+/// own grating's Bragg wavelength.
 #[derive(Clone, Debug, Serialize)]
 pub struct ProbeResult {
     /// Pixel (col, row) in the crop.
     pub pixel: [usize; 2],
-    /// Exact Bragg wavelength of the chief ray, nm.
+    /// Exact Bragg wavelength of the chief ray, nm (first grating).
     pub lambda_nm: f64,
     /// Unit direction leaving the lens toward the screen.
     pub camera_ray_dir: [f64; 3],
@@ -53,8 +80,10 @@ pub struct ProbeResult {
     pub n_glass: f64,
     /// Replica pitch 2w·tanΘ', mm.
     pub replica_pitch_mm: f64,
-    /// Replicas in order.
+    /// Replicas, grating by grating, in contact order.
     pub replicas: Vec<ProbeReplica>,
+    /// Per grating: Bragg wavelength, guided angle, pitch, replica count.
+    pub gratings: Vec<ProbeGrating>,
     /// Weight of the straight-through branch (0 when the top vHOE is covered).
     pub direct_weight: f64,
     /// Guided weight left when the path stopped on its weight limit (bias bound).
@@ -65,7 +94,8 @@ fn v3(p: DVec2, z: f64) -> [f64; 3] {
     [p.x, p.y, z]
 }
 
-/// Traces the chief ray of `dir` from the lens centre at its Bragg wavelength.
+/// Traces the chief ray of `dir` from the lens centre at each grating's Bragg wavelength;
+/// `None` if no grating has one.
 pub fn probe_direction(
     sys: &System,
     origin: DVec3,
@@ -73,7 +103,33 @@ pub fn probe_direction(
     pixel: [usize; 2],
 ) -> Option<ProbeResult> {
     let wg = &sys.waveguide;
-    let lambda = wg.grating.bragg_wavelength_nm(-dir.truncate())?;
+    let mut result: Option<ProbeResult> = None;
+    for j in 0..wg.gratings.len() {
+        let Some(p) = probe_grating(sys, origin, dir, pixel, j) else {
+            continue;
+        };
+        match &mut result {
+            None => result = Some(p),
+            Some(r) => {
+                r.replicas.extend(p.replicas);
+                r.gratings.extend(p.gratings);
+            }
+        }
+    }
+    result
+}
+
+/// The chief ray of `dir` traced at grating `j`'s Bragg wavelength, keeping that grating's
+/// replicas.
+pub fn probe_grating(
+    sys: &System,
+    origin: DVec3,
+    dir: DVec3,
+    pixel: [usize; 2],
+    j: usize,
+) -> Option<ProbeResult> {
+    let wg = &sys.waveguide;
+    let lambda = wg.gratings.get(j).bragg_wavelength_nm(-dir.truncate())?;
     let pol = sys.display.polarization_weights;
     let mut replicas = Vec::new();
     let mut direct_weight = 0.0;
@@ -96,25 +152,32 @@ pub fn probe_direction(
             let weight = pol[0] * b.weight[0] + pol[1] * b.weight[1];
             match b.kind {
                 BranchKind::Direct => direct_weight += weight,
-                BranchKind::Replica(index) => replicas.push(ProbeReplica {
-                    index,
-                    bottom_contact_mm: v3(b.bottom_contact_mm.unwrap_or_default(), w),
-                    exit_point_mm: v3(b.exit_point_mm, 0.0),
-                    object_point_mm: v3(b.object_point_mm, sys.display.z_mm),
-                    weight,
-                    weight_te: b.weight[0],
-                    weight_tm: b.weight[1],
-                }),
+                BranchKind::Replica(index) if b.grating as usize == j => {
+                    replicas.push(ProbeReplica {
+                        grating: b.grating,
+                        index,
+                        contact: b.contact,
+                        lambda_nm: lambda,
+                        bottom_contact_mm: v3(b.bottom_contact_mm.unwrap_or_default(), w),
+                        exit_point_mm: v3(b.exit_point_mm, 0.0),
+                        object_point_mm: v3(b.object_point_mm, sys.display.z_mm),
+                        weight,
+                        weight_te: b.weight[0],
+                        weight_tm: b.weight[1],
+                    })
+                }
+                BranchKind::Replica(_) => {}
             }
         },
     );
     let n = summary.n_glass;
-    let ug = summary.guided_u.length();
+    let ug = summary.guided_u_by_grating[j].length();
     let guided = if ug > 0.0 && ug < n {
         (ug / n).asin()
     } else {
         f64::NAN
     };
+    let pitch = 2.0 * w * guided.tan();
     Some(ProbeResult {
         pixel,
         lambda_nm: lambda,
@@ -125,7 +188,15 @@ pub fn probe_direction(
         ],
         guided_angle_deg: guided.to_degrees(),
         n_glass: n,
-        replica_pitch_mm: 2.0 * w * guided.tan(),
+        replica_pitch_mm: pitch,
+        gratings: vec![ProbeGrating {
+            grating: j as u32,
+            lambda_nm: lambda,
+            guided_angle_deg: guided.to_degrees(),
+            replica_pitch_mm: pitch,
+            replicas: replicas.len(),
+            weight: replicas.iter().map(|r| r.weight).sum(),
+        }],
         replicas,
         direct_weight,
         truncated_weight: summary.truncated_weight,
@@ -219,12 +290,43 @@ pub struct DesignInfo {
     pub sensor_distance_mm: f64,
     /// Which object rows and columns the crop sees through a strong replica.
     pub object_coverage: ObjectCoverage,
+    /// Per grating of the film (one entry for a single-grating film): its recording, period,
+    /// field points and the display centre's replicas through it. The top-level
+    /// `grating_period_nm`, `field` and `replica_pitch_sensor_px` are the first grating's;
+    /// `point_replicas` lists every grating's.
+    pub gratings: Vec<GratingInfo>,
 }
 
-/// Where a point object appears on the sensor through one replica.
+/// What `info` reports for one grating of the film.
+#[derive(Clone, Debug, Serialize)]
+pub struct GratingInfo {
+    /// Grating index in the film's list.
+    pub grating: u32,
+    /// Recording wavelength, nm.
+    pub recording_wavelength_nm: f64,
+    /// Reference-beam angle inside the film, degrees.
+    pub reference_angle_deg: f64,
+    /// Object-beam angle inside the film, degrees.
+    pub object_angle_deg: f64,
+    /// Index modulation n1.
+    pub index_modulation: f64,
+    /// Grating period, nm.
+    pub grating_period_nm: f64,
+    /// Field points (centre and the four crop edges) through this grating.
+    pub field: Vec<FieldPoint>,
+    /// Sensor rows of the display centre's replicas through this grating.
+    pub point_replicas: Vec<PointReplica>,
+    /// Mean spacing (px) of its replicas above 5 % of its brightest.
+    pub replica_pitch_sensor_px: f64,
+}
+
+/// Where a point object appears on the sensor through one replica (grating, contact).
 #[derive(Clone, Debug, Serialize)]
 pub struct PointReplica {
-    /// Plate contacts along the guided path (identifies the replica across the field).
+    /// The grating that couples the replica.
+    pub grating: u32,
+    /// Plate contacts along the guided path (identifies the replica across the field, with
+    /// the grating).
     pub contact: u32,
     /// Continuous sensor row (pixel centres at integers; row 0 = top of the crop).
     pub row: f64,
@@ -252,15 +354,15 @@ pub fn point_replicas_in(
     let cam = &sys.camera;
     let pitch = cam.pitch_mm;
     let v_of_row = |row: f64| (0.5 * cam.height_px as f64 - (row + 0.5) + cam.offset_px.y) * pitch;
-    // Object y per contact number for the chief ray at image height v.
-    let objects = |v: f64| -> Vec<(u32, f64, f64)> {
+    // Object y per replica key (grating, contact) for the chief ray at image height v, each
+    // grating's replicas traced at that grating's Bragg wavelength.
+    let objects = |v: f64| -> Vec<(u64, f64, f64)> {
         let ray = cam.ray_through(DVec2::new(cam.offset_px.x * pitch, v), DVec2::ZERO);
         let mut out = Vec::new();
-        if let Some(lambda) = sys
-            .waveguide
-            .grating
-            .bragg_wavelength_nm(-ray.dir.truncate())
-        {
+        for (j, grating) in sys.waveguide.gratings.as_slice().iter().enumerate() {
+            let Some(lambda) = grating.bragg_wavelength_nm(-ray.dir.truncate()) else {
+                continue;
+            };
             let pol = sys.display.polarization_weights;
             trace_camera_path(
                 &sys.waveguide,
@@ -270,9 +372,9 @@ pub fn point_replicas_in(
                 ray.dir,
                 lambda,
                 |b| {
-                    if let BranchKind::Replica(_) = b.kind {
+                    if matches!(b.kind, BranchKind::Replica(_)) && b.grating as usize == j {
                         out.push((
-                            b.contact,
+                            b.replica_key(),
                             b.object_point_mm.y,
                             pol[0] * b.weight[0] + pol[1] * b.weight[1],
                         ));
@@ -282,7 +384,7 @@ pub fn point_replicas_in(
         }
         out
     };
-    let find = |v: f64, k: u32| objects(v).into_iter().find(|o| o.0 == k);
+    let find = |v: f64, k: u64| objects(v).into_iter().find(|o| o.0 == k);
     let steps = 4 * ((row_hi - row_lo).ceil() as usize).max(50);
     let mut found: Vec<PointReplica> = Vec::new();
     let v_start = v_of_row(row_lo);
@@ -315,7 +417,8 @@ pub fn point_replicas_in(
             if let Some((_, _, wgt)) = find(v_hit, k) {
                 let row = 0.5 * cam.height_px as f64 + cam.offset_px.y - v_hit / pitch - 0.5;
                 found.push(PointReplica {
-                    contact: k,
+                    grating: (k >> 32) as u32,
+                    contact: k as u32,
                     row,
                     weight: wgt,
                 });
@@ -570,9 +673,28 @@ pub(crate) fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option
             return Some("sensor crop");
         }
     }
+    // A multiplexed film sees the field if any of its gratings does; otherwise the first
+    // grating's reason is given.
+    let mut first = None;
+    for j in 0..wg.gratings.len() {
+        match grating_blocker(sys, dir, j) {
+            None => return None,
+            Some(why) => {
+                first.get_or_insert(why);
+            }
+        }
+    }
+    first
+}
+
+/// Why grating `j` does not bring the chief ray along `dir` to the display, or `None`.
+fn grating_blocker(sys: &System, dir: DVec3, j: usize) -> Option<&'static str> {
+    let cam = &sys.camera;
+    let wg = &sys.waveguide;
+    let grating = wg.gratings.get(j);
     let u = -dir.truncate();
-    let lambda = wg.grating.bragg_wavelength_nm(u);
-    let n = wg.n_glass(lambda.unwrap_or(sys.scene.hoe.recording_wavelength_nm));
+    let lambda = grating.bragg_wavelength_nm(u);
+    let n = wg.n_glass(lambda.unwrap_or(sys.scene.hoe.gratings()[j].recording_wavelength_nm));
     let (_, p_top) = plate_crossing(wg, cam.lens_center_mm, dir, n);
     if !wg.top.contains(p_top) {
         return Some("top vHOE aperture");
@@ -580,11 +702,11 @@ pub(crate) fn field_blocker(sys: &System, dir: DVec3, with_crop: bool) -> Option
     let Some(lambda) = lambda.filter(|&l| sys.wavelengths.in_band(l)) else {
         return Some("Bragg band outside the simulated spectrum");
     };
-    let ug = u - wg.grating.u_shift(lambda);
+    let ug = u - grating.u_shift(lambda);
     if ug.length_squared() <= 1.0 {
         return Some("TIR (guided angle below critical)");
     }
-    let p = probe_direction(sys, cam.lens_center_mm, dir, [0, 0])?;
+    let p = probe_grating(sys, cam.lens_center_mm, dir, [0, 0], j)?;
     if p.replicas.iter().all(|r| r.weight <= 0.0) {
         return Some("bottom vHOE (no contact)");
     }
@@ -633,7 +755,7 @@ fn scan_fov(sys: &System, vertical: bool, with_crop: bool) -> Fov {
 pub fn info(sys: &System) -> DesignInfo {
     let wg = &sys.waveguide;
     let cam = &sys.camera;
-    let lambda0 = sys.scene.hoe.recording_wavelength_nm;
+    let lambda0 = sys.scene.hoe.primary_wavelength_nm();
     let n0 = wg.n_glass(lambda0);
     let (w, h) = (cam.width_px, cam.height_px);
     let points = [
@@ -643,29 +765,57 @@ pub fn info(sys: &System) -> DesignInfo {
         ("left", 0, h / 2),
         ("right", w - 1, h / 2),
     ];
-    let field: Vec<FieldPoint> = points
-        .iter()
-        .filter_map(|&(name, col, row)| {
-            probe(sys, col, row).ok().map(|p| FieldPoint {
-                name: name.into(),
-                pixel: [col, row],
-                lambda_nm: p.lambda_nm,
-                guided_angle_deg: p.guided_angle_deg,
-                replica_pitch_mm: p.replica_pitch_mm,
-                replicas: p.replicas.len(),
-                replicas_above_5pct: count_above(&p, 0.05),
+    let field_of = |j: usize| -> Vec<FieldPoint> {
+        points
+            .iter()
+            .filter_map(|&(name, col, row)| {
+                let ray = cam.chief_ray(col, row);
+                probe_grating(sys, ray.origin, ray.dir, [col, row], j).map(|p| FieldPoint {
+                    name: name.into(),
+                    pixel: [col, row],
+                    lambda_nm: p.lambda_nm,
+                    guided_angle_deg: p.guided_angle_deg,
+                    replica_pitch_mm: p.replica_pitch_mm,
+                    replicas: p.replicas.len(),
+                    replicas_above_5pct: count_above(&p, 0.05),
+                })
             })
+            .collect()
+    };
+    let point = point_replicas(sys, sys.display.center_mm);
+    let gratings: Vec<GratingInfo> = sys
+        .scene
+        .hoe
+        .gratings()
+        .iter()
+        .enumerate()
+        .map(|(j, d)| {
+            let reps: Vec<PointReplica> = point
+                .iter()
+                .filter(|r| r.grating as usize == j)
+                .cloned()
+                .collect();
+            GratingInfo {
+                grating: j as u32,
+                recording_wavelength_nm: d.recording_wavelength_nm,
+                reference_angle_deg: d.reference_angle_deg,
+                object_angle_deg: d.object_angle_deg,
+                index_modulation: d.index_modulation,
+                grating_period_nm: wg.gratings.get(j).period_nm(),
+                field: field_of(j),
+                replica_pitch_sensor_px: strong_replica_spacing_px(&reps, 0.05),
+                point_replicas: reps,
+            }
         })
         .collect();
-    let point = point_replicas(sys, sys.display.center_mm);
     DesignInfo {
         critical_angle_deg: critical_angle(n0, 1.0).to_degrees(),
-        film_critical_angle_deg: critical_angle(wg.grating.n_film, 1.0).to_degrees(),
+        film_critical_angle_deg: critical_angle(wg.gratings.film().n_film, 1.0).to_degrees(),
         n_glass_recording: n0,
-        grating_period_nm: wg.grating.period_nm(),
-        replica_pitch_sensor_px: strong_replica_spacing_px(&point, 0.05),
+        grating_period_nm: wg.gratings.film().period_nm(),
+        replica_pitch_sensor_px: gratings[0].replica_pitch_sensor_px,
         point_replicas: point,
-        field,
+        field: gratings[0].field.clone(),
         fov_vertical_waveguide: scan_fov(sys, true, false),
         fov_vertical_capture: scan_fov(sys, true, true),
         fov_horizontal_waveguide: scan_fov(sys, false, false),
@@ -673,5 +823,6 @@ pub fn info(sys: &System) -> DesignInfo {
         focus_distance_mm: cam.focus_distance_mm,
         sensor_distance_mm: cam.sensor_distance_mm,
         object_coverage: object_coverage(sys),
+        gratings,
     }
 }

@@ -190,14 +190,14 @@ impl ClosedForm {
             AutoOr::Value(v) => v,
             AutoOr::Word(_) => {
                 s.camera.distance_mm
-                    + 2.0 * w / glass.index(s.hoe.recording_wavelength_nm)
+                    + 2.0 * w / glass.index(s.hoe.primary_wavelength_nm())
                     + s.display.distance_mm
             }
         };
         let (cw, ch) = s.sensor.crop_px.size();
         ClosedForm {
-            lambda0_nm: s.hoe.recording_wavelength_nm,
-            reference_angle_deg: s.hoe.reference_angle_deg,
+            lambda0_nm: s.hoe.gratings()[0].recording_wavelength_nm,
+            reference_angle_deg: s.hoe.gratings()[0].reference_angle_deg,
             n_film: s.hoe.mean_index,
             thickness_mm: w,
             glass,
@@ -580,6 +580,8 @@ pub struct Row {
     pub pass: bool,
     /// Remark (limiting element names, ...).
     pub note: String,
+    /// The grating of the film the row is about (0 in a single-grating film).
+    pub grating: u32,
 }
 
 /// Maxima over the rows of one quantity.
@@ -632,6 +634,12 @@ pub mod quantity {
     pub const ROWS: &str = "sensor row of a display-centre point (px)";
     /// Count vs height.
     pub const COUNT_H: &str = "replica count vs bottom-vHOE height";
+    /// Multiplexed film: a grating's Bragg wavelength against the grating alone.
+    pub const MULTIPLEX_LAMBDA: &str = "multiplexed λ_B − the grating alone's (nm)";
+    /// Multiplexed film: a grating's guided angle against the grating alone.
+    pub const MULTIPLEX_GUIDED: &str = "multiplexed Θ' − the grating alone's (deg)";
+    /// Multiplexed film: largest distance between replica exit points.
+    pub const MULTIPLEX_EXIT: &str = "multiplexed replica exit points − the grating alone's (mm)";
     /// FOV edge, bisection.
     pub const FOV_TRACED: &str = "FOV edge, traced chief ray bisected (deg)";
     /// FOV edge vs info.
@@ -684,6 +692,7 @@ fn row(
         tolerance: tol,
         pass,
         note: String::new(),
+        grating: 0,
     }
 }
 
@@ -768,8 +777,117 @@ fn traced_edge(sys: &System, vertical: bool, sign: f64) -> Option<f64> {
 
 /// Compares the closed forms of `ClosedForm::from_scene(&sys.scene)` with the tracer over
 /// `n_fields` (at least 50) field angles; see the module documentation.
+///
+/// A multiplexed film is compared grating by grating: each grating's closed forms (those of a
+/// film holding that grating alone; they assume an object beam normal to the film, so a
+/// grating with an object angle has no closed-form rows) against the tracer with that grating
+/// alone, and then the multiplexed tracer's geometry for each grating (Bragg wavelength, guided
+/// angle, replica exit points of the chief rays, section "multiplex") against the same
+/// grating alone: the other gratings change weights, never geometry. Rows carry the grating.
 pub fn compare(sys: &System, n_fields: usize) -> AnalyticReport {
-    compare_with(sys, &ClosedForm::from_scene(&sys.scene), n_fields)
+    let descs = sys.scene.hoe.gratings();
+    if descs.len() == 1 {
+        return compare_with(sys, &ClosedForm::from_scene(&sys.scene), n_fields);
+    }
+    let mut merged: Option<AnalyticReport> = None;
+    for (j, d) in descs.iter().enumerate() {
+        let alone = rebuilt(sys, |s| s.hoe.grating = vec![d.clone()]);
+        let mut rows = if d.object_angle_deg == 0.0 {
+            let mut r = compare_with(&alone, &ClosedForm::from_scene(&alone.scene), n_fields);
+            if let Some(m) = &merged {
+                r.fields_deg.clear();
+                r.closed_form = m.closed_form.clone();
+            }
+            let rows = std::mem::take(&mut r.rows);
+            if merged.is_none() {
+                merged = Some(r);
+            }
+            rows
+        } else {
+            Vec::new()
+        };
+        rows.extend(multiplex_rows(sys, &alone, j));
+        rows.iter_mut().for_each(|r| r.grating = j as u32);
+        match &mut merged {
+            Some(m) => m.rows.extend(rows),
+            None => {
+                merged = Some(AnalyticReport {
+                    fields_deg: Vec::new(),
+                    closed_form: ClosedForm::from_scene(&sys.scene),
+                    rows,
+                    summary: Vec::new(),
+                    pass: true,
+                })
+            }
+        }
+    }
+    let mut m = merged.expect("a film holds at least one grating");
+    m.summary = summarise(&m.rows);
+    m.pass = m.rows.iter().all(|r| r.pass);
+    m
+}
+
+/// Section "multiplex": grating `j` of the multiplexed `sys` against `alone` (the same scene
+/// with grating j only), over chief rays of 41 vertical fields: Bragg wavelength, guided angle
+/// and every replica's front-face exit point must agree to 1e-12 (relative; mm for points).
+fn multiplex_rows(sys: &System, alone: &System, j: usize) -> Vec<Row> {
+    let lens = sys.camera.lens_center_mm;
+    let mut rows = Vec::new();
+    let tol = 1e-12;
+    for k in 0..41 {
+        let v = -20.0 + k as f64;
+        let dir = DVec3::from_array(ClosedForm::camera_dir(0.0, v));
+        let multi = crate::analysis::probe_grating(sys, lens, dir, [0, 0], j);
+        let single = crate::analysis::probe_grating(alone, lens, dir, [0, 0], 0);
+        let (Some(m), Some(s)) = (multi, single) else {
+            continue;
+        };
+        // Beyond the top vHOE's aperture neither has a guided wave (both NaN): nothing to
+        // compare.
+        if m.guided_angle_deg.is_nan() && s.guided_angle_deg.is_nan() && s.replicas.is_empty() {
+            continue;
+        }
+        let exit_diff = if m.replicas.len() == s.replicas.len() {
+            m.replicas
+                .iter()
+                .zip(&s.replicas)
+                .map(|(a, b)| {
+                    (DVec3::from_array(a.exit_point_mm) - DVec3::from_array(b.exit_point_mm))
+                        .length()
+                })
+                .fold(0.0, f64::max)
+        } else {
+            f64::INFINITY
+        };
+        for (q, cf_value, st) in [
+            (quantity::MULTIPLEX_LAMBDA, s.lambda_nm, m.lambda_nm),
+            (
+                quantity::MULTIPLEX_GUIDED,
+                s.guided_angle_deg,
+                m.guided_angle_deg,
+            ),
+            (quantity::MULTIPLEX_EXIT, 0.0, exit_diff),
+        ] {
+            let scale = if q == quantity::MULTIPLEX_EXIT {
+                1.0
+            } else {
+                st
+            };
+            rows.push(row(
+                "multiplex",
+                q,
+                Some(k),
+                [0.0, v],
+                f64::NAN,
+                cf_value,
+                st,
+                scale,
+                tol,
+                false,
+            ));
+        }
+    }
+    rows
 }
 
 /// [`compare`] with given closed-form inputs (e.g. perturbed, to check the comparison fails).
@@ -783,7 +901,13 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
     // A weak-grating copy for the throughput-peak search: with n1 → 0 the losses (1 − η) at
     // the contacts before the first replica are ≈ 1, so its throughput is one Bragg lobe
     // η_top·η_in ∝ ν⁴ sinc⁴ξ.
-    let weak = rebuilt(sys, |s| s.hoe.index_modulation = WEAK_INDEX_MODULATION);
+    let weak = rebuilt(sys, |s| {
+        s.hoe.index_modulation = Some(WEAK_INDEX_MODULATION);
+        s.hoe
+            .grating
+            .iter_mut()
+            .for_each(|g| g.index_modulation = WEAK_INDEX_MODULATION);
+    });
     let mut rows = Vec::new();
 
     // Field list spanning the waveguide's field (97 % of the closed-form edges).
@@ -1378,5 +1502,39 @@ impl AnalyticReport {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn two_grating(sets: &[&str]) -> System {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/two-grating.toml");
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap()
+    }
+
+    /// The "multiplex" rows: each grating of the film traced with the other present has the
+    /// geometry of the grating alone (exactly); against a grating 0.01° off (the failing
+    /// input) the same rows fail.
+    #[test]
+    fn multiplexed_geometry_is_each_grating_alone() {
+        let sys = two_grating(&[]);
+        for j in 0..2 {
+            let d = sys.scene.hoe.gratings()[j].clone();
+            let alone = rebuilt(&sys, |s| s.hoe.grating = vec![d.clone()]);
+            let rows = multiplex_rows(&sys, &alone, j);
+            assert!(rows.len() >= 60, "{}", rows.len());
+            assert!(rows.iter().all(|r| r.pass), "grating {j}");
+            let mut off = d.clone();
+            off.reference_angle_deg += 0.01;
+            let wrong = rebuilt(&sys, |s| s.hoe.grating = vec![off]);
+            let rows = multiplex_rows(&sys, &wrong, j);
+            assert!(
+                rows.iter().filter(|r| !r.pass).count() > rows.len() / 2,
+                "grating {j}: a 0.01° error must fail"
+            );
+        }
     }
 }

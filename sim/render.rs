@@ -242,7 +242,7 @@ fn camera_samples_with(
     let u = &mut u[..out.len()];
     sampler.get_batch(start, u);
     // The glass index of the see-through test is the same for every ray.
-    let n0 = sys.waveguide.n_glass(sys.scene.hoe.recording_wavelength_nm);
+    let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
     for (o, u) in out.iter_mut().zip(u.iter()) {
         *o = camera_sample_at(sys, col, row, u, n0, estimator);
     }
@@ -262,10 +262,11 @@ fn camera_sample_at(
     let ray = sys
         .camera
         .generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
+    // Each grating's Bragg wavelength for this ray (the wavelength density's components).
     let lb = sys
         .waveguide
-        .grating
-        .bragg_wavelength_nm(-ray.dir.truncate());
+        .gratings
+        .bragg_wavelengths_nm(-ray.dir.truncate());
     // Paths that also see straight through the plate need a broadband wavelength density.
     let fu = if estimator == Estimator::UniformAnalog {
         1.0
@@ -276,7 +277,7 @@ fn camera_sample_at(
     } else {
         sys.wavelengths.uniform_fraction()
     };
-    let (lambda, pdf) = sys.wavelengths.sample_mixed(u[4], lb, fu);
+    let (lambda, pdf) = sys.wavelengths.sample_multiplexed(u[4], &lb, fu);
     if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
         return None;
     }
@@ -422,21 +423,23 @@ fn world_sample(
 ) -> f64 {
     use crate::world::integrator::{PathRng, branch_weights};
     let pol = sys.display.polarization_weights;
-    let mut branches: Vec<(glam::DVec2, [f64; 2], u32)> = Vec::with_capacity(16);
+    // (exit point, weight, replica key (grating, contact)).
+    let mut branches: Vec<(glam::DVec2, [f64; 2], u64)> = Vec::with_capacity(16);
     trace_counted(sys, s, stats, |b| {
         if b.weight[0] > 0.0 || b.weight[1] > 0.0 {
-            branches.push((b.exit_point_mm, b.weight, b.contact));
+            branches.push((b.exit_point_mm, b.weight, b.replica_key()));
         }
         ControlFlow::Continue(())
     });
     let strongest = branches.iter().map(|b| b.1[0] + b.1[1]).fold(0.0, f64::max);
     let threshold = BRANCH_ROULETTE_FRACTION * strongest;
     let mut total = 0.0;
-    for (exit, weight, contact) in branches {
-        let mut rng = PathRng::new(&[key[0], key[1], key[2], u64::from(contact)]);
+    for (exit, weight, replica) in branches {
+        let mut rng = PathRng::new(&[key[0], key[1], key[2], replica]);
         if let Some(n) = padded_n {
-            // One padded set per (seed, pixel, branch contact), shared by the pixel's samples.
-            let pad_key = PathRng::padded_key(&[key[0], key[1], u64::from(contact)]);
+            // One padded set per (seed, pixel, replica (grating, contact)), shared by the
+            // pixel's samples.
+            let pad_key = PathRng::padded_key(&[key[0], key[1], replica]);
             rng = rng.with_padded(pad_key, key[2], n);
         }
         let w = weight[0] + weight[1];
@@ -712,8 +715,8 @@ fn finish_pixel(
 /// ([`UserSideSampler::Resampled`]).
 #[derive(Clone, Copy, Debug)]
 struct PendingBranch {
-    /// The branch's plate contact (its replica, [`crate::trace::Branch::contact`]).
-    contact: u32,
+    /// The branch's replica, (grating, plate contact) as [`crate::trace::Branch::replica_key`].
+    replica: u64,
     /// Its camera sample's index in [`Window::samples`] (the samples in order).
     sample: u32,
     /// Front-face exit point, mm.
@@ -768,7 +771,7 @@ fn render_row_resampled(
 /// where v_ib (the branch's TE/TM weights, cos⁴θ/p(λ) and the channel responses at λ_i) comes
 /// from the cheap waveguide trace and L_ib (the radiance arriving along the branch's exit ray)
 /// from an expensive user-side path. Each sample's branches are gathered per replica
-/// (plate contact c); replica c's sum Σ_j v_j·L_j over its G_c branches, of total selection
+/// (grating and plate contact c); replica c's sum Σ_j v_j·L_j over its G_c branches, of total selection
 /// weight S_c = Σ_j s_j, is estimated from K_c user-side paths traced from branches drawn by
 /// systematic resampling in proportion to s_j (one uniform offset, the branches in sample
 /// order): (S_c/K_c)·Σ_k v_jk·L̂_jk/s_jk. Systematic resampling draws branch j K_c·s_j/S_c times
@@ -837,7 +840,7 @@ fn render_pixel_resampled(
                     let sel = 0.5 * (b.weight[0] + b.weight[1]) * sel_scale;
                     if sel > 0.0 && sel.is_finite() {
                         pending.branches.push(PendingBranch {
-                            contact: b.contact,
+                            replica: b.replica_key(),
                             sample,
                             exit: b.exit_point_mm,
                             weight: b.weight,
@@ -890,13 +893,14 @@ fn trace_window(
         samples.clear();
         return;
     }
-    branches.sort_unstable_by_key(|p| (p.contact, p.sample));
+    branches.sort_unstable_by_key(|p| (p.replica, p.sample));
     let total: f64 = branches.iter().map(|p| p.sel).sum();
     let paths = USER_SIDE_PATHS_PER_SAMPLE * (window.1 - window.0) as f64;
     let pol = sys.display.polarization_weights;
     let padded = set.sampler != SamplerKind::Independent;
-    for group in branches.chunk_by(|a, b| a.contact == b.contact) {
-        let contact = u64::from(group[0].contact);
+    for group in branches.chunk_by(|a, b| a.replica == b.replica) {
+        // The replica's key (grating, contact); the contact alone for grating 0.
+        let contact = group[0].replica;
         let s_c: f64 = group.iter().map(|p| p.sel).sum();
         let q = paths * s_c / total;
         let h = crate::sampler::hash(&[set.seed, pixel, RESAMPLED_TAG ^ window.0, contact]);

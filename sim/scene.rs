@@ -132,22 +132,100 @@ pub struct PlateDesc {
     pub absorption_per_mm: AutoOr,
 }
 
-/// `[hoe]`: properties shared by both volume holograms.
+/// `[hoe]`: the film both volume holograms are made of, and the gratings recorded in it.
+///
+/// A film holds one or more gratings. The single-grating keys (`recording_wavelength_nm`,
+/// `reference_angle_deg`, `index_modulation`) describe one grating; a scene may instead list
+/// `[[hoe.grating]]` entries ([`GratingDesc`], at most [`MAX_GRATINGS`]); giving both is an
+/// error. Thickness, mean index and absorption belong to the film and are shared.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HoeDesc {
-    /// Recording wavelength λ0 in nm.
-    pub recording_wavelength_nm: f64,
-    /// Reference-beam angle inside the film, degrees.
-    pub reference_angle_deg: f64,
+    /// Recording wavelength λ0 in nm (single-grating form).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_wavelength_nm: Option<f64>,
+    /// Reference-beam angle inside the film, degrees (single-grating form).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_angle_deg: Option<f64>,
     /// Film thickness in µm.
     pub film_thickness_um: f64,
-    /// Index modulation n1 (peak-to-mean).
-    pub index_modulation: f64,
+    /// Index modulation n1 (peak-to-mean; single-grating form).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub index_modulation: Option<f64>,
     /// Mean film index.
     pub mean_index: f64,
     /// Mean amplitude absorption α0 of the film in 1/mm.
     pub amplitude_absorption_per_mm: f64,
+    /// Gratings multiplexed in the film (`[[hoe.grating]]`); empty in the single-grating form.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub grating: Vec<GratingDesc>,
+}
+
+/// One grating of a multiplexed film (`[[hoe.grating]]`): the recording that made it.
+/// Recording beams inside the film: object ŝ_O = (0, sin θ_O, cos θ_O), reference
+/// ŝ_R = (0, sin θ_R, −cos θ_R).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GratingDesc {
+    /// Recording wavelength λ0 in nm.
+    pub recording_wavelength_nm: f64,
+    /// Reference-beam angle θ_R inside the film, degrees from −z.
+    pub reference_angle_deg: f64,
+    /// Object-beam angle θ_O inside the film, degrees from +z (0: normal to the film).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub object_angle_deg: f64,
+    /// Index modulation n1 of this grating (peak-to-mean).
+    pub index_modulation: f64,
+}
+
+/// The most gratings one film may hold (`[[hoe.grating]]` entries): the tracer keeps a
+/// fixed-capacity array of them, and each grating multiplies a path's cost.
+pub const MAX_GRATINGS: usize = 8;
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// The single-grating keys of `[hoe]`, which `[[hoe.grating]]` entries replace.
+pub const SINGLE_GRATING_KEYS: &[&str] = &[
+    "recording_wavelength_nm",
+    "reference_angle_deg",
+    "index_modulation",
+];
+
+impl HoeDesc {
+    /// The film's gratings in order: the `[[hoe.grating]]` entries, or the one grating of the
+    /// single-grating keys.
+    pub fn gratings(&self) -> Vec<GratingDesc> {
+        if !self.grating.is_empty() {
+            return self.grating.clone();
+        }
+        vec![GratingDesc {
+            recording_wavelength_nm: self.recording_wavelength_nm.unwrap_or(f64::NAN),
+            reference_angle_deg: self.reference_angle_deg.unwrap_or(f64::NAN),
+            object_angle_deg: 0.0,
+            index_modulation: self.index_modulation.unwrap_or(f64::NAN),
+        }]
+    }
+
+    /// The first grating's recording wavelength (nm): the reference wavelength of the design
+    /// (auto focus, the glass index of the see-through test).
+    pub fn primary_wavelength_nm(&self) -> f64 {
+        self.grating.first().map_or_else(
+            || self.recording_wavelength_nm.unwrap_or(f64::NAN),
+            |g| g.recording_wavelength_nm,
+        )
+    }
+
+    /// The key of field `field` of grating `i` as messages name it: `hoe.FIELD` in the
+    /// single-grating form, `hoe.grating[i].FIELD` for a list.
+    pub fn key_of(&self, i: usize, field: &str) -> String {
+        if self.grating.is_empty() {
+            format!("hoe.{field}")
+        } else {
+            format!("hoe.grating[{i}].{field}")
+        }
+    }
 }
 
 /// `[bottom_hoe]`: the in-coupling hologram on the back face.
@@ -355,7 +433,7 @@ impl LoadedScene {
     /// The name to blame for a key: `--set` if it was overridden, else the scene source.
     pub fn origin_of(&self, key: &str) -> String {
         if is_overridden(&self.overridden, key) {
-            format!("--set {key}")
+            format!("--set {}", set_form(key))
         } else {
             self.source.clone()
         }
@@ -377,8 +455,20 @@ impl LoadedScene {
     }
 }
 
+/// `hoe.grating[1].index_modulation` → `hoe.grating.1.index_modulation` (the `--set` form of
+/// a grating entry's key; other keys unchanged).
+fn set_form(key: &str) -> String {
+    if key.starts_with("hoe.grating[") {
+        key.replace("].", ".").replace('[', ".").replace(']', "")
+    } else {
+        key.to_string()
+    }
+}
+
 /// Whether `key` (possibly with a `.field` or `[index]` suffix) was set by `--set`.
 fn is_overridden(overridden: &BTreeSet<String>, key: &str) -> bool {
+    let dotted = set_form(key);
+    let key = dotted.as_str();
     overridden.iter().any(|k| {
         key == k
             || key
@@ -421,7 +511,15 @@ fn merge(
     prefix: &str,
     file: &str,
 ) -> Result<(), SceneError> {
+    if prefix == "hoe" && over.contains_key("grating") {
+        take_grating_list(base, &over, file)?;
+    }
     for (k, v) in over {
+        if prefix == "hoe" && k == "grating" {
+            // Checked and prepared by `take_grating_list`.
+            base.insert(k, v);
+            continue;
+        }
         let key = if prefix.is_empty() {
             k.clone()
         } else {
@@ -457,6 +555,54 @@ fn merge(
             }
             (Some(slot), v) => *slot = v,
         }
+    }
+    Ok(())
+}
+
+/// A scene's `[hoe]` table `over` lists `[[hoe.grating]]` entries: checks they are tables, at
+/// most [`MAX_GRATINGS`], and that `over` does not also give a single-grating key; removes the
+/// embedded scene's single-grating keys from `base` (the list replaces them).
+fn take_grating_list(
+    base: &mut toml::Table,
+    over: &toml::Table,
+    file: &str,
+) -> Result<(), SceneError> {
+    let fail = |key: &str, message: String| SceneError::Key {
+        file: file.to_string(),
+        key: key.to_string(),
+        message,
+    };
+    if let Some(single) = SINGLE_GRATING_KEYS.iter().find(|k| over.contains_key(**k)) {
+        return Err(fail(
+            &format!("hoe.{single}"),
+            format!(
+                "give either [[hoe.grating]] entries or the single-grating keys {}, not both",
+                SINGLE_GRATING_KEYS
+                    .iter()
+                    .map(|k| format!("hoe.{k}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        ));
+    }
+    match over.get("grating") {
+        Some(toml::Value::Array(a)) if !a.is_empty() && a.iter().all(toml::Value::is_table) => {
+            if a.len() > MAX_GRATINGS {
+                return Err(fail(
+                    "hoe.grating",
+                    format!("{} gratings; a film holds at most {MAX_GRATINGS}", a.len()),
+                ));
+            }
+        }
+        _ => {
+            return Err(fail(
+                "hoe.grating",
+                "expected one or more [[hoe.grating]] tables".into(),
+            ));
+        }
+    }
+    for k in SINGLE_GRATING_KEYS {
+        base.remove(*k);
     }
     Ok(())
 }
@@ -508,7 +654,8 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
     };
     let unknown = || fail("unknown key".into());
     let parts: Vec<&str> = key.split('.').collect();
-    let in_list = parts.len() > 2 && LIST_SECTIONS.contains(&parts[0]);
+    let in_list = (parts.len() > 2 && LIST_SECTIONS.contains(&parts[0]))
+        || (parts.len() > 3 && parts[0] == "hoe" && parts[1] == "grating");
     if !table.contains_key(parts[0]) {
         return Err(if LIST_SECTIONS.contains(&parts[0]) {
             fail(format!("the scene has no [[{}]] elements to set", parts[0]))
@@ -530,6 +677,11 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
             }
             toml::Value::Table(t) => {
                 if !t.contains_key(*part) {
+                    if depth == 1 && parts[0] == "hoe" {
+                        if let Some(m) = grating_form_mismatch(t, part) {
+                            return Err(fail(m));
+                        }
+                    }
                     if !in_list {
                         return Err(fail(unknown_key_message(
                             &parts[..depth].join("."),
@@ -554,6 +706,24 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
     }
     *cur = parse_override_value(raw.trim());
     Ok(key.to_string())
+}
+
+/// Why `--set hoe.PART…` cannot apply to the `[hoe]` table `t`: a single-grating key on a
+/// film that lists `[[hoe.grating]]` entries, or a grating entry on one that does not.
+fn grating_form_mismatch(t: &toml::Table, part: &str) -> Option<String> {
+    if t.contains_key("grating") && SINGLE_GRATING_KEYS.contains(&part) {
+        Some(format!(
+            "the scene lists [[hoe.grating]] entries; set hoe.grating.N.{part} (N from 0)"
+        ))
+    } else if part == "grating" && !t.contains_key("grating") {
+        Some(
+            "the scene has no [[hoe.grating]] entries to set; its one grating is \
+             hoe.recording_wavelength_nm, hoe.reference_angle_deg, hoe.index_modulation"
+                .into(),
+        )
+    } else {
+        None
+    }
 }
 
 /// Loads a scene: the embedded paper scene, merged with `path` if given, then the overrides.
@@ -606,7 +776,22 @@ pub fn load_scene_text(
         loaded.base_dir = PathBuf::from(".");
     }
     validate(&loaded)?;
+    canonical_single_grating(&mut loaded.scene.hoe);
     Ok(loaded)
+}
+
+/// A one-entry `[[hoe.grating]]` list with the object beam normal to the film is the same film
+/// as the single-grating keys: it is stored in that form, so the scene (and every output that
+/// records it) is the same whichever form the file used.
+fn canonical_single_grating(h: &mut HoeDesc) {
+    if let [g] = h.grating.as_slice() {
+        if g.object_angle_deg == 0.0 {
+            h.recording_wavelength_nm = Some(g.recording_wavelength_nm);
+            h.reference_angle_deg = Some(g.reference_angle_deg);
+            h.index_modulation = Some(g.index_modulation);
+            h.grating.clear();
+        }
+    }
 }
 
 /// `object[0].mesh` → `object.0.mesh`: keys inside `[[object]]` and `[[light]]` are named as
@@ -693,45 +878,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             format!("expected \"auto\" or a number, got {w:?}")
         })?,
     }
-    in_range(
-        ls,
-        s.hoe.recording_wavelength_nm,
-        200.0,
-        2000.0,
-        "hoe.recording_wavelength_nm",
-    )?;
-    check(
-        ls,
-        s.hoe.reference_angle_deg > 0.0 && s.hoe.reference_angle_deg < 90.0,
-        "hoe.reference_angle_deg",
-        || {
-            format!(
-                "must be in (0, 90) degrees, got {}",
-                sig6(s.hoe.reference_angle_deg)
-            )
-        },
-    )?;
-    positive(ls, s.hoe.film_thickness_um, "hoe.film_thickness_um")?;
-    in_range(ls, s.hoe.mean_index, 1.0, 4.0, "hoe.mean_index")?;
-    check(
-        ls,
-        s.hoe.index_modulation >= 0.0 && s.hoe.index_modulation < s.hoe.mean_index,
-        blame(ls, &["hoe.index_modulation", "hoe.mean_index"]),
-        || {
-            format!(
-                "hoe.index_modulation must be in [0, hoe.mean_index = {}), got {}",
-                sig6(s.hoe.mean_index),
-                sig6(s.hoe.index_modulation)
-            )
-        },
-    )?;
-    in_range(
-        ls,
-        s.hoe.amplitude_absorption_per_mm,
-        0.0,
-        1e4,
-        "hoe.amplitude_absorption_per_mm",
-    )?;
+    validate_hoe(ls)?;
     positive(ls, s.bottom_hoe.width_mm, "bottom_hoe.width_mm")?;
     positive(ls, s.bottom_hoe.height_mm, "bottom_hoe.height_mm")?;
     positive(ls, s.top_hoe.width_mm, "top_hoe.width_mm")?;
@@ -928,6 +1075,100 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     Ok(())
 }
 
+/// Checks `[hoe]`: the film, and each grating with its key named (`hoe.index_modulation`, or
+/// `hoe.grating[1].index_modulation` in a list).
+fn validate_hoe(ls: &LoadedScene) -> Result<(), SceneError> {
+    let h = &ls.scene.hoe;
+    if h.grating.is_empty() {
+        for k in SINGLE_GRATING_KEYS {
+            let given = match *k {
+                "recording_wavelength_nm" => h.recording_wavelength_nm,
+                "reference_angle_deg" => h.reference_angle_deg,
+                _ => h.index_modulation,
+            };
+            check(ls, given.is_some(), &format!("hoe.{k}"), || {
+                "missing: give it, or list [[hoe.grating]] entries".into()
+            })?;
+        }
+    }
+    check(ls, h.grating.len() <= MAX_GRATINGS, "hoe.grating", || {
+        format!(
+            "{} gratings; a film holds at most {MAX_GRATINGS}",
+            h.grating.len()
+        )
+    })?;
+    positive(ls, h.film_thickness_um, "hoe.film_thickness_um")?;
+    in_range(ls, h.mean_index, 1.0, 4.0, "hoe.mean_index")?;
+    let mut total_n1 = 0.0;
+    for (i, g) in h.gratings().iter().enumerate() {
+        let key = |f: &str| h.key_of(i, f);
+        in_range(
+            ls,
+            g.recording_wavelength_nm,
+            200.0,
+            2000.0,
+            &key("recording_wavelength_nm"),
+        )?;
+        let ref_key = key("reference_angle_deg");
+        check(
+            ls,
+            g.reference_angle_deg > 0.0 && g.reference_angle_deg < 90.0,
+            &ref_key,
+            || {
+                format!(
+                    "must be in (0, 90) degrees, got {}",
+                    sig6(g.reference_angle_deg)
+                )
+            },
+        )?;
+        let obj_key = key("object_angle_deg");
+        check(
+            ls,
+            g.object_angle_deg > -90.0 && g.object_angle_deg < 90.0,
+            &obj_key,
+            || {
+                format!(
+                    "must be in (-90, 90) degrees, got {}",
+                    sig6(g.object_angle_deg)
+                )
+            },
+        )?;
+        let n1_key = key("index_modulation");
+        check(
+            ls,
+            g.index_modulation >= 0.0 && g.index_modulation < h.mean_index,
+            blame(ls, &[n1_key.as_str(), "hoe.mean_index"]),
+            || {
+                format!(
+                    "{n1_key} must be in [0, hoe.mean_index = {}), got {}",
+                    sig6(h.mean_index),
+                    sig6(g.index_modulation)
+                )
+            },
+        )?;
+        total_n1 += g.index_modulation;
+        check(
+            ls,
+            total_n1 < h.mean_index,
+            blame(ls, &[n1_key.as_str(), "hoe.mean_index"]),
+            || {
+                format!(
+                    "the gratings' index modulations add up to {} (up to {n1_key}), which must stay below hoe.mean_index = {}",
+                    sig6(total_n1),
+                    sig6(h.mean_index)
+                )
+            },
+        )?;
+    }
+    in_range(
+        ls,
+        h.amplitude_absorption_per_mm,
+        0.0,
+        1e4,
+        "hoe.amplitude_absorption_per_mm",
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -937,7 +1178,8 @@ mod tests {
         let ls = load_scene(None, &[]).unwrap();
         let s = &ls.scene;
         assert_eq!(s.plate.thickness_mm, 2.0);
-        assert_eq!(s.hoe.reference_angle_deg, 61.2);
+        assert_eq!(s.hoe.reference_angle_deg, Some(61.2));
+        assert_eq!(s.hoe.gratings().len(), 1);
         assert_eq!(s.bottom_hoe.height_mm, 50.0);
         assert_eq!(s.sensor.crop_px.size(), (440, 440));
         assert_eq!(s.display.distance_mm, 550.0);

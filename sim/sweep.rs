@@ -390,6 +390,11 @@ pub struct DesignFigures {
     pub bragg_min_nm: f64,
     /// Largest Bragg wavelength over the crop grid, nm.
     pub bragg_max_nm: f64,
+    /// A multiplexed film: Bragg range and efficiency of each grating (empty for one grating;
+    /// the fields above are then the first grating's Bragg range and the whole film's
+    /// efficiency).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_grating: Vec<GratingFigures>,
     /// ADMM-TV PSNR of the target, dB (when computed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psnr_db: Option<f64>,
@@ -544,33 +549,51 @@ pub fn field_response(
     grid: &ResponseGrid,
     dir: DVec3,
 ) -> f64 {
+    field_response_of(sys, weight, grid, dir, None)
+}
+
+/// [`field_response`] through grating `only` of the film (its replicas, integrated around its
+/// Bragg wavelength), or through all of them (`None`: the sum over gratings, each around its
+/// own Bragg wavelength).
+pub fn field_response_of(
+    sys: &System,
+    weight: &SpectralWeight,
+    grid: &ResponseGrid,
+    dir: DVec3,
+    only: Option<usize>,
+) -> f64 {
     if weight.norm <= 0.0 {
         return 0.0;
     }
     let wg = &sys.waveguide;
     let origin = sys.camera.lens_center_mm;
     let pol = sys.display.polarization_weights;
-    let (lo, hi, step) = match wg.grating.bragg_wavelength_nm(-dir.truncate()) {
-        Some(lb) => (
-            (lb - grid.bragg_half_width_nm).max(weight.lo_nm),
-            (lb + grid.bragg_half_width_nm).min(weight.hi_nm),
-            grid.bragg_step_nm,
-        ),
-        None => (weight.lo_nm, weight.hi_nm, grid.broadband_step_nm),
-    };
     let mut sum = 0.0;
-    for (lambda, dl) in bins(lo, hi, step) {
-        let sr = weight.at(lambda);
-        if sr <= 0.0 {
+    for (j, grating) in wg.gratings.as_slice().iter().enumerate() {
+        if only.is_some_and(|o| o != j) {
             continue;
         }
-        let mut w = 0.0;
-        trace_camera_path(wg, sys.display.z_mm, sys.limits, origin, dir, lambda, |b| {
-            if let BranchKind::Replica(_) = b.kind {
-                w += pol[0] * b.weight[0] + pol[1] * b.weight[1];
+        let (lo, hi, step) = match grating.bragg_wavelength_nm(-dir.truncate()) {
+            Some(lb) => (
+                (lb - grid.bragg_half_width_nm).max(weight.lo_nm),
+                (lb + grid.bragg_half_width_nm).min(weight.hi_nm),
+                grid.bragg_step_nm,
+            ),
+            None => (weight.lo_nm, weight.hi_nm, grid.broadband_step_nm),
+        };
+        for (lambda, dl) in bins(lo, hi, step) {
+            let sr = weight.at(lambda);
+            if sr <= 0.0 {
+                continue;
             }
-        });
-        sum += sr * w * dl;
+            let mut w = 0.0;
+            trace_camera_path(wg, sys.display.z_mm, sys.limits, origin, dir, lambda, |b| {
+                if matches!(b.kind, BranchKind::Replica(_)) && b.grating as usize == j {
+                    w += pol[0] * b.weight[0] + pol[1] * b.weight[1];
+                }
+            });
+            sum += sr * w * dl;
+        }
     }
     sum / weight.norm
 }
@@ -643,7 +666,15 @@ fn threshold_interval(angles: &[f64], t: &[f64], fraction: f64) -> Option<(Side,
 /// (front-face contacts under the top vHOE, replicas carrying ≥ `REPLICA_FRACTION` of the
 /// strongest) of the chief ray along `dir` at its Bragg wavelength.
 fn path_counts(sys: &System, dir: DVec3) -> (u32, usize) {
-    let Some(lambda) = sys.waveguide.grating.bragg_wavelength_nm(-dir.truncate()) else {
+    // The first grating with a Bragg wavelength for the ray (the only one in most films).
+    let Some(lambda) = sys
+        .waveguide
+        .gratings
+        .bragg_wavelengths_nm(-dir.truncate())
+        .into_iter()
+        .flatten()
+        .next()
+    else {
         return (0, 0);
     };
     let pol = sys.display.polarization_weights;
@@ -689,8 +720,11 @@ fn edge_limiter(
     }
     let sr = |i: usize| {
         sys.waveguide
-            .grating
-            .bragg_wavelength_nm(-dir(i).truncate())
+            .gratings
+            .bragg_wavelengths_nm(-dir(i).truncate())
+            .into_iter()
+            .flatten()
+            .next()
             .map_or(0.0, |l| weight.at(l))
     };
     let (sr_out, sr_peak) = (sr(out), sr(peak));
@@ -820,17 +854,54 @@ pub fn design_figures(sys: &System, set: &SweepSettings) -> DesignFigures {
         .par_iter()
         .map(|&d| field_response(sys, &weight, grid, d))
         .collect();
-    let lambdas: Vec<f64> = crop_dirs
-        .iter()
-        .filter_map(|d| sys.waveguide.grating.bragg_wavelength_nm(-d.truncate()))
-        .collect();
-    let (bragg_min_nm, bragg_max_nm) = if lambdas.is_empty() {
-        (f64::NAN, f64::NAN)
+    let bragg_range = |j: usize| {
+        let lambdas: Vec<f64> = crop_dirs
+            .iter()
+            .filter_map(|d| {
+                sys.waveguide
+                    .gratings
+                    .get(j)
+                    .bragg_wavelength_nm(-d.truncate())
+            })
+            .collect();
+        if lambdas.is_empty() {
+            (f64::NAN, f64::NAN)
+        } else {
+            (
+                lambdas.iter().copied().fold(f64::INFINITY, f64::min),
+                lambdas.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            )
+        }
+    };
+    // The first grating's Bragg range (the film's only one unless multiplexed).
+    let (bragg_min_nm, bragg_max_nm) = bragg_range(0);
+    // A multiplexed film: Bragg range and efficiency per grating.
+    let n_gratings = sys.waveguide.gratings.len();
+    let per_grating: Vec<GratingFigures> = if n_gratings > 1 {
+        (0..n_gratings)
+            .map(|j| {
+                let (lo, hi) = bragg_range(j);
+                let crop: Vec<f64> = crop_dirs
+                    .par_iter()
+                    .map(|&d| field_response_of(sys, &weight, grid, d, Some(j)))
+                    .collect();
+                GratingFigures {
+                    grating: j as u32,
+                    bragg_min_nm: lo,
+                    bragg_max_nm: hi,
+                    efficiency_on_axis: field_response_of(
+                        sys,
+                        &weight,
+                        grid,
+                        field_direction(0.0, true),
+                        Some(j),
+                    ),
+                    efficiency_crop_mean: crop.iter().sum::<f64>() / crop.len().max(1) as f64,
+                }
+            })
+            .collect()
     } else {
-        (
-            lambdas.iter().copied().fold(f64::INFINITY, f64::min),
-            lambdas.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-        )
+        Vec::new()
     };
     let info = analysis::info(sys);
     let centre = info.field.iter().find(|f| f.name == "centre");
@@ -855,9 +926,25 @@ pub fn design_figures(sys: &System, set: &SweepSettings) -> DesignFigures {
         efficiency_crop_mean: crop_t.iter().sum::<f64>() / crop_t.len().max(1) as f64,
         bragg_min_nm,
         bragg_max_nm,
+        per_grating,
         psnr_db: None,
         psnr_nominal_h_db: None,
     }
+}
+
+/// One grating's figures at a sweep point (multiplexed films; CSV columns `*_gJ`).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct GratingFigures {
+    /// Grating index in the film's list.
+    pub grating: u32,
+    /// Smallest Bragg wavelength of this grating over the crop grid, nm.
+    pub bragg_min_nm: f64,
+    /// Largest, nm.
+    pub bragg_max_nm: f64,
+    /// T on axis through this grating's replicas alone (fraction).
+    pub efficiency_on_axis: f64,
+    /// Mean T over the crop grid's chief rays through this grating alone (fraction).
+    pub efficiency_crop_mean: f64,
 }
 
 /// The demo settings that give the sweep's PSNR protocol.
@@ -1292,7 +1379,33 @@ fn csv_columns(axes: &[VaryAxis], with_psnr: bool) -> Vec<Column> {
 }
 
 fn encode_csv(axes: &[VaryAxis], rows: &[SweepRow], with_psnr: bool) -> Vec<u8> {
-    let cols = csv_columns(axes, with_psnr);
+    let mut cols = csv_columns(axes, with_psnr);
+    // A multiplexed film: per-grating columns NAME_gJ.
+    let n_gratings = rows
+        .iter()
+        .map(|r| r.figures.per_grating.len())
+        .max()
+        .unwrap_or(0);
+    type PerGrating = fn(&GratingFigures) -> f64;
+    let per: [(&str, PerGrating); 4] = [
+        ("bragg_min_nm", |g| g.bragg_min_nm),
+        ("bragg_max_nm", |g| g.bragg_max_nm),
+        ("efficiency_on_axis", |g| g.efficiency_on_axis),
+        ("efficiency_crop_mean", |g| g.efficiency_crop_mean),
+    ];
+    for j in 0..n_gratings {
+        for (name, get) in per {
+            cols.push((
+                format!("{name}_g{j}"),
+                Box::new(move |r: &SweepRow| {
+                    r.figures
+                        .per_grating
+                        .get(j)
+                        .map_or(String::new(), |g| fmt_num(get(g)))
+                }),
+            ));
+        }
+    }
     let mut s = cols
         .iter()
         .map(|c| c.0.as_str())

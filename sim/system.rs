@@ -14,6 +14,7 @@ use crate::display::Display;
 use crate::io::image_load::{LoadedImage, load_image};
 use crate::optics::glass::Glass;
 use crate::optics::grating::VolumeGrating;
+use crate::optics::multiplex::GratingSet;
 use crate::scene::{AutoOr, GlassSpec, LoadedScene, PolarizationSpec, Scene, SceneError};
 use crate::spectra::{self, DisplaySpectrumKind, SensorResponseKind, Spectrum};
 use crate::trace::{TraceLimits, trace_camera_path};
@@ -81,14 +82,23 @@ fn spectrum_kind(name: &str) -> DisplaySpectrumKind {
 /// Builds the waveguide of a scene.
 pub fn build_waveguide(s: &Scene) -> Waveguide {
     let h = &s.hoe;
-    let grating = VolumeGrating::from_recording(
-        h.recording_wavelength_nm,
-        h.reference_angle_deg,
-        h.mean_index,
-        h.film_thickness_um,
-        h.index_modulation,
-        h.amplitude_absorption_per_mm,
-    );
+    let list: Vec<VolumeGrating> = h
+        .gratings()
+        .iter()
+        .map(|g| {
+            VolumeGrating::from_recording_beams(
+                g.recording_wavelength_nm,
+                g.reference_angle_deg,
+                g.object_angle_deg,
+                h.mean_index,
+                h.film_thickness_um,
+                g.index_modulation,
+                h.amplitude_absorption_per_mm,
+            )
+        })
+        .collect();
+    // Validation bounds the list to 1..=MAX_GRATINGS and the film is shared by construction.
+    let gratings = GratingSet::new(&list).unwrap_or_else(|| GratingSet::single(list[0]));
     let bottom = Rect::centered(
         DVec2::ZERO,
         DVec2::new(s.bottom_hoe.width_mm, s.bottom_hoe.height_mm),
@@ -102,7 +112,7 @@ pub fn build_waveguide(s: &Scene) -> Waveguide {
         thickness_mm: s.plate.thickness_mm,
         glass: glass_of(&s.plate.glass),
         absorption_override_per_mm: s.plate.absorption_per_mm.value(),
-        grating,
+        gratings,
         bottom,
         top,
         covered: s.top_hoe.covered,
@@ -113,7 +123,7 @@ pub fn build_waveguide(s: &Scene) -> Waveguide {
 /// Builds the camera of a scene (needs the waveguide for its position and auto focus).
 pub fn build_camera(s: &Scene, wg: &Waveguide) -> Camera {
     let c = &s.camera;
-    let n0 = wg.n_glass(s.hoe.recording_wavelength_nm);
+    let n0 = wg.n_glass(s.hoe.primary_wavelength_nm());
     let focus = match c.focus_distance_mm {
         AutoOr::Value(v) => v,
         AutoOr::Word(_) => c.distance_mm + 2.0 * wg.thickness_mm / n0 + s.display.distance_mm,
@@ -221,7 +231,8 @@ const TABLE_FIELDS: usize = 48;
 /// of `TABLE_FIELDS` rows along the crop's vertical midline (λ_B varies along y), the
 /// end-to-end throughput (all replicas, display polarisation) is traced across
 /// Δλ = λ − λ_B and given a floor of 10⁻³ of its peak (robustness against the field-dependent
-/// side-lobe zeros of neighbouring rows).
+/// side-lobe zeros of neighbouring rows). A multiplexed film gets one set of tables per
+/// grating, around that grating's Bragg wavelength and from its own replicas.
 fn build_wavelength_sampler(
     s: &Scene,
     wg: &Waveguide,
@@ -234,51 +245,64 @@ fn build_wavelength_sampler(
     let bin = 2.0 * TABLE_HALF_WIDTH_NM / TABLE_BINS as f64;
     let pol = display.polarization_weights;
     let half_y = 0.5 * cam.height_px as f64 * cam.pitch_mm;
-    let shapes: Vec<(f64, Vec<f64>)> = (0..TABLE_FIELDS)
-        .into_par_iter()
-        .filter_map(|k| {
-            let y = half_y * (2.0 * k as f64 / (TABLE_FIELDS - 1) as f64 - 1.0);
-            let chief = cam.ray_through(
-                DVec2::new(0.0, y) + cam.offset_px * cam.pitch_mm,
-                DVec2::ZERO,
-            );
-            let lb = wg.grating.bragg_wavelength_nm(-chief.dir.truncate())?;
-            let mut curve: Vec<f64> = (0..TABLE_BINS)
-                .map(|i| {
-                    let lam = lb - TABLE_HALF_WIDTH_NM + (i as f64 + 0.5) * bin;
-                    let mut total = 0.0;
-                    trace_camera_path(
-                        wg,
-                        display.z_mm,
-                        limits,
-                        chief.origin,
-                        chief.dir,
-                        lam,
-                        |b| {
-                            total += pol[0] * b.weight[0] + pol[1] * b.weight[1];
-                        },
+    let n_gratings = wg.gratings.len();
+    let descs = s.hoe.gratings();
+    let per_grating: Vec<(Vec<(f64, Vec<f64>)>, bool)> = (0..n_gratings)
+        .map(|j| {
+            let grating = wg.gratings.get(j);
+            let shapes: Vec<(f64, Vec<f64>)> = (0..TABLE_FIELDS)
+                .into_par_iter()
+                .filter_map(|k| {
+                    let y = half_y * (2.0 * k as f64 / (TABLE_FIELDS - 1) as f64 - 1.0);
+                    let chief = cam.ray_through(
+                        DVec2::new(0.0, y) + cam.offset_px * cam.pitch_mm,
+                        DVec2::ZERO,
                     );
-                    total
+                    let lb = grating.bragg_wavelength_nm(-chief.dir.truncate())?;
+                    let mut curve: Vec<f64> = (0..TABLE_BINS)
+                        .map(|i| {
+                            let lam = lb - TABLE_HALF_WIDTH_NM + (i as f64 + 0.5) * bin;
+                            let mut total = 0.0;
+                            trace_camera_path(
+                                wg,
+                                display.z_mm,
+                                limits,
+                                chief.origin,
+                                chief.dir,
+                                lam,
+                                |b| {
+                                    // One grating: every branch, as always; several: this
+                                    // grating's replicas.
+                                    if n_gratings == 1 || b.grating as usize == j {
+                                        total += pol[0] * b.weight[0] + pol[1] * b.weight[1];
+                                    }
+                                },
+                            );
+                            total
+                        })
+                        .collect();
+                    let peak = curve.iter().cloned().fold(0.0, f64::max);
+                    curve.iter_mut().for_each(|v| *v = v.max(1e-3 * peak));
+                    Some((lb, curve))
                 })
                 .collect();
-            let peak = curve.iter().cloned().fold(0.0, f64::max);
-            curve.iter_mut().for_each(|v| *v = v.max(1e-3 * peak));
-            Some((lb, curve))
+            let active = n_gratings == 1 || descs[j].index_modulation > 0.0;
+            (shapes, active)
         })
         .collect();
     // Without index modulation nothing is Bragg-selective: sample the band uniformly.
-    let fu = if s.hoe.index_modulation > 0.0 {
+    let fu = if descs.iter().any(|g| g.index_modulation > 0.0) {
         sm.uniform_fraction
     } else {
         1.0
     };
-    WavelengthSampler::new(
+    WavelengthSampler::new_multiplexed(
         sm.lambda_min_nm,
         sm.lambda_max_nm,
         fu,
         -TABLE_HALF_WIDTH_NM,
         bin,
-        &shapes,
+        &per_grating,
     )
 }
 

@@ -31,6 +31,7 @@ use std::ops::ControlFlow;
 use glam::{DVec2, DVec3};
 
 use crate::optics::interface::{lateral_shift, path_length, reflectance, transmittance};
+use crate::optics::multiplex::MAX_GRATINGS;
 use crate::waveguide::Waveguide;
 
 /// Which kind of branch reached the display.
@@ -60,6 +61,25 @@ pub struct Branch {
     /// contact below the top vHOE; 0 for direct branches). Unlike the replica index this
     /// changes continuously with the ray, so it identifies a replica across the field.
     pub contact: u32,
+    /// The grating (index in the film's list) that coupled this branch in and out (0 for
+    /// direct branches). A replica is identified by (grating, contact): [`Self::replica_key`].
+    pub grating: u32,
+}
+
+impl Branch {
+    /// The replica's identity (grating, contact) as one number: `contact` for grating 0 (the
+    /// single-grating keys of before), the grating index in the high 32 bits otherwise, so
+    /// two gratings' replicas never share a key (random streams, padded sets, resampling).
+    #[inline]
+    pub fn replica_key(&self) -> u64 {
+        replica_key(self.grating, self.contact)
+    }
+}
+
+/// The key of replica (grating, contact): see [`Branch::replica_key`].
+#[inline]
+pub fn replica_key(grating: u32, contact: u32) -> u64 {
+    u64::from(contact) | (u64::from(grating) << 32)
 }
 
 /// What a path did besides its branches.
@@ -75,8 +95,12 @@ pub struct TraceSummary {
     pub truncated_weight: f64,
     /// True if `max_contacts` stopped the path.
     pub hit_max_contacts: bool,
-    /// Tangential direction cosines of the guided wave (zero if none).
+    /// Tangential direction cosines of the first grating's guided wave that the top vHOE
+    /// couples out (zero if none).
     pub guided_u: DVec2,
+    /// The guided wave of each grating (zero where it has none; entries past the film's
+    /// gratings are zero).
+    pub guided_u_by_grating: [DVec2; MAX_GRATINGS],
     /// Glass index at the path's wavelength.
     pub n_glass: f64,
 }
@@ -159,7 +183,8 @@ pub fn trace_camera_path_until(
     let w = wg.thickness_mm;
     let n_g = wg.n_glass(lambda_nm);
     let alpha = wg.absorption_per_mm(lambda_nm);
-    let grating = &wg.grating;
+    let gratings = &wg.gratings;
+    let film = gratings.film();
     let mut summary = TraceSummary {
         n_glass: n_g,
         ..Default::default()
@@ -173,7 +198,7 @@ pub fn trace_camera_path_until(
     let t_face = transmittance(1.0, n_g, u);
     let mut wt = t_face;
     if wg.bottom.contains(p_back) {
-        wt = mul(wt, grating.undiffracted(u, 1.0, lambda_nm));
+        wt = mul(wt, gratings.undiffracted(u, 1.0, lambda_nm));
     }
     let cross_shift = lateral_shift(u, n_g, w);
     let cross_t = (-alpha * path_length(u, n_g, w)).exp();
@@ -187,117 +212,213 @@ pub fn trace_camera_path_until(
         object_point_mm: p - air_shift,
         weight,
         contact: 0,
+        grating: 0,
     };
     if !wg.top.contains(p_top) {
         let _ = visit(&direct(p_top, mul(wt, t_face)));
         return summary;
     }
     if !wg.covered {
-        let straight = mul(grating.undiffracted(u, 1.0, lambda_nm), t_face);
+        let straight = mul(gratings.undiffracted(u, 1.0, lambda_nm), t_face);
         if visit(&direct(p_top, mul(wt, straight))).is_break() {
             return summary;
         }
     }
-    // Out-coupling at the top vHOE: guided u_g (travelling −z) → u (order −1).
-    let u_g = u - grating.u_shift(lambda_nm);
-    if u_g.length_squared() >= n_g * n_g {
-        return summary;
-    }
-    // Only a reflection-type order sends the guided light back toward the camera (+z); where
-    // the same order is transmission-type (far off Bragg) it leaves toward the user instead.
-    let top_wave = grating.incident(u_g, -1.0, lambda_nm);
-    let Some(top) = top_wave
-        .and_then(|w| w.order(grating, -1))
-        .filter(|d| d.reflection)
-    else {
-        return summary;
-    };
-    summary.guided_u = u_g;
-    let mut g = mul(wt, top.eta);
-    // In-coupling efficiency u → u_g (order +1), the same for every contact of this path; by
-    // reciprocity it equals the out-coupling efficiency when the film is lossless.
-    // (Both orders are reflection-type together: the on-shell conditions coincide.)
-    let eta_in = if grating.alpha0_per_nm == 0.0 {
-        top.eta
-    } else {
-        grating
-            .diffract(u, 1.0, lambda_nm, 1)
-            .filter(|d| d.reflection)
-            .map_or([0.0, 0.0], |d| d.eta)
-    };
-    let leg = lateral_shift(u_g, n_g, w);
-    let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
-    let r_face = reflectance(n_g, 1.0, u_g);
-    let r_film = reflectance(grating.n_film, 1.0, u_g);
-    // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the film
-    // toward the air face ("up" = toward the face it is about to reflect from) and back. The
-    // wave travelling −z is the one the top vHOE out-couples (order −1, `top.eta`), the same
-    // at every contact; at the back face the wave toward the air face travels +z and vice
-    // versa, so both faces see the same pair of passes in opposite order.
-    let toward_back = grating.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
-    let toward_front = grating.undiffracted_from(top_wave, u_g, Some((-1, top.eta)));
-    let cont_bottom = mul(mul(toward_back, r_film), toward_front);
-    let cont_top = if wg.covered && wg.cover_frustrates_tir {
-        [0.0, 0.0]
-    } else {
-        cont_bottom
-    };
-    let exit_t = scale(t_face, cross_t);
-    let mut replica = 0u32;
-    let mut p = p_top;
-    let mut contact = 0u32;
-    loop {
-        if contact >= limits.max_contacts {
-            summary.hit_max_contacts = true;
-            summary.truncated_weight = g[0].max(g[1]);
-            break;
+    // Out-coupling at the top vHOE, once per grating j: guided u_g = u − (λ/2π)K_j,t
+    // (travelling −z) → u (order −1 of grating j). Each grating's guided wave is its own
+    // zig-zag and its own replicas (grating, contact).
+    let mut tops = [None; MAX_GRATINGS];
+    for (j, grating) in gratings.as_slice().iter().enumerate() {
+        let u_g = u - grating.u_shift(lambda_nm);
+        if u_g.length_squared() >= n_g * n_g {
+            continue;
         }
-        contact += 1;
-        p -= leg;
-        g = scale(g, leg_t);
-        if contact % 2 == 1 {
-            // Back face.
-            if wg.bottom.contains(p) {
-                let entry = p - cross_shift;
-                let mut wb = mul(mul(g, eta_in), exit_t);
-                if wg.top.contains(entry) {
-                    wb = if wg.covered {
-                        [0.0, 0.0]
-                    } else {
-                        mul(wb, grating.undiffracted(u, 1.0, lambda_nm))
-                    };
+        // Only a reflection-type order sends the guided light back toward the camera (+z);
+        // where the same order is transmission-type (far off Bragg) it leaves toward the user
+        // instead.
+        let top_wave = gratings.incident(u_g, -1.0, lambda_nm);
+        tops[j] = top_wave
+            .and_then(|w| w.order(grating, -1))
+            .filter(|d| d.reflection)
+            .map(|d| (u_g, top_wave, d.eta));
+    }
+    if gratings.len() > 1 {
+        // Independent gratings (optics::multiplex): should two be near Bragg for the same ray,
+        // their out-coupled shares are scaled to sum to at most 1 (energy conservation).
+        for p in 0..2 {
+            let sum: f64 = tops.iter().flatten().map(|t| t.2[p]).sum();
+            if sum > 1.0 {
+                tops.iter_mut().flatten().for_each(|t| t.2[p] /= sum);
+            }
+        }
+    }
+    let exit_t = scale(t_face, cross_t);
+    let mut first_guided = true;
+    for (j, top) in tops.iter().enumerate().take(gratings.len()) {
+        let Some((u_g, top_wave, top_eta)) = *top else {
+            continue;
+        };
+        let grating = gratings.get(j);
+        if first_guided {
+            summary.guided_u = u_g;
+            first_guided = false;
+        }
+        summary.guided_u_by_grating[j] = u_g;
+        let mut g = mul(wt, top_eta);
+        // In-coupling efficiency u → u_g (order +1), the same for every contact of this path;
+        // by reciprocity it equals the out-coupling efficiency when the film is lossless.
+        // (Both orders are reflection-type together: the on-shell conditions coincide.)
+        let eta_in = if grating.alpha0_per_nm == 0.0 {
+            top_eta
+        } else {
+            grating
+                .diffract(u, 1.0, lambda_nm, 1)
+                .filter(|d| d.reflection)
+                .map_or([0.0, 0.0], |d| d.eta)
+        };
+        let leg = lateral_shift(u_g, n_g, w);
+        let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
+        let r_face = reflectance(n_g, 1.0, u_g);
+        let r_film = reflectance(film.n_film, 1.0, u_g);
+        // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the
+        // film toward the air face ("up" = toward the face it is about to reflect from) and
+        // back. The wave travelling −z is the one the top vHOE out-couples (order −1 of grating
+        // j, `top_eta`), the same at every contact; at the back face the wave toward the air
+        // face travels +z and vice versa, so both faces see the same pair of passes in opposite
+        // order. Every grating's orders leave the guided wave (a cross-grating order leaves at
+        // another angle, not toward this pixel: lost, like other stray orders).
+        let toward_back = gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
+        let toward_front = gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta)));
+        let cont_bottom = mul(mul(toward_back, r_film), toward_front);
+        let cont_top = if wg.covered && wg.cover_frustrates_tir {
+            [0.0, 0.0]
+        } else {
+            cont_bottom
+        };
+        let mut replica = 0u32;
+        let mut p = p_top;
+        let mut contact = 0u32;
+        loop {
+            if contact >= limits.max_contacts {
+                summary.hit_max_contacts = true;
+                summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
+                break;
+            }
+            contact += 1;
+            p -= leg;
+            g = scale(g, leg_t);
+            if contact % 2 == 1 {
+                // Back face.
+                if wg.bottom.contains(p) {
+                    let entry = p - cross_shift;
+                    let mut wb = mul(mul(g, eta_in), exit_t);
+                    if wg.top.contains(entry) {
+                        wb = if wg.covered {
+                            [0.0, 0.0]
+                        } else {
+                            mul(wb, gratings.undiffracted(u, 1.0, lambda_nm))
+                        };
+                    }
+                    let flow = visit(&Branch {
+                        kind: BranchKind::Replica(replica),
+                        bottom_contact_mm: Some(p),
+                        exit_point_mm: entry,
+                        object_point_mm: entry - air_shift,
+                        weight: wb,
+                        contact,
+                        grating: j as u32,
+                    });
+                    if flow.is_break() {
+                        summary.contacts += contact;
+                        return summary;
+                    }
+                    replica += 1;
+                    g = mul(g, cont_bottom);
+                } else {
+                    g = mul(g, r_face);
                 }
-                let flow = visit(&Branch {
-                    kind: BranchKind::Replica(replica),
-                    bottom_contact_mm: Some(p),
-                    exit_point_mm: entry,
-                    object_point_mm: entry - air_shift,
-                    weight: wb,
-                    contact,
-                });
-                if flow.is_break() {
-                    summary.contacts = contact;
-                    return summary;
-                }
-                replica += 1;
-                g = mul(g, cont_bottom);
+            } else if wg.top.contains(p) {
+                g = mul(g, cont_top);
+                summary.top_contacts += 1;
             } else {
                 g = mul(g, r_face);
             }
-        } else if wg.top.contains(p) {
-            g = mul(g, cont_top);
-            summary.top_contacts += 1;
-        } else {
-            g = mul(g, r_face);
+            if !wg.bottom.reachable(p, -leg) {
+                break;
+            }
+            if g[0].max(g[1]) < limits.min_weight {
+                summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
+                break;
+            }
         }
-        if !wg.bottom.reachable(p, -leg) {
-            break;
-        }
-        if g[0].max(g[1]) < limits.min_weight {
-            summary.truncated_weight = g[0].max(g[1]);
-            break;
-        }
+        summary.contacts += contact;
     }
-    summary.contacts = contact;
     summary
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A two-grating film (scenes/two-grating.toml, here with strong gratings n1 = 0.03 each
+    /// so that both couple a lot): over random camera rays and wavelengths the branches carry
+    /// at most the light that entered (Σ weights ≤ 1 per polarisation), both gratings' replicas
+    /// occur, and no two branches of a path share a replica key.
+    #[test]
+    fn two_gratings_conserve_energy_and_keep_replicas_apart() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/two-grating.toml");
+        let sets = [
+            "hoe.grating.0.index_modulation=0.03".to_string(),
+            "hoe.grating.1.index_modulation=0.03".to_string(),
+        ];
+        let sys =
+            crate::system::System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap())
+                .unwrap();
+        let mut seen = [0usize; 2];
+        let mut state = 12345u64;
+        let mut next = || {
+            state = crate::sampler::mix64(state);
+            crate::sampler::to_unit(state)
+        };
+        for _ in 0..4000 {
+            let ray = sys.camera.generate_ray(
+                (next() * sys.camera.width_px as f64) as usize,
+                (next() * sys.camera.height_px as f64) as usize,
+                [next(), next()],
+                [next(), next()],
+            );
+            let lam = 420.0 + 180.0 * next();
+            let mut sum = [0.0, 0.0];
+            let mut keys = Vec::new();
+            trace_camera_path(
+                &sys.waveguide,
+                sys.display.z_mm,
+                sys.limits,
+                ray.origin,
+                ray.dir,
+                lam,
+                |b| {
+                    sum[0] += b.weight[0];
+                    sum[1] += b.weight[1];
+                    if let BranchKind::Replica(_) = b.kind {
+                        keys.push(b.replica_key());
+                        if b.weight[0] > 1e-3 {
+                            seen[b.grating as usize] += 1;
+                        }
+                    }
+                },
+            );
+            assert!(
+                sum[0] <= 1.0 + 1e-12 && sum[1] <= 1.0 + 1e-12,
+                "{sum:?} at {lam} nm"
+            );
+            let n = keys.len();
+            keys.sort_unstable();
+            keys.dedup();
+            assert_eq!(keys.len(), n, "replica keys collide");
+        }
+        assert!(seen[0] > 100 && seen[1] > 100, "{seen:?}");
+        assert_eq!(replica_key(0, 7), 7);
+        assert_ne!(replica_key(1, 7), replica_key(0, 7));
+    }
 }

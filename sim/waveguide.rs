@@ -3,14 +3,15 @@
 //! Geometry (DESIGN.md "Frame and units"): the plate fills 0 ≤ z ≤ w; the bottom vHOE is a
 //! rectangle on the back face (z = w) centred at the origin; the top vHOE is a rectangle on the
 //! front face (z = 0) above it, `gap` mm higher than the bottom vHOE's top edge; the optional
-//! cover lies on the user side of the top vHOE. Both vHOEs share one recorded grating (same
-//! fabrication, physics.md §0.3). Glass dispersion and Beer–Lambert absorption come from
+//! cover lies on the user side of the top vHOE. Both vHOEs carry the same film with the same
+//! recorded gratings (one, or several multiplexed: `optics::multiplex`), so their grating
+//! vectors match and the exit ray is parallel to the entry ray (the periscope). Glass dispersion and Beer–Lambert absorption come from
 //! `optics::glass`.
 
 use glam::DVec2;
 
 use crate::optics::glass::Glass;
-use crate::optics::grating::VolumeGrating;
+use crate::optics::multiplex::GratingSet;
 
 /// An axis-aligned rectangle on one face of the plate (mm).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,8 +59,8 @@ pub struct Waveguide {
     pub glass: Glass,
     /// Override of the glass absorption (1/mm), if set.
     pub absorption_override_per_mm: Option<f64>,
-    /// The grating both vHOEs carry.
-    pub grating: VolumeGrating,
+    /// The gratings both vHOEs carry (one film).
+    pub gratings: GratingSet,
     /// Bottom vHOE on the back face.
     pub bottom: Rect,
     /// Top vHOE on the front face.

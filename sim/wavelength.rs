@@ -13,6 +13,17 @@
 //! non-zero, and samples outside the band carry zero. Paths without a Bragg wavelength use the
 //! uniform density alone. Inversion is monotone in u (a guide table makes it O(1)), so
 //! stratified (quasi-random) inputs stay stratified in λ.
+//!
+//! Multiplexed films (several gratings, `optics::multiplex`): each grating j has its own Bragg
+//! wavelength λ_B,j for the path and its own set of tables, and the density is the mixture
+//!   p(λ) = (1 − f_u)·(1/M)·Σ_j p_table,j(λ − λ_B,j) + f_u/(λ_max − λ_min)
+//! over the M gratings that have a Bragg wavelength for the path (and a non-zero index
+//! modulation), with equal weights. One uniform number picks the component (the part of u above
+//! f_u is split into M equal intervals, each inverted within its component, so stratification
+//! carries over) and the estimator divides by the whole mixture's density, so every grating's
+//! replicas are weighted correctly whichever component drew λ (the one-sample mixture estimator,
+//! equivalent to the balance heuristic; Veach 1997, §9.2). With one grating the draws and the
+//! density are computed by exactly the single-band code of before (bit-identical).
 
 /// One piecewise-constant density of Δλ.
 #[derive(Clone, Debug)]
@@ -83,16 +94,10 @@ impl Table {
     }
 }
 
-/// Tabulated densities of Δλ (keyed by λ_B) plus a uniform part over the band.
+/// The tables of one grating: piecewise-constant densities of Δλ keyed by the Bragg
+/// wavelength of the field each was measured at.
 #[derive(Clone, Debug)]
-pub struct WavelengthSampler {
-    lo_nm: f64,
-    hi_nm: f64,
-    uniform_fraction: f64,
-    /// Δλ of the first bin edge, nm.
-    table_start_nm: f64,
-    /// Bin width, nm.
-    bin_nm: f64,
+struct TableSet {
     /// Bragg wavelength each table was measured at, ascending.
     keys_nm: Vec<f64>,
     tables: Vec<Table>,
@@ -102,23 +107,31 @@ pub struct WavelengthSampler {
     key_guide: Vec<u32>,
     /// Cells per nm of that grid.
     key_cells_per_nm: f64,
+    /// Whether this grating's component takes part in the mixture (false for a grating without
+    /// index modulation: it diffracts nothing).
+    active: bool,
+}
+
+/// Tabulated densities of Δλ (keyed by λ_B, one set per grating) plus a uniform part over the
+/// band.
+#[derive(Clone, Debug)]
+pub struct WavelengthSampler {
+    lo_nm: f64,
+    hi_nm: f64,
+    uniform_fraction: f64,
+    /// Δλ of the first bin edge, nm.
+    table_start_nm: f64,
+    /// Bin width, nm.
+    bin_nm: f64,
+    /// One table set per grating, in the film's order.
+    sets: Vec<TableSet>,
 }
 
 /// Cells of the key guide per key.
 const KEY_GUIDE_CELLS_PER_KEY: usize = 4;
 
-impl WavelengthSampler {
-    /// Builds the sampler from non-negative shapes, each tabulated on equal bins starting at
-    /// Δλ = `table_start_nm` and measured for a field whose Bragg wavelength is the key. A shape
-    /// that sums to zero falls back to a flat table; no shapes at all gives one flat table.
-    pub fn new(
-        lo_nm: f64,
-        hi_nm: f64,
-        uniform_fraction: f64,
-        table_start_nm: f64,
-        bin_nm: f64,
-        shapes: &[(f64, Vec<f64>)],
-    ) -> Self {
+impl TableSet {
+    fn new(shapes: &[(f64, Vec<f64>)], bin_nm: f64, active: bool) -> TableSet {
         let mut sorted: Vec<&(f64, Vec<f64>)> = shapes
             .iter()
             .filter(|(k, s)| k.is_finite() && !s.is_empty())
@@ -141,16 +154,12 @@ impl WavelengthSampler {
                 keys_nm.partition_point(|&k| k < start) as u32
             })
             .collect();
-        WavelengthSampler {
-            lo_nm,
-            hi_nm,
-            uniform_fraction,
-            table_start_nm,
-            bin_nm,
+        TableSet {
             keys_nm,
             tables,
             key_guide,
             key_cells_per_nm,
+            active,
         }
     }
 
@@ -176,16 +185,6 @@ impl WavelengthSampler {
         i
     }
 
-    /// The band's width in nm.
-    pub fn band_nm(&self) -> f64 {
-        self.hi_nm - self.lo_nm
-    }
-
-    /// Number of tables.
-    pub fn table_count(&self) -> usize {
-        self.tables.len()
-    }
-
     /// The table whose key is nearest `lambda_bragg_nm`.
     #[inline]
     fn table_for(&self, lambda_bragg_nm: f64) -> &Table {
@@ -201,8 +200,76 @@ impl WavelengthSampler {
         };
         &self.tables[j]
     }
+}
 
-    /// Draws a wavelength from one uniform number `u` ∈ [0,1); returns (λ in nm, pdf per nm).
+impl WavelengthSampler {
+    /// Builds the sampler of a one-grating film from non-negative shapes, each tabulated on
+    /// equal bins starting at Δλ = `table_start_nm` and measured for a field whose Bragg
+    /// wavelength is the key. A shape that sums to zero falls back to a flat table; no shapes
+    /// at all gives one flat table.
+    pub fn new(
+        lo_nm: f64,
+        hi_nm: f64,
+        uniform_fraction: f64,
+        table_start_nm: f64,
+        bin_nm: f64,
+        shapes: &[(f64, Vec<f64>)],
+    ) -> Self {
+        Self::new_multiplexed(
+            lo_nm,
+            hi_nm,
+            uniform_fraction,
+            table_start_nm,
+            bin_nm,
+            &[(shapes.to_vec(), true)],
+        )
+    }
+
+    /// Builds the sampler of a multiplexed film: one (shapes, active) pair per grating, in the
+    /// film's order (see [`Self::new`] for the shapes; an inactive grating takes no part in
+    /// the mixture).
+    pub fn new_multiplexed(
+        lo_nm: f64,
+        hi_nm: f64,
+        uniform_fraction: f64,
+        table_start_nm: f64,
+        bin_nm: f64,
+        per_grating: &[(Vec<(f64, Vec<f64>)>, bool)],
+    ) -> Self {
+        let mut sets: Vec<TableSet> = per_grating
+            .iter()
+            .map(|(shapes, active)| TableSet::new(shapes, bin_nm, *active))
+            .collect();
+        if sets.is_empty() {
+            sets.push(TableSet::new(&[], bin_nm, true));
+        }
+        WavelengthSampler {
+            lo_nm,
+            hi_nm,
+            uniform_fraction,
+            table_start_nm,
+            bin_nm,
+            sets,
+        }
+    }
+
+    /// The band's width in nm.
+    pub fn band_nm(&self) -> f64 {
+        self.hi_nm - self.lo_nm
+    }
+
+    /// Number of tables (over all gratings).
+    pub fn table_count(&self) -> usize {
+        self.sets.iter().map(|s| s.tables.len()).sum()
+    }
+
+    /// Number of gratings (table sets).
+    pub fn grating_count(&self) -> usize {
+        self.sets.len()
+    }
+
+    /// Draws a wavelength from one uniform number `u` ∈ [0,1) for a one-grating path with
+    /// Bragg wavelength `lambda_bragg_nm`; returns (λ in nm, pdf per nm).
     #[inline]
     pub fn sample(&self, u: f64, lambda_bragg_nm: Option<f64>) -> (f64, f64) {
         self.sample_mixed(u, lambda_bragg_nm, self.uniform_fraction)
@@ -210,13 +277,15 @@ impl WavelengthSampler {
 
     /// As [`Self::sample`] with the uniform fraction `fu` chosen by the caller (e.g. larger for
     /// paths that also see the scene straight through the plate, a broadband contribution). The
-    /// choice must depend only on the camera ray, never on the wavelength drawn.
+    /// choice must depend only on the camera ray, never on the wavelength drawn. Uses the first
+    /// grating's tables.
     #[inline]
     pub fn sample_mixed(&self, u: f64, lambda_bragg_nm: Option<f64>, fu: f64) -> (f64, f64) {
+        let set = &self.sets[0];
         let Some(lb) = lambda_bragg_nm else {
             return (self.lo_nm + u * self.band_nm(), 1.0 / self.band_nm());
         };
-        let table = self.table_for(lb);
+        let table = set.table_for(lb);
         let lambda = if u < fu {
             self.lo_nm + (u / fu) * self.band_nm()
         } else {
@@ -227,9 +296,99 @@ impl WavelengthSampler {
         (lambda, self.pdf_in(table, lambda, lb, fu))
     }
 
+    /// Draws a wavelength for a path whose Bragg wavelength for grating j is
+    /// `lambda_bragg_nm[j]` (the mixture of the module notes); returns (λ in nm, pdf per nm).
+    /// With one grating this is [`Self::sample_mixed`].
+    #[inline]
+    pub fn sample_multiplexed(
+        &self,
+        u: f64,
+        lambda_bragg_nm: &[Option<f64>],
+        fu: f64,
+    ) -> (f64, f64) {
+        if self.sets.len() == 1 {
+            let lb = lambda_bragg_nm.first().copied().flatten();
+            let lb = if self.sets[0].active { lb } else { None };
+            return self.sample_mixed(u, lb, fu);
+        }
+        let mut comps = [0usize; crate::scene::MAX_GRATINGS];
+        let mut m = 0;
+        for (j, (set, lb)) in self.sets.iter().zip(lambda_bragg_nm).enumerate() {
+            if set.active && lb.is_some() && m < comps.len() {
+                comps[m] = j;
+                m += 1;
+            }
+        }
+        if m == 0 {
+            return (self.lo_nm + u * self.band_nm(), 1.0 / self.band_nm());
+        }
+        let comps = &comps[..m];
+        let lambda = if u < fu {
+            self.lo_nm + (u / fu) * self.band_nm()
+        } else {
+            let v = ((u - fu) / (1.0 - fu)).min(1.0 - 1e-16);
+            let scaled = v * m as f64;
+            let c = (scaled as usize).min(m - 1);
+            let v = (scaled - c as f64).clamp(0.0, 1.0 - 1e-16);
+            let j = comps[c];
+            let lb = lambda_bragg_nm[j].unwrap_or_default();
+            let (i, frac) = self.sets[j].table_for(lb).invert(v);
+            lb + self.table_start_nm + (i as f64 + frac) * self.bin_nm
+        };
+        (lambda, self.pdf_mixture(comps, lambda, lambda_bragg_nm, fu))
+    }
+
+    /// Density of the mixture over the components `comps` (grating indices) at `lambda_nm`.
+    fn pdf_mixture(
+        &self,
+        comps: &[usize],
+        lambda_nm: f64,
+        lambda_bragg_nm: &[Option<f64>],
+        fu: f64,
+    ) -> f64 {
+        let uni = if self.in_band(lambda_nm) {
+            fu / self.band_nm()
+        } else {
+            0.0
+        };
+        let mut tab = 0.0;
+        for &j in comps {
+            let lb = lambda_bragg_nm[j].unwrap_or_default();
+            tab += self.table_density(self.sets[j].table_for(lb), lambda_nm, lb);
+        }
+        uni + (1.0 - fu) * tab / comps.len() as f64
+    }
+
+    /// Density (per nm) of drawing `lambda_nm` for a path with Bragg wavelengths
+    /// `lambda_bragg_nm` per grating (the scene's uniform fraction).
+    pub fn pdf_multiplexed(&self, lambda_nm: f64, lambda_bragg_nm: &[Option<f64>]) -> f64 {
+        let fu = self.uniform_fraction;
+        let comps: Vec<usize> = (0..self.sets.len())
+            .filter(|&j| self.sets[j].active && lambda_bragg_nm.get(j).copied().flatten().is_some())
+            .collect();
+        if comps.is_empty() {
+            return if self.in_band(lambda_nm) {
+                1.0 / self.band_nm()
+            } else {
+                0.0
+            };
+        }
+        self.pdf_mixture(&comps, lambda_nm, lambda_bragg_nm, fu)
+    }
+
     /// The scene's uniform fraction.
     pub fn uniform_fraction(&self) -> f64 {
         self.uniform_fraction
+    }
+
+    #[inline]
+    fn table_density(&self, table: &Table, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
+        let x = (lambda_nm - lambda_bragg_nm - self.table_start_nm) / self.bin_nm;
+        if x >= 0.0 && x < table.density.len() as f64 {
+            table.density[x as usize]
+        } else {
+            0.0
+        }
     }
 
     #[inline]
@@ -239,19 +398,14 @@ impl WavelengthSampler {
         } else {
             0.0
         };
-        let x = (lambda_nm - lambda_bragg_nm - self.table_start_nm) / self.bin_nm;
-        let tab = if x >= 0.0 && x < table.density.len() as f64 {
-            table.density[x as usize]
-        } else {
-            0.0
-        };
-        uni + (1.0 - fu) * tab
+        uni + (1.0 - fu) * self.table_density(table, lambda_nm, lambda_bragg_nm)
     }
 
-    /// Density (per nm) of drawing `lambda_nm` for a path with Bragg wavelength `lambda_bragg_nm`.
+    /// Density (per nm) of drawing `lambda_nm` for a one-grating path with Bragg wavelength
+    /// `lambda_bragg_nm`.
     pub fn pdf(&self, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
         self.pdf_in(
-            self.table_for(lambda_bragg_nm),
+            self.sets[0].table_for(lambda_bragg_nm),
             lambda_nm,
             lambda_bragg_nm,
             self.uniform_fraction,
@@ -341,8 +495,9 @@ mod tests {
             for j in 0..20_000 {
                 let l = 480.0 + j as f64 * 0.005;
                 for l in [l, 500.0, 520.0, 561.0, 100.0, 900.0, f64::NAN, -0.0] {
-                    let want = s.keys_nm.partition_point(|&k| k < l);
-                    assert_eq!(s.keys_below(l), want, "{n} keys, λ {l}");
+                    let set = &s.sets[0];
+                    let want = set.keys_nm.partition_point(|&k| k < l);
+                    assert_eq!(set.keys_below(l), want, "{n} keys, λ {l}");
                 }
             }
         }
@@ -358,5 +513,85 @@ mod tests {
         // Key 540 is the triangle: symmetric.
         assert!((s.pdf(535.25, 540.0) - s.pdf(544.75, 540.0)).abs() < 1e-15);
         assert_eq!(s.table_count(), 2);
+    }
+
+    /// A two-grating mixture: one set of (lopsided) tables per grating.
+    fn two() -> WavelengthSampler {
+        let tri: Vec<f64> = (0..40).map(|i| 20.0 - (i as f64 - 19.5).abs()).collect();
+        let lopsided: Vec<f64> = (0..40).map(|i| if i < 20 { 1.0 } else { 3.0 }).collect();
+        WavelengthSampler::new_multiplexed(
+            380.0,
+            780.0,
+            0.1,
+            -10.0,
+            0.5,
+            &[
+                (vec![(540.0, tri.clone()), (500.0, lopsided.clone())], true),
+                (vec![(460.0, lopsided), (440.0, tri)], true),
+            ],
+        )
+    }
+
+    /// One grating: the mixture's draws are the single-band sampler's, bit for bit.
+    #[test]
+    fn one_grating_mixture_is_the_single_band_sampler() {
+        let s = sampler();
+        for i in 0..10_000 {
+            let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
+            for lb in [Some(531.3), Some(497.0), None] {
+                let a = s.sample_mixed(u, lb, 0.1);
+                let b = s.sample_multiplexed(u, &[lb], 0.1);
+                assert_eq!(
+                    (a.0.to_bits(), a.1.to_bits()),
+                    (b.0.to_bits(), b.1.to_bits())
+                );
+            }
+        }
+    }
+
+    /// Two gratings: the mixture density integrates to 1, the draws follow it (χ² over both
+    /// bands) and each draw's pdf is the density; a density missing one component (the failing
+    /// input: what the estimator would use if it forgot the other grating) fails the χ² test.
+    #[test]
+    fn two_grating_mixture_follows_its_density() {
+        let s = two();
+        let lb = [Some(538.0), Some(451.0)];
+        let (a, b, n) = (300.0, 800.0, 400_000);
+        let integral: f64 = (0..n)
+            .map(|i| s.pdf_multiplexed(a + (b - a) * (i as f64 + 0.5) / n as f64, &lb))
+            .sum::<f64>()
+            * (b - a)
+            / n as f64;
+        assert!((integral - 1.0).abs() < 1e-3, "{integral}");
+        let draws = 200_000usize;
+        let lo = 430.0;
+        let bins = 130; // 1 nm bins over 430–560 nm: both bands.
+        let mut counts = vec![0u64; bins];
+        for i in 0..draws {
+            let u = (0.5 + i as f64 * 0.618_033_988_749_894_9).fract();
+            let (lam, pdf) = s.sample_multiplexed(u, &lb, 0.1);
+            assert!((pdf - s.pdf_multiplexed(lam, &lb)).abs() < 1e-15);
+            if lam >= lo && lam < lo + bins as f64 {
+                counts[(lam - lo) as usize] += 1;
+            }
+        }
+        let chi2 = |pdf: &dyn Fn(f64) -> f64| -> f64 {
+            let mut chi2 = 0.0;
+            for (k, &c) in counts.iter().enumerate() {
+                let m = 200;
+                let p: f64 = (0..m)
+                    .map(|j| pdf(lo + k as f64 + (j as f64 + 0.5) / m as f64))
+                    .sum::<f64>()
+                    / m as f64;
+                let expect = p * draws as f64;
+                chi2 += (c as f64 - expect).powi(2) / expect.max(1.0);
+            }
+            chi2
+        };
+        // 129 dof, 99.9 % critical value ≈ 181.
+        let good = chi2(&|l| s.pdf_multiplexed(l, &lb));
+        assert!(good < 181.0, "χ² = {good}");
+        let only_first = chi2(&|l| s.pdf_multiplexed(l, &[lb[0], None]));
+        assert!(only_first > 181.0, "one component only: χ² = {only_first}");
     }
 }

@@ -41,34 +41,53 @@ fn cmd_info(
         "grating period: {:.2} nm; focus {:.1} mm, lens–sensor {:.4} mm",
         info.grating_period_nm, info.focus_distance_mm, info.sensor_distance_mm
     ));
-    con.out(format_args!(
-        "{:<8} {:>10} {:>10} {:>12} {:>9} {:>10}",
-        "field", "λ_B (nm)", "Θ' (deg)", "pitch (mm)", "replicas", ">5% peak"
-    ));
-    for f in &info.field {
+    let multiplexed = info.gratings.len() > 1;
+    for g in &info.gratings {
+        if multiplexed {
+            con.out(format_args!(
+                "grating {}: recorded at {} nm, reference {}°, object {}°, n1 = {}; period {:.2} nm",
+                g.grating,
+                g.recording_wavelength_nm,
+                g.reference_angle_deg,
+                g.object_angle_deg,
+                g.index_modulation,
+                g.grating_period_nm
+            ));
+        }
         con.out(format_args!(
-            "{:<8} {:>10.2} {:>10.2} {:>12.3} {:>9} {:>10}",
-            f.name,
-            f.lambda_nm,
-            f.guided_angle_deg,
-            f.replica_pitch_mm,
-            f.replicas,
-            f.replicas_above_5pct
+            "{:<8} {:>10} {:>10} {:>12} {:>9} {:>10}",
+            "field", "λ_B (nm)", "Θ' (deg)", "pitch (mm)", "replicas", ">5% peak"
+        ));
+        for f in &g.field {
+            con.out(format_args!(
+                "{:<8} {:>10.2} {:>10.2} {:>12.3} {:>9} {:>10}",
+                f.name,
+                f.lambda_nm,
+                f.guided_angle_deg,
+                f.replica_pitch_mm,
+                f.replicas,
+                f.replicas_above_5pct
+            ));
+        }
+        let rows: Vec<String> = g
+            .point_replicas
+            .iter()
+            .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
+            .collect();
+        con.out(format_args!(
+            "a point at the display centre appears at rows (weight){}: {}",
+            if multiplexed {
+                format!(" through grating {}", g.grating)
+            } else {
+                String::new()
+            },
+            rows.join(", ")
+        ));
+        con.out(format_args!(
+            "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
+            g.replica_pitch_sensor_px
         ));
     }
-    let rows: Vec<String> = info
-        .point_replicas
-        .iter()
-        .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
-        .collect();
-    con.out(format_args!(
-        "a point at the display centre appears at rows (weight): {}",
-        rows.join(", ")
-    ));
-    con.out(format_args!(
-        "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
-        info.replica_pitch_sensor_px
-    ));
     con.out(format_args!(
         "{}",
         fmt_fov("vertical FOV, waveguide", &info.fov_vertical_waveguide)

@@ -4,7 +4,8 @@ use crate::analysis;
 
 use super::*;
 
-/// Trace the chief ray of one pixel at its exact Bragg wavelength.
+/// Trace the chief ray of one pixel at its exact Bragg wavelength (each grating's, in a
+/// multiplexed film).
 #[derive(clap::Args, Debug, Clone)]
 pub struct ProbeOptions {
     /// The scene and its overrides.
@@ -48,7 +49,30 @@ fn cmd_probe(
         "camera ray dir: [{:.6}, {:.6}, {:.6}]",
         p.camera_ray_dir[0], p.camera_ray_dir[1], p.camera_ray_dir[2]
     ));
+    let multiplexed = p.gratings.len() > 1 || p.gratings.iter().any(|g| g.grating > 0);
+    if multiplexed {
+        for g in &p.gratings {
+            con.out(format_args!(
+                "grating {}: λ_B = {:.4} nm, guided angle {:.4}°, pitch {:.4} mm, {} replicas, weight {:.5}",
+                g.grating, g.lambda_nm, g.guided_angle_deg, g.replica_pitch_mm, g.replicas, g.weight
+            ));
+        }
+    }
     for r in &p.replicas {
+        if multiplexed {
+            con.out(format_args!(
+                "grating {} replica {:>2} (λ {:.3} nm): contact ({:8.3}, {:8.3}) mm  object ({:8.3}, {:8.3}) mm  weight {:.5}",
+                r.grating,
+                r.index,
+                r.lambda_nm,
+                r.bottom_contact_mm[0],
+                r.bottom_contact_mm[1],
+                r.object_point_mm[0],
+                r.object_point_mm[1],
+                r.weight
+            ));
+            continue;
+        }
         con.out(format_args!(
             "replica {:>2}: contact ({:8.3}, {:8.3}) mm  object ({:8.3}, {:8.3}) mm  weight {:.5}",
             r.index,

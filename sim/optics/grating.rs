@@ -90,9 +90,33 @@ impl VolumeGrating {
         n1: f64,
         alpha0_per_mm: f64,
     ) -> Self {
+        Self::from_recording_beams(
+            lambda0_nm,
+            reference_angle_deg,
+            0.0,
+            n_film,
+            thickness_um,
+            n1,
+            alpha0_per_mm,
+        )
+    }
+
+    /// As [`Self::from_recording`] with an object beam tilted by `object_angle_deg` inside the
+    /// film (from +z toward +y): ŝ_O = (0, sin θ_O, cos θ_O). At θ_O = 0 this is exactly
+    /// [`Self::from_recording`] (sin 0 = 0 and cos 0 = 1 in floating point).
+    pub fn from_recording_beams(
+        lambda0_nm: f64,
+        reference_angle_deg: f64,
+        object_angle_deg: f64,
+        n_film: f64,
+        thickness_um: f64,
+        n1: f64,
+        alpha0_per_mm: f64,
+    ) -> Self {
         let th = reference_angle_deg.to_radians();
         let k0 = 2.0 * PI * n_film / lambda0_nm;
-        let s_o = DVec3::new(0.0, 0.0, 1.0);
+        let to = object_angle_deg.to_radians();
+        let s_o = DVec3::new(0.0, to.sin(), to.cos());
         let s_r = DVec3::new(0.0, th.sin(), -th.cos());
         VolumeGrating {
             k_rad_per_nm: k0 * (s_o - s_r),

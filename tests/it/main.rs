@@ -19,6 +19,7 @@ mod jobs;
 mod matrix_calibration;
 mod mesh_scenes;
 mod mitsuba_reference;
+mod multiplex;
 mod npz_independent;
 mod output_sets;
 mod probe_geometry;

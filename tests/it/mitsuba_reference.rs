@@ -286,7 +286,8 @@ fn waveguide_matches_the_mitsuba_reference() {
 #[test]
 fn waveguide_with_the_wrong_sign_of_k_fails_the_comparison() {
     let mut sys = system("waveguide");
-    sys.waveguide.grating.k_rad_per_nm = -sys.waveguide.grating.k_rad_per_nm;
+    let g = &mut sys.waveguide.gratings.as_mut_slice()[0];
+    g.k_rad_per_nm = -g.k_rad_per_nm;
     let out = compare("waveguide", &sys);
     assert!(!out.pass(), "{out:?}");
     assert!(
