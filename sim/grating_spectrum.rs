@@ -26,19 +26,27 @@ use crate::scene::Scene;
 pub struct GratingSpec {
     /// Recording wavelength in nm.
     pub recording_wavelength_nm: f64,
-    /// Reference-beam angle inside the film, degrees (object beam normal to the film).
+    /// Reference-beam angle inside the film, degrees from −z.
     pub reference_angle_deg: f64,
+    /// Object-beam angle inside the film, degrees from +z (0: normal to the film).
+    pub object_angle_deg: f64,
     /// Index modulation n1 of this grating.
     pub index_modulation: f64,
 }
 
-/// The grating list of a scene: today the single grating of the `[hoe]` keys.
+/// The grating list of a scene: its `[[hoe.grating]]` entries, or the one grating of the
+/// single-grating `[hoe]` keys.
 pub fn scene_gratings(s: &Scene) -> Vec<GratingSpec> {
-    vec![GratingSpec {
-        recording_wavelength_nm: s.hoe.recording_wavelength_nm,
-        reference_angle_deg: s.hoe.reference_angle_deg,
-        index_modulation: s.hoe.index_modulation,
-    }]
+    s.hoe
+        .gratings()
+        .iter()
+        .map(|g| GratingSpec {
+            recording_wavelength_nm: g.recording_wavelength_nm,
+            reference_angle_deg: g.reference_angle_deg,
+            object_angle_deg: g.object_angle_deg,
+            index_modulation: g.index_modulation,
+        })
+        .collect()
 }
 
 /// The Kogelnik gratings of a list, in the scene's film.
@@ -46,9 +54,10 @@ pub fn volume_gratings(s: &Scene, gratings: &[GratingSpec]) -> Vec<VolumeGrating
     gratings
         .iter()
         .map(|g| {
-            VolumeGrating::from_recording(
+            VolumeGrating::from_recording_beams(
                 g.recording_wavelength_nm,
                 g.reference_angle_deg,
+                g.object_angle_deg,
                 s.hoe.mean_index,
                 s.hoe.film_thickness_um,
                 g.index_modulation,

@@ -664,7 +664,7 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
     let settings = Settings::default();
     let lam_b = gs::volume_gratings(s, &gratings)[0]
         .bragg_wavelength_nm(glam::DVec2::ZERO)
-        .unwrap_or(s.hoe.recording_wavelength_nm);
+        .unwrap_or(s.hoe.primary_wavelength_nm());
     let mut points = serde_json::Map::new();
     for (name, kind, u) in [
         ("bulk_normal", gs::StackKind::Bulk, glam::DVec2::ZERO),

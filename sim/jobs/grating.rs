@@ -176,6 +176,7 @@ fn parse_grating(spec: &str, mean_index: f64) -> Result<GratingSpec, Failure> {
             Ok(GratingSpec {
                 recording_wavelength_nm: l,
                 reference_angle_deg: a,
+                object_angle_deg: 0.0,
                 index_modulation: n1,
             })
         }
