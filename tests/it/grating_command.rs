@@ -17,7 +17,14 @@ fn grating_json_models_and_files() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("g");
     let args = |model: &'static str| {
-        vec!["grating", "--model", model, "--lambda-nm", "530:534:3", "--json"]
+        vec![
+            "grating",
+            "--model",
+            model,
+            "--lambda-nm",
+            "530:534:3",
+            "--json",
+        ]
     };
     let mut a = args("rcwa");
     a.extend(["--out", out.to_str().unwrap()]);
@@ -26,7 +33,11 @@ fn grating_json_models_and_files() {
     assert_eq!(r["lambda_nm"].as_array().unwrap().len(), 3);
     for i in 0..3 {
         for e in ["energy_te", "energy_tm"] {
-            assert!((r[e][i].as_f64().unwrap() - 1.0).abs() < 1e-8, "{e}: {}", r[e][i]);
+            assert!(
+                (r[e][i].as_f64().unwrap() - 1.0).abs() < 1e-8,
+                "{e}: {}",
+                r[e][i]
+            );
         }
     }
     // At Bragg (532 nm, normal incidence) the two models agree to 0.2 % in the bulk stack, and
@@ -39,7 +50,11 @@ fn grating_json_models_and_files() {
         assert!((a - b).abs() / a < 2e-3, "{pol}: rcwa {a} kogelnik {b}");
     }
     let d = &order(&r, "reflected", 1)["direction"][1];
-    let angle = d[1].as_f64().unwrap().atan2(-d[2].as_f64().unwrap()).to_degrees();
+    let angle = d[1]
+        .as_f64()
+        .unwrap()
+        .atan2(-d[2].as_f64().unwrap())
+        .to_degrees();
     assert!((angle - 61.2).abs() < 1e-6, "{angle}");
     let mut names = files_in(&out);
     names.sort();

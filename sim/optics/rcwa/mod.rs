@@ -590,7 +590,7 @@ fn film_smatrix(
         return Ok((smatrix::layer(&w, &v, &q, v0, dn), 1));
     }
     let slices_f = (d * kz_max / (2.0 * PI) * settings.slices_per_period as f64).ceil();
-    if !(slices_f <= 1e9) {
+    if slices_f.is_nan() || slices_f > 1e9 {
         return Err(RcwaError::BadInput("film too thick for its slicing".into()));
     }
     let slices = (slices_f as usize).max(1);

@@ -164,7 +164,9 @@ impl RcwaTable {
         settings: &Settings,
     ) -> Result<RcwaTable, RcwaError> {
         let axes = [spec.lambda_nm, spec.u_x, spec.u_y];
-        if axes.iter().any(|a| a.n < 2 || !(a.stop > a.start)) || spec.max_order < 0 {
+        let bad_axis =
+            |a: &Axis| a.n < 2 || a.stop.partial_cmp(&a.start) != Some(std::cmp::Ordering::Greater);
+        if axes.iter().any(bad_axis) || spec.max_order < 0 {
             return Err(RcwaError::BadInput(
                 "table axes need at least 2 nodes and start < stop".into(),
             ));
@@ -231,10 +233,10 @@ impl RcwaTable {
     ) -> Result<(RcwaTable, PathBuf, bool), RcwaError> {
         let key = Self::key(film, media, spec, settings);
         let path = cache_dir.join(format!("rcwa-table-{}.bin", &key[..32]));
-        if let Ok(bytes) = std::fs::read(&path) {
-            if let Some(t) = Self::decode(&bytes, &key, film, media, spec, settings) {
-                return Ok((t, path, true));
-            }
+        if let Ok(bytes) = std::fs::read(&path)
+            && let Some(t) = Self::decode(&bytes, &key, film, media, spec, settings)
+        {
+            return Ok((t, path, true));
         }
         let mut t = Self::build(film, media, spec, settings)?;
         t.max_error = t.measure_error(probes, 1)?;
