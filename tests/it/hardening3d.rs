@@ -643,12 +643,20 @@ fn mesh_dataset_with_a_huge_mesh_is_refused() {
     .unwrap();
     let out = d.join("out");
     let (code, err, t) = run_timed(
-        &["dataset", recipe.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &[
+            "dataset",
+            recipe.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
         60,
     );
     assert_eq!(code, Some(2), "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(err.contains("objects.sources[0].folder") && err.contains("many.obj"), "{err}");
+    assert!(
+        err.contains("objects.sources[0].folder") && err.contains("many.obj"),
+        "{err}"
+    );
     assert!(err.contains("10000003 triangles"), "{err}");
     assert!(t < 20.0, "{t} s");
     assert!(!out.exists());

@@ -145,7 +145,10 @@ fn sigkill_leaves_a_complete_set_after_recovery() {
         let v = visible(&out);
         let set = which_set_visible(&v, &refs);
         stscam::io::atomic::recover_folder(&out).unwrap();
-        assert_eq!(which_set(&out, &refs), set, "killed after {after_ms} ms");
+        // A kill after the commit marker (possible on a loaded machine) is rolled forward to
+        // the killed run's set; otherwise the visible set stays.
+        let after = which_set(&out, &refs);
+        assert!(after == set || after == 1, "killed after {after_ms} ms");
     }
     // (b) Killed during the renames (slowed to 300 ms each): the marker is found, and the
     // recovery completes the killed run's set.
