@@ -171,7 +171,12 @@ pub fn probe_grating(
         },
     );
     let n = summary.n_glass;
-    let ug = summary.guided_u_by_grating[j].length();
+    // This grating's guided wave (what the trace out-couples at the top vHOE), if trapped.
+    let ug = if replicas.is_empty() && summary.guided_u == DVec2::ZERO {
+        0.0
+    } else {
+        (-dir.truncate() - wg.gratings.get(j).u_shift(lambda)).length()
+    };
     let guided = if ug > 0.0 && ug < n {
         (ug / n).asin()
     } else {

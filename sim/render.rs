@@ -262,11 +262,7 @@ fn camera_sample_at(
     let ray = sys
         .camera
         .generate_ray(col, row, [u[0], u[1]], [u[2], u[3]]);
-    // Each grating's Bragg wavelength for this ray (the wavelength density's components).
-    let lb = sys
-        .waveguide
-        .gratings
-        .bragg_wavelengths_nm(-ray.dir.truncate());
+    let gratings = &sys.waveguide.gratings;
     // Paths that also see straight through the plate need a broadband wavelength density.
     let fu = if estimator == Estimator::UniformAnalog {
         1.0
@@ -277,7 +273,15 @@ fn camera_sample_at(
     } else {
         sys.wavelengths.uniform_fraction()
     };
-    let (lambda, pdf) = sys.wavelengths.sample_multiplexed(u[4], &lb, fu);
+    let (lambda, pdf) = if gratings.len() == 1 {
+        // One grating: its Bragg wavelength and the single-band density, as always.
+        let lb = gratings.film().bragg_wavelength_nm(-ray.dir.truncate());
+        sys.wavelengths.sample_mixed(u[4], lb, fu)
+    } else {
+        // Each grating's Bragg wavelength for this ray (the density's components).
+        let lb = gratings.bragg_wavelengths_nm(-ray.dir.truncate());
+        sys.wavelengths.sample_multiplexed(u[4], &lb, fu)
+    };
     if !sys.wavelengths.in_band(lambda) || pdf <= 0.0 {
         return None;
     }

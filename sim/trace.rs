@@ -98,9 +98,6 @@ pub struct TraceSummary {
     /// Tangential direction cosines of the first grating's guided wave that the top vHOE
     /// couples out (zero if none).
     pub guided_u: DVec2,
-    /// The guided wave of each grating (zero where it has none; entries past the film's
-    /// gratings are zero).
-    pub guided_u_by_grating: [DVec2; MAX_GRATINGS],
     /// Glass index at the path's wavelength.
     pub n_glass: f64,
 }
@@ -184,7 +181,6 @@ pub fn trace_camera_path_until(
     let n_g = wg.n_glass(lambda_nm);
     let alpha = wg.absorption_per_mm(lambda_nm);
     let gratings = &wg.gratings;
-    let film = gratings.film();
     let mut summary = TraceSummary {
         n_glass: n_g,
         ..Default::default()
@@ -227,133 +223,210 @@ pub fn trace_camera_path_until(
     // Out-coupling at the top vHOE, once per grating j: guided u_g = u − (λ/2π)K_j,t
     // (travelling −z) → u (order −1 of grating j). Each grating's guided wave is its own
     // zig-zag and its own replicas (grating, contact).
+    let ctx = PathContext {
+        wg,
+        limits,
+        lambda_nm,
+        u,
+        n_g,
+        alpha,
+        wt,
+        t_face,
+        cross_shift,
+        cross_t,
+        p_top,
+        air_shift,
+    };
+    if gratings.len() == 1 {
+        // The single-grating film: no arrays, the path as it always was.
+        if let Some(top) = top_coupling(&ctx, 0) {
+            let _ = trace_guided(&ctx, 0, top, &mut summary, &mut visit);
+        }
+        return summary;
+    }
     let mut tops = [None; MAX_GRATINGS];
-    for (j, grating) in gratings.as_slice().iter().enumerate() {
-        let u_g = u - grating.u_shift(lambda_nm);
-        if u_g.length_squared() >= n_g * n_g {
-            continue;
-        }
-        // Only a reflection-type order sends the guided light back toward the camera (+z);
-        // where the same order is transmission-type (far off Bragg) it leaves toward the user
-        // instead.
-        let top_wave = gratings.incident(u_g, -1.0, lambda_nm);
-        tops[j] = top_wave
-            .and_then(|w| w.order(grating, -1))
-            .filter(|d| d.reflection)
-            .map(|d| (u_g, top_wave, d.eta));
+    for (j, t) in tops.iter_mut().enumerate().take(gratings.len()) {
+        *t = top_coupling(&ctx, j);
     }
-    if gratings.len() > 1 {
-        // Independent gratings (optics::multiplex): should two be near Bragg for the same ray,
-        // their out-coupled shares are scaled to sum to at most 1 (energy conservation).
-        for p in 0..2 {
-            let sum: f64 = tops.iter().flatten().map(|t| t.2[p]).sum();
-            if sum > 1.0 {
-                tops.iter_mut().flatten().for_each(|t| t.2[p] /= sum);
-            }
+    // Independent gratings (optics::multiplex): should two be near Bragg for the same ray,
+    // their out-coupled shares are scaled to sum to at most 1 (energy conservation).
+    for p in 0..2 {
+        let sum: f64 = tops.iter().flatten().map(|t| t.2[p]).sum();
+        if sum > 1.0 {
+            tops.iter_mut().flatten().for_each(|t| t.2[p] /= sum);
         }
     }
-    let exit_t = scale(t_face, cross_t);
-    let mut first_guided = true;
     for (j, top) in tops.iter().enumerate().take(gratings.len()) {
-        let Some((u_g, top_wave, top_eta)) = *top else {
-            continue;
-        };
-        let grating = gratings.get(j);
-        if first_guided {
-            summary.guided_u = u_g;
-            first_guided = false;
-        }
-        summary.guided_u_by_grating[j] = u_g;
-        let mut g = mul(wt, top_eta);
-        // In-coupling efficiency u → u_g (order +1), the same for every contact of this path;
-        // by reciprocity it equals the out-coupling efficiency when the film is lossless.
-        // (Both orders are reflection-type together: the on-shell conditions coincide.)
-        let eta_in = if grating.alpha0_per_nm == 0.0 {
-            top_eta
-        } else {
-            grating
-                .diffract(u, 1.0, lambda_nm, 1)
-                .filter(|d| d.reflection)
-                .map_or([0.0, 0.0], |d| d.eta)
-        };
-        let leg = lateral_shift(u_g, n_g, w);
-        let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
-        let r_face = reflectance(n_g, 1.0, u_g);
-        let r_film = reflectance(film.n_film, 1.0, u_g);
-        // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the
-        // film toward the air face ("up" = toward the face it is about to reflect from) and
-        // back. The wave travelling −z is the one the top vHOE out-couples (order −1 of grating
-        // j, `top_eta`), the same at every contact; at the back face the wave toward the air
-        // face travels +z and vice versa, so both faces see the same pair of passes in opposite
-        // order. Every grating's orders leave the guided wave (a cross-grating order leaves at
-        // another angle, not toward this pixel: lost, like other stray orders).
-        let toward_back = gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
-        let toward_front = gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta)));
-        let cont_bottom = mul(mul(toward_back, r_film), toward_front);
-        let cont_top = if wg.covered && wg.cover_frustrates_tir {
-            [0.0, 0.0]
-        } else {
-            cont_bottom
-        };
-        let mut replica = 0u32;
-        let mut p = p_top;
-        let mut contact = 0u32;
-        loop {
-            if contact >= limits.max_contacts {
-                summary.hit_max_contacts = true;
-                summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
+        if let Some(top) = *top {
+            if trace_guided(&ctx, j, top, &mut summary, &mut visit).is_break() {
                 break;
             }
-            contact += 1;
-            p -= leg;
-            g = scale(g, leg_t);
-            if contact % 2 == 1 {
-                // Back face.
-                if wg.bottom.contains(p) {
-                    let entry = p - cross_shift;
-                    let mut wb = mul(mul(g, eta_in), exit_t);
-                    if wg.top.contains(entry) {
-                        wb = if wg.covered {
-                            [0.0, 0.0]
-                        } else {
-                            mul(wb, gratings.undiffracted(u, 1.0, lambda_nm))
-                        };
-                    }
-                    let flow = visit(&Branch {
-                        kind: BranchKind::Replica(replica),
-                        bottom_contact_mm: Some(p),
-                        exit_point_mm: entry,
-                        object_point_mm: entry - air_shift,
-                        weight: wb,
-                        contact,
-                        grating: j as u32,
-                    });
-                    if flow.is_break() {
-                        summary.contacts += contact;
-                        return summary;
-                    }
-                    replica += 1;
-                    g = mul(g, cont_bottom);
-                } else {
-                    g = mul(g, r_face);
+        }
+    }
+    summary
+}
+
+/// What one path's guided waves share: the camera ray's quantities up to the top vHOE.
+struct PathContext<'a> {
+    wg: &'a Waveguide,
+    limits: TraceLimits,
+    lambda_nm: f64,
+    /// The camera ray's tangential direction cosines in air (physical light).
+    u: DVec2,
+    n_g: f64,
+    alpha: f64,
+    /// Weight [TE, TM] arriving at the top vHOE.
+    wt: [f64; 2],
+    t_face: [f64; 2],
+    cross_shift: DVec2,
+    cross_t: f64,
+    p_top: DVec2,
+    air_shift: DVec2,
+}
+
+/// The top vHOE's out-coupling by grating `j`: (guided u_g, its incident wave travelling −z,
+/// η [TE, TM] of order −1), or `None` if the guided wave cannot exist or the order is not
+/// reflection-type.
+#[inline(always)]
+fn top_coupling(
+    ctx: &PathContext,
+    j: usize,
+) -> Option<(DVec2, Option<crate::optics::grating::Incident>, [f64; 2])> {
+    let gratings = &ctx.wg.gratings;
+    let grating = gratings.get(j);
+    let u_g = ctx.u - grating.u_shift(ctx.lambda_nm);
+    if u_g.length_squared() >= ctx.n_g * ctx.n_g {
+        return None;
+    }
+    // Only a reflection-type order sends the guided light back toward the camera (+z); where
+    // the same order is transmission-type (far off Bragg) it leaves toward the user instead.
+    let top_wave = gratings.incident(u_g, -1.0, ctx.lambda_nm);
+    top_wave
+        .and_then(|w| w.order(grating, -1))
+        .filter(|d| d.reflection)
+        .map(|d| (u_g, top_wave, d.eta))
+}
+
+/// Traces grating `j`'s guided wave (out-coupled at the top vHOE with `top`) down the plate,
+/// visiting its replicas; `Break` if `visit` stopped the path.
+#[inline(always)]
+fn trace_guided(
+    ctx: &PathContext,
+    j: usize,
+    (u_g, top_wave, top_eta): (DVec2, Option<crate::optics::grating::Incident>, [f64; 2]),
+    summary: &mut TraceSummary,
+    visit: &mut impl FnMut(&Branch) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    let PathContext {
+        wg,
+        limits,
+        lambda_nm,
+        u,
+        n_g,
+        alpha,
+        wt,
+        t_face,
+        cross_shift,
+        cross_t,
+        p_top,
+        air_shift,
+    } = *ctx;
+    let w = wg.thickness_mm;
+    let gratings = &wg.gratings;
+    let grating = gratings.get(j);
+    if summary.guided_u == DVec2::ZERO {
+        summary.guided_u = u_g;
+    }
+    let mut g = mul(wt, top_eta);
+    // In-coupling efficiency u → u_g (order +1), the same for every contact of this path; by
+    // reciprocity it equals the out-coupling efficiency when the film is lossless.
+    // (Both orders are reflection-type together: the on-shell conditions coincide.)
+    let eta_in = if grating.alpha0_per_nm == 0.0 {
+        top_eta
+    } else {
+        grating
+            .diffract(u, 1.0, lambda_nm, 1)
+            .filter(|d| d.reflection)
+            .map_or([0.0, 0.0], |d| d.eta)
+    };
+    let leg = lateral_shift(u_g, n_g, w);
+    let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
+    let r_face = reflectance(n_g, 1.0, u_g);
+    let r_film = reflectance(gratings.film().n_film, 1.0, u_g);
+    // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the film
+    // toward the air face ("up" = toward the face it is about to reflect from) and back. The
+    // wave travelling −z is the one the top vHOE out-couples (order −1 of grating j,
+    // `top_eta`), the same at every contact; at the back face the wave toward the air face
+    // travels +z and vice versa, so both faces see the same pair of passes in opposite order.
+    // Every grating's orders leave the guided wave (a cross-grating order leaves at another
+    // angle, not toward this pixel: lost, like other stray orders).
+    let toward_back = gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
+    let toward_front = gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta)));
+    let cont_bottom = mul(mul(toward_back, r_film), toward_front);
+    let cont_top = if wg.covered && wg.cover_frustrates_tir {
+        [0.0, 0.0]
+    } else {
+        cont_bottom
+    };
+    let exit_t = scale(t_face, cross_t);
+    let mut replica = 0u32;
+    let mut p = p_top;
+    let mut contact = 0u32;
+    loop {
+        if contact >= limits.max_contacts {
+            summary.hit_max_contacts = true;
+            summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
+            break;
+        }
+        contact += 1;
+        p -= leg;
+        g = scale(g, leg_t);
+        if contact % 2 == 1 {
+            // Back face.
+            if wg.bottom.contains(p) {
+                let entry = p - cross_shift;
+                let mut wb = mul(mul(g, eta_in), exit_t);
+                if wg.top.contains(entry) {
+                    wb = if wg.covered {
+                        [0.0, 0.0]
+                    } else {
+                        mul(wb, gratings.undiffracted(u, 1.0, lambda_nm))
+                    };
                 }
-            } else if wg.top.contains(p) {
-                g = mul(g, cont_top);
-                summary.top_contacts += 1;
+                let flow = visit(&Branch {
+                    kind: BranchKind::Replica(replica),
+                    bottom_contact_mm: Some(p),
+                    exit_point_mm: entry,
+                    object_point_mm: entry - air_shift,
+                    weight: wb,
+                    contact,
+                    grating: j as u32,
+                });
+                if flow.is_break() {
+                    summary.contacts += contact;
+                    return ControlFlow::Break(());
+                }
+                replica += 1;
+                g = mul(g, cont_bottom);
             } else {
                 g = mul(g, r_face);
             }
-            if !wg.bottom.reachable(p, -leg) {
-                break;
-            }
-            if g[0].max(g[1]) < limits.min_weight {
-                summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
-                break;
-            }
+        } else if wg.top.contains(p) {
+            g = mul(g, cont_top);
+            summary.top_contacts += 1;
+        } else {
+            g = mul(g, r_face);
         }
-        summary.contacts += contact;
+        if !wg.bottom.reachable(p, -leg) {
+            break;
+        }
+        if g[0].max(g[1]) < limits.min_weight {
+            summary.truncated_weight = summary.truncated_weight.max(g[0].max(g[1]));
+            break;
+        }
     }
-    summary
+    summary.contacts += contact;
+    ControlFlow::Continue(())
 }
 
 #[cfg(test)]

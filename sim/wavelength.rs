@@ -123,6 +123,9 @@ pub struct WavelengthSampler {
     table_start_nm: f64,
     /// Bin width, nm.
     bin_nm: f64,
+    /// The first grating's tables, held inline (the single-grating hot path reads them without
+    /// an indirection); a copy of `sets[0]`.
+    first: TableSet,
     /// One table set per grating, in the film's order.
     sets: Vec<TableSet>,
 }
@@ -249,6 +252,7 @@ impl WavelengthSampler {
             uniform_fraction,
             table_start_nm,
             bin_nm,
+            first: sets[0].clone(),
             sets,
         }
     }
@@ -281,7 +285,7 @@ impl WavelengthSampler {
     /// grating's tables.
     #[inline]
     pub fn sample_mixed(&self, u: f64, lambda_bragg_nm: Option<f64>, fu: f64) -> (f64, f64) {
-        let set = &self.sets[0];
+        let set = &self.first;
         let Some(lb) = lambda_bragg_nm else {
             return (self.lo_nm + u * self.band_nm(), 1.0 / self.band_nm());
         };
@@ -308,7 +312,7 @@ impl WavelengthSampler {
     ) -> (f64, f64) {
         if self.sets.len() == 1 {
             let lb = lambda_bragg_nm.first().copied().flatten();
-            let lb = if self.sets[0].active { lb } else { None };
+            let lb = if self.first.active { lb } else { None };
             return self.sample_mixed(u, lb, fu);
         }
         let mut comps = [0usize; crate::scene::MAX_GRATINGS];
@@ -405,7 +409,7 @@ impl WavelengthSampler {
     /// `lambda_bragg_nm`.
     pub fn pdf(&self, lambda_nm: f64, lambda_bragg_nm: f64) -> f64 {
         self.pdf_in(
-            self.sets[0].table_for(lambda_bragg_nm),
+            self.first.table_for(lambda_bragg_nm),
             lambda_nm,
             lambda_bragg_nm,
             self.uniform_fraction,
