@@ -3,7 +3,7 @@
 //! count, Bragg wavelengths across the field, field of view and what limits it).
 //!
 //! Everything here is traced with the same `trace` code as the renderer, with no randomness:
-//! chief rays through the lens centre at the exact Bragg wavelength of physics.md §3.2. The FOV
+//! chief rays through the lens centre at the exact Bragg wavelength of docs/physics.md §3.2. The FOV
 //! is found by scanning the field angle in air (0.05° steps) and naming the first element that
 //! stops the chief ray at each end: the sensor crop, the top-vHOE aperture, the Bragg band
 //! falling outside the simulated spectrum, the guided wave not being trapped by TIR, or no

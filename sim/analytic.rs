@@ -3,14 +3,14 @@
 //!
 //! # Closed forms (all written here without calling the tracer or the grating code)
 //!
-//! Frame and units as in `DESIGN.md`: millimetres, plate 0 ≤ z ≤ w, y up, camera at z > w
+//! Frame and units as in `docs/design.md`: millimetres, plate 0 ≤ z ≤ w, y up, camera at z > w
 //! looking along −z. A field direction is the camera chief ray from the lens centre,
 //! d = normalise(tan h, tan v, −1), with h and v the horizontal and vertical field angles in
 //! air (the convention of `analysis::probe`). The physical light travels along −d; its
 //! tangential optical direction cosines u = −(d_x, d_y) are conserved by every planar
 //! interface (Snell).
 //!
-//! 1. **Bragg wavelength** (physics.md §3.2): on-shell closure |ρ − K| = |ρ| with
+//! 1. **Bragg wavelength** (docs/physics.md §3.2): on-shell closure |ρ − K| = |ρ| with
 //!    K = k0(ŝ_O − ŝ_R) gives λ_B = λ0 (s_z − s_y tan(θ_R/2)), where ŝ is the direction inside
 //!    the film: s_y = u_y/n_f, s_z = √(1 − |u|²/n_f²). Independent of n_f for in-plane
 //!    incidence when measured inside the medium; exactly λ0 cos(Θ + θ_R/2)/cos(θ_R/2) in-plane
@@ -250,7 +250,7 @@ impl ClosedForm {
         ]
     }
 
-    /// Closed-form Bragg wavelength (physics.md §3.2) for light with air direction cosines
+    /// Closed-form Bragg wavelength (docs/physics.md §3.2) for light with air direction cosines
     /// `u`: λ0 (s_z − s_y tan(θ_R/2)) with ŝ inside the film; `None` if not positive.
     pub fn bragg_wavelength_nm(&self, u: [f64; 2]) -> Option<f64> {
         let nf = self.n_film;
@@ -415,7 +415,7 @@ impl ClosedForm {
     }
 
     /// In-plane (h = 0) vertical camera angle, degrees, at which the guided wave reaches the
-    /// critical angle: v = asin(n_f sin(θ_R − asin(1/n_f))) (physics.md §3.4). Above it TIR
+    /// critical angle: v = asin(n_f sin(θ_R − asin(1/n_f))) (docs/physics.md §3.4). Above it TIR
     /// fails.
     pub fn tir_edge_vertical_deg(&self) -> f64 {
         let nf = self.n_film;
@@ -656,7 +656,7 @@ pub const WEAK_INDEX_MODULATION: f64 = 1e-4;
 /// The traced throughput is not maximal exactly at λ_B: the Kogelnik coupling
 /// ν = π n1 d/(λ√(c_R c_S)) itself depends on λ, so in the weak-grating limit the throughput
 /// η_top·η_in ∝ ν⁴ sinc⁴ξ peaks where 4 d ln ν/dλ = −4 d ln sinc ξ/dλ, i.e. about
-/// −3/(λ (∂ξ/∂λ)²) ≈ −0.01 nm from λ_B (∂ξ/∂λ ≈ 0.8 nm⁻¹, physics.md §3.5). That is a physical
+/// −3/(λ (∂ξ/∂λ)²) ≈ −0.01 nm from λ_B (∂ξ/∂λ ≈ 0.8 nm⁻¹, docs/physics.md §3.5). That is a physical
 /// pull, not a disagreement; the row checks |peak − λ_B| ≤ 0.05 nm, 1 % of the ≈ 5 nm band.
 pub fn peak_tolerance_nm(_lambda_nm: f64) -> f64 {
     0.05
@@ -1185,7 +1185,7 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
         &cf_tall,
         &tall_info,
     );
-    // The pure formulas of physics.md §3.4 for the two in-plane edges of the tall variant.
+    // The pure formulas of docs/physics.md §3.4 for the two in-plane edges of the tall variant.
     let tir = cf_tall.tir_edge_vertical_deg();
     let blue = cf_tall.bragg_edge_vertical_deg(cf_tall.band_nm[0])[0];
     for (name, formula, st) in [

@@ -1,6 +1,6 @@
 //! Thin-lens camera and sensor geometry (pixel area, crop, aperture, focus).
 //!
-//! Model (`reference/physics.md` §6.2; the standard physically based thin-lens camera of
+//! Model (`docs/physics.md` §6.2; the standard physically based thin-lens camera of
 //! pbrt): lens of focal length f at distance d1 behind the back face, optical axis along −z
 //! through the centre of the top vHOE; sensor at d0 = f·s_o/(s_o − f) behind the lens for a
 //! focus distance s_o (1/f = 1/d0 + 1/s_o). A sample picks a point on the pixel and a point on
@@ -8,7 +8,7 @@
 //! carries the cos⁴θ irradiance factor (θ between the sensor→lens ray and the axis), so that
 //! an on-axis pixel looking at a uniform radiance L reads L.
 //!
-//! Image convention (DESIGN.md): row 0 is the top (+y), column 0 the left (−x) as seen from
+//! Image convention (docs/design.md): row 0 is the top (+y), column 0 the left (−x) as seen from
 //! the camera looking at the user. The lens inverts the image on the sensor; pixel coordinates
 //! refer to the upright image.
 //!

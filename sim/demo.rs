@@ -148,7 +148,7 @@ pub(crate) fn intensity_of_spec(
 }
 
 /// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
-/// `m` (physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
+/// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
 pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
     let (ow, oh) = m.object;

@@ -1,6 +1,6 @@
 //! The display (LCD) as an emissive plane whose spectral radiance follows the target image.
 //!
-//! Model (`reference/physics.md` §6.1): the display plane z = −D carries the target image,
+//! Model (`docs/physics.md` §6.1): the display plane z = −D carries the target image,
 //! each target pixel shown as a square of `lcd_pixels_per_image_pixel`² LCD pixels. Relative
 //! radiance at a point is L_black + (1 − L_black)·V^γ for display code value V (PNG and
 //! built-in targets), or L_black + (1 − L_black)·V for linear (EXR) input; the rest of the LCD

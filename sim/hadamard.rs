@@ -1,4 +1,4 @@
-//! The paper's Hadamard measurement of H (physics.md §7), simulated.
+//! The paper's Hadamard measurement of H (docs/physics.md §7), simulated.
 //!
 //! Patterns: Sylvester's Hadamard matrix of order N = object pixels (N must be 2^k), entry
 //! h_i[k] = (−1)^popcount(i & k); row 0 is all ones and H_N H_Nᵀ = N·I. Row-major, pattern
@@ -11,7 +11,7 @@
 //! The sensor noise model (`noise.rs`) then adds shot and read noise, the dark offset,
 //! quantisation and saturation.
 //!
-//! Estimate (paper Eqs. 12–16 with the normalisation corrected, physics.md §7.2):
+//! Estimate (paper Eqs. 12–16 with the normalisation corrected, docs/physics.md §7.2):
 //! v'_0 = v_0, v'_i = 2v_i − v_0, H_est = V'U'ᵀ/N, i.e. row m of H_est is FWHT(v'[m,:])/N.
 //! Offsets are not cancelled (§7.3): with v_i = H u_i + c, H_est = H + c e_0ᵀ, so the whole
 //! offset (LCD black + camera dark level) lands in column 0. Subtracting a dark frame (all-black

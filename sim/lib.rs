@@ -1,5 +1,5 @@
 //! stscam: a spectral Monte Carlo simulator of the see-through-screen camera built on a
-//! holographic waveguide (Optics Express 2022). See `DESIGN.md`-style notes in the README and
+//! holographic waveguide (Optics Express 2022). See `docs/design.md`-style notes in the README and
 //! each module's header for the model, its assumptions and its sources.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

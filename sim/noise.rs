@@ -1,4 +1,4 @@
-//! Sensor noise: what a real camera does to a noiseless capture (physics.md §7.3).
+//! Sensor noise: what a real camera does to a noiseless capture (docs/physics.md §7.3).
 //!
 //! Model, per pixel and frame, for a noiseless value v in capture units:
 //!   electrons   e = v·G, with the exposure gain G set once so that the brightest pixel of the
@@ -10,7 +10,7 @@
 //!               [0, 2^bits − 1] (saturation), and converted back to capture units with the
 //!               same gain, the dark offset left in (the camera's black level).
 //! Assumptions: no dark current, no fixed-pattern noise, no pixel cross-talk, linear response
-//! up to full scale (gamma, LUT, auto-exposure and auto-gain disabled, as physics.md §7.3 asks).
+//! up to full scale (gamma, LUT, auto-exposure and auto-gain disabled, as docs/physics.md §7.3 asks).
 //!
 //! Random numbers come from small generators keyed by hashing (seed, stream, …): one per value,
 //! or one per sensor pixel drawn through its frames in order (calibration); Gaussians come from

@@ -1,7 +1,7 @@
 //! The image loop: for every crop pixel and sample, a camera ray, a wavelength, one backward
 //! path with all its replicas, and the sensor's spectral response.
 //!
-//! Estimator (DESIGN.md): for channel c the pixel value is
+//! Estimator (docs/design.md): for channel c the pixel value is
 //!   E[ cos⁴θ · S(λ) · R_c(λ)/∫R_c · Σ_branches L_rel(x_b)·(f_TE W_b,TE + f_TM W_b,TM) / p(λ) ]
 //! with S the backlight spectrum (mean 1), R_c the sensor response, L_rel the display's relative
 //! radiance, W the branch weights of `trace`, f the display's polarisation fractions and p the

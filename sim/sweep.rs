@@ -1,6 +1,6 @@
 //! Design sweeps: for every point of a grid of scene-key values (`--vary KEY=START:STOP:STEPS`,
 //! Cartesian product, first axis slowest), the design figures an optical engineer needs before
-//! fabrication (DESIGN.md, user 2): throughput-based field of view and what limits it, replica
+//! fabrication (docs/design.md, user 2): throughput-based field of view and what limits it, replica
 //! count and pitch, display-to-sensor light efficiency, the Bragg colour band across the
 //! capture, and optionally the ADMM-TV reconstruction PSNR of a standard target.
 //!
@@ -21,7 +21,7 @@
 //!   transmission: Fresnel, Kogelnik efficiencies (both vHOEs, every bounce), TIR and glass
 //!   absorption are in W; the lens's cos⁴ falloff and aperture are not. 0 ≤ T ≤ 1.
 //!   The numerator is a midpoint sum over λ_B ± `bragg_half_width_nm` (λ_B the exact Bragg
-//!   wavelength of d, physics.md §3.2) clipped to the band, in `bragg_step_nm` bins; where no
+//!   wavelength of d, docs/physics.md §3.2) clipped to the band, in `bragg_step_nm` bins; where no
 //!   wavelength is Bragg-matched, over the whole band in `broadband_step_nm` bins. The
 //!   denominator uses the same rule over the band. Convergence on the paper's scene: halving
 //!   the steps changes T by ≤ 1.4·10⁻⁴ (relative), also where W(λ) jumps (a guided contact
@@ -39,7 +39,7 @@
 //!   waveguide ratio b, and the larger fall names the limiter: the display spectrum × sensor
 //!   response if s < b; else the top vHOE's re-coupling if the guided path at out meets more
 //!   front-face contacts under the top vHOE than at peak (each out-couples most of the guided
-//!   light, physics.md §5), the bottom vHOE if out has fewer replicas ≥ 5 %, else the
+//!   light, docs/physics.md §5), the bottom vHOE if out has fewer replicas ≥ 5 %, else the
 //!   "Bragg/Kogelnik efficiency falloff". Note that T varies strongly across the field in the
 //!   paper's scene (white-LED spectrum and the top-vHOE re-coupling steps), so the FOV depends
 //!   on `fov_fraction` much more than a geometric FOV would.
@@ -77,8 +77,8 @@
 //! order, spectral sums run in wavelength order, and the PSNR pipeline is deterministic per
 //! seed, so every output byte is the same for any thread count. Files hold no timings.
 //!
-//! Sources: physics.md §3.2 (λ_B), §3.4 and §5 (FOV limits, replicas, pitch), §8.4 (PSNR);
-//! DESIGN.md (sweeps of vHOE size against FOV).
+//! Sources: docs/physics.md §3.2 (λ_B), §3.4 and §5 (FOV limits, replicas, pitch), §8.4 (PSNR);
+//! docs/design.md (sweeps of vHOE size against FOV).
 
 use std::fmt::Write as _;
 use std::path::Path;

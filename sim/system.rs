@@ -1,7 +1,7 @@
 //! The runtime system built from a scene description: waveguide, camera, sensor response,
 //! display and wavelength sampler, with every derived quantity computed once.
 //!
-//! Geometry (DESIGN.md): bottom vHOE centred at (0, 0) on the back face; top vHOE on the front
+//! Geometry (docs/design.md): bottom vHOE centred at (0, 0) on the back face; top vHOE on the front
 //! face with its bottom edge `gap` above the bottom vHOE's top edge; camera axis through the
 //! top vHOE's centre at `camera.distance_mm` behind the back face; display plane at
 //! z = −`display.distance_mm`.

@@ -1,7 +1,7 @@
 //! One backward path from the camera through the waveguide to the display, with deterministic
 //! splitting over every bottom-vHOE contact.
 //!
-//! Model (DESIGN.md "One camera sample, end to end"; physics.md §0.3, §2.3, §5): a camera ray
+//! Model (docs/design.md "One camera sample, end to end"; docs/physics.md §0.3, §2.3, §5): a camera ray
 //! (air, tangential direction cosines u) crosses the back face (Fresnel), the plate
 //! (Beer–Lambert), and meets the front face. Inside the top vHOE it splits into
 //! - the diffracted branch: the guided wave u_g = u − (λ/2π)K_t that the top vHOE out-couples
@@ -14,7 +14,7 @@
 //!   u_g, efficiency η_in) crosses the plate and leaves the front face toward the display with
 //!   the camera's own direction (the periscope property); the guided branch continues with the
 //!   two-pass factor (1 − Σ η_pass1)·R_TIR·(1 − Σ η_pass2) (pass 2 contains the out-coupling
-//!   loss ≈ η_in per bounce, physics.md §2.3);
+//!   loss ≈ η_in per bounce, docs/physics.md §2.3);
 //! - at a front-face contact under the top vHOE the guided wave loses its out-coupled part
 //!   (and everything, if the cover frustrates TIR);
 //! - elsewhere the faces reflect with Fresnel R (1 under TIR).
@@ -88,7 +88,7 @@ pub struct TraceSummary {
     /// Plate contacts visited by the guided part.
     pub contacts: u32,
     /// Front-face contacts of the guided part under the top vHOE after the out-coupling point
-    /// (each loses the top vHOE's out-coupled share, physics.md §5).
+    /// (each loses the top vHOE's out-coupled share, docs/physics.md §5).
     pub top_contacts: u32,
     /// Guided weight left when the path stopped on `min_weight` or `max_contacts` (max of TE,
     /// TM): an upper bound on each missing replica's weight.
@@ -353,7 +353,7 @@ fn trace_guided(
     let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
     let r_face = reflectance(n_g, 1.0, u_g);
     let r_film = reflectance(gratings.film().n_film, 1.0, u_g);
-    // Two-pass factors at a vHOE contact (physics.md §2.3): the guided wave crosses the film
+    // Two-pass factors at a vHOE contact (docs/physics.md §2.3): the guided wave crosses the film
     // toward the air face ("up" = toward the face it is about to reflect from) and back. The
     // wave travelling −z is the one the top vHOE out-couples (order −1 of grating j,
     // `top_eta`), the same at every contact; at the back face the wave toward the air face

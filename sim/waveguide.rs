@@ -1,6 +1,6 @@
 //! The holographic waveguide device: a glass plate with two vHOE rectangles and a cover.
 //!
-//! Geometry (DESIGN.md "Frame and units"): the plate fills 0 ≤ z ≤ w; the bottom vHOE is a
+//! Geometry (docs/design.md "Frame and units"): the plate fills 0 ≤ z ≤ w; the bottom vHOE is a
 //! rectangle on the back face (z = w) centred at the origin; the top vHOE is a rectangle on the
 //! front face (z = 0) above it, `gap` mm higher than the bottom vHOE's top edge; the optional
 //! cover lies on the user side of the top vHOE. Both vHOEs carry the same film with the same

@@ -1,8 +1,8 @@
 //! Wavelength importance sampling around each path's Bragg wavelength.
 //!
-//! Model (DESIGN.md "Estimator decisions"): the spectral integrand of a path is dominated by the
+//! Model (docs/design.md "Estimator decisions"): the spectral integrand of a path is dominated by the
 //! product of the in- and out-coupling efficiencies, a band a few nm wide centred on the
-//! path's exact Bragg wavelength λ_B (physics.md §3.2, closed form), with side lobes whose
+//! path's exact Bragg wavelength λ_B (docs/physics.md §3.2, closed form), with side lobes whose
 //! positions and heights change across the field. The sampler draws λ = λ_B + Δ with Δ from a
 //! tabulated, piecewise-constant density shaped like the measured end-to-end throughput of the
 //! field whose λ_B is nearest the path's own (a set of tables, one per field row, each measured

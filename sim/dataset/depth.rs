@@ -5,7 +5,7 @@
 //! everything else (camera focus included) stays as the scene gives it, so an object off the
 //! focus plane is seen defocused; g = H_D f + offset_D. All depths of one discrete scene share
 //! one seed, so they see the same camera rays: H_D is then what a one-pass depth stack (every
-//! replica branch meeting every plane, DESIGN.md "Depth") gives, and [`depth_matrices`] is the
+//! replica branch meeting every plane, docs/design.md "Depth") gives, and [`depth_matrices`] is the
 //! one place to switch to it. Assumption: the plane at each depth is the scene's display (same
 //! size, black level and spectrum), only moved.
 

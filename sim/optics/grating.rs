@@ -2,7 +2,7 @@
 //! recording geometry, on-shell k-closure for arbitrary (conical) incidence, and the Kogelnik
 //! efficiency for TE (s) and TM (p).
 //!
-//! Model (`reference/physics.md` §0.2, §2, §3):
+//! Model (`docs/physics.md` §0.2, §2, §3):
 //! - Recording beams inside the film: object ŝ_O = (0, 0, 1), reference
 //!   ŝ_R = (0, sin θ_R, −cos θ_R); K = k0 (ŝ_O − ŝ_R), k0 = 2π n_film/λ0 (a reflection grating,
 //!   with the sign correction of §0.2 to the paper's Eq. 4).
@@ -53,7 +53,7 @@ pub fn svea_taper(n1: f64, n_film: f64, c: f64) -> f64 {
 /// A volume grating recorded by two plane waves, ready for playback at any wavelength.
 #[derive(Clone, Copy, Debug)]
 pub struct VolumeGrating {
-    /// Grating vector K in rad/nm (frame of `DESIGN.md`: z from the user toward the camera).
+    /// Grating vector K in rad/nm (frame of `docs/design.md`: z from the user toward the camera).
     pub k_rad_per_nm: DVec3,
     /// Mean index of the film (non-dispersive).
     pub n_film: f64,
@@ -140,7 +140,7 @@ impl VolumeGrating {
 
     /// Exact (on-shell) Bragg wavelength, in nm, for a wave with tangential direction cosines `u`
     /// entering the film toward +z and diffracted into order +1 (the in-coupling of the bottom
-    /// vHOE): |ρ − K| = |ρ| gives λ_B = 4π(u·K_t + √(n² − |u|²)·K_z)/|K|² (physics.md §3.2).
+    /// vHOE): |ρ − K| = |ρ| gives λ_B = 4π(u·K_t + √(n² − |u|²)·K_z)/|K|² (docs/physics.md §3.2).
     /// Returns `None` when no positive wavelength is Bragg-matched or the wave cannot enter.
     pub fn bragg_wavelength_nm(&self, u: DVec2) -> Option<f64> {
         let nn = self.n_film * self.n_film - u.length_squared();
@@ -439,7 +439,7 @@ mod tests {
     #[test]
     fn grating_vector_and_period() {
         let g = paper(0.01);
-        // physics.md §3.1: K = (0, −0.015524, 0.026250) nm⁻¹, Λ = 206.0 nm at n = 1.50.
+        // docs/physics.md §3.1: K = (0, −0.015524, 0.026250) nm⁻¹, Λ = 206.0 nm at n = 1.50.
         assert!((g.k_rad_per_nm.y - -0.015524).abs() < 2e-6);
         assert!((g.k_rad_per_nm.z - 0.026250).abs() < 2e-6);
         assert!((g.period_nm() - 206.0).abs() < 0.1);
@@ -481,7 +481,7 @@ mod tests {
 
     #[test]
     fn fwhm_matches_physics_reference_table() {
-        // physics.md §3.5: (n1, η_TE, FWHM_TE, η_TM, FWHM_TM)
+        // docs/physics.md §3.5: (n1, η_TE, FWHM_TE, η_TM, FWHM_TM)
         let table = [
             (0.005, 0.350, 3.95, 0.100, 3.53),
             (0.010, 0.769, 5.33, 0.331, 3.91),
@@ -501,7 +501,7 @@ mod tests {
 
     #[test]
     fn bragg_wavelength_in_plane_closed_form() {
-        // physics.md §3.3: λ_B(Θ) = λ0 cos(Θ + θ_R/2)/cos(θ_R/2) for in-plane incidence.
+        // docs/physics.md §3.3: λ_B(Θ) = λ0 cos(Θ + θ_R/2)/cos(θ_R/2) for in-plane incidence.
         let g = paper(0.01);
         for &(theta_deg, expect) in &[(-10.0, 578.6), (-5.0, 557.4), (5.0, 502.6), (10.0, 469.3)] {
             let th: f64 = f64::to_radians(theta_deg);
@@ -523,7 +523,7 @@ mod tests {
 
     #[test]
     fn conical_bragg_wavelength() {
-        // physics.md §3.3: horizontal tilt a at zero vertical tilt gives λ_B = λ0 cos a.
+        // docs/physics.md §3.3: horizontal tilt a at zero vertical tilt gives λ_B = λ0 cos a.
         let g = paper(0.01);
         for &a in &[5.0f64, 10.0, 15.0] {
             let u = DVec2::new(1.5 * a.to_radians().sin(), 0.0);

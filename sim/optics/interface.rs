@@ -1,7 +1,7 @@
 //! Planar dielectric interfaces: Snell's law, Fresnel reflectance (s and p) and total internal
 //! reflection, written in terms of the tangential optical direction cosines u = n·ŝ_t.
 //!
-//! Model (`reference/physics.md` §4.3, standard textbook results): at a plane interface between
+//! Model (`docs/physics.md` §4.3, standard textbook results): at a plane interface between
 //! indices n_a (incident side) and n_b, u is conserved (Snell). cos θ_a = √(1 − |u|²/n_a²),
 //! cos θ_b = √(1 − |u|²/n_b²); |u| ≥ n_b is total internal reflection (R = 1).
 //!   r_s = (n_a cos θ_a − n_b cos θ_b)/(n_a cos θ_a + n_b cos θ_b)
@@ -75,7 +75,7 @@ mod tests {
 
     #[test]
     fn reference_values() {
-        // physics.md §4.3: air→glass n = 1.52: R = 0.0426 at 0°; (0.050, 0.036) at 20°;
+        // docs/physics.md §4.3: air→glass n = 1.52: R = 0.0426 at 0°; (0.050, 0.036) at 20°;
         // (0.061, 0.027) at 30°.
         let r0 = reflectance(1.0, 1.52, DVec2::ZERO);
         assert!((r0[0] - 0.0426).abs() < 1e-4 && (r0[1] - 0.0426).abs() < 1e-4);

@@ -4,7 +4,7 @@
 //! slab grating of thickness d with index modulation n1 (peak-to-mean) and mean amplitude
 //! absorption α0. The inputs are Kogelnik's ν (coupling strength) and ξ (dephasing), or for the
 //! lossy case κ, ϑ, c_R, c_S directly. Formulas and their numerical forms follow
-//! `reference/physics.md` §1:
+//! `docs/physics.md` §1:
 //! - lossless reflection grating, in the overflow-free unified form
 //!   η = ν² / (ξ² + G(ν² − ξ²)²), G(x) = √x·coth√x (x > 0), 1 (x = 0), √−x·cot√−x (x < 0)
 //!   (§1.2, equal to Kogelnik Eq. 57 everywhere, no sinh overflow, no 0/0 at ξ = ν);
@@ -19,7 +19,7 @@
 
 use num_complex::Complex64;
 
-/// G(x) of physics.md §1.2: √x·coth√x for x > 0, √−x·cot√−x for x < 0, with a series near 0.
+/// G(x) of docs/physics.md §1.2: √x·coth√x for x > 0, √−x·cot√−x for x < 0, with a series near 0.
 #[inline]
 pub fn g_unified(x: f64) -> f64 {
     if x.abs() < 1e-3 {
@@ -128,7 +128,7 @@ pub struct CoupledWave {
 
 impl CoupledWave {
     /// Signal amplitude S(0) of a reflection grating (boundary conditions R(0) = 1, S(d) = 0),
-    /// overflow-free form of physics.md §1.3.
+    /// overflow-free form of docs/physics.md §1.3.
     pub fn reflection_amplitude(&self) -> Complex64 {
         let i = Complex64::i();
         let a = Complex64::new(self.alpha0, self.theta);
@@ -305,7 +305,7 @@ pub(crate) mod tests {
             assert!(r.is_finite() && (0.0..=1.0).contains(&r));
         }
         assert_eq!(reflection_lossless(1e3, 0.0), 1.0);
-        // Lossy form with huge |q|d (the naive form overflows here, physics.md §1.3).
+        // Lossy form with huge |q|d (the naive form overflows here, docs/physics.md §1.3).
         let cw = CoupledWave {
             kappa: Complex64::new(std::f64::consts::PI * 0.03 / 0.5, 0.0),
             alpha0: 0.01,

@@ -1,5 +1,5 @@
-//! ADMM for ½‖Hf − g‖² + τ·TV(f) (physics.md §8.1–8.2; Boyd et al. 2011, §6.4.1; Wang, Yang,
-//! Yin & Zhang 2008). TV is of the object f (not of g, a typo of the paper; physics.md §0.4).
+//! ADMM for ½‖Hf − g‖² + τ·TV(f) (docs/physics.md §8.1–8.2; Boyd et al. 2011, §6.4.1; Wang, Yang,
+//! Yin & Zhang 2008). TV is of the object f (not of g, a typo of the paper; docs/physics.md §0.4).
 //!
 //! Split z = Df (forward differences, Neumann boundaries: the last difference of each row and
 //! column is 0), scaled dual u, penalty ρ:

@@ -1,4 +1,4 @@
-//! Conjugate gradients on the normal equations HᵀH f = Hᵀg (the paper's CGM, physics.md §8.3).
+//! Conjugate gradients on the normal equations HᵀH f = Hᵀg (the paper's CGM, docs/physics.md §8.3).
 //!
 //! Plain CG (Hestenes & Stiefel 1952) with the Gram matrix G = HᵀH formed once, starting from
 //! f = 0. In exact arithmetic this is CGLS/CGNR; forming G trades a one-time set-up for

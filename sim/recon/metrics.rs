@@ -1,4 +1,4 @@
-//! Image quality against a known object (physics.md §8.4).
+//! Image quality against a known object (docs/physics.md §8.4).
 //!
 //! Normalisation: both images are linear object intensities in [0, 1] (the units H maps from:
 //! 0 = black, 1 = white display pixel, display gamma removed); the reconstruction is clipped to

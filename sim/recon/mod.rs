@@ -1,4 +1,4 @@
-//! Reconstruction of the object f from a capture g = H·f + n (physics.md §8).
+//! Reconstruction of the object f from a capture g = H·f + n (docs/physics.md §8).
 //!
 //! Set-up (once per H, reported separately from the per-frame cost): Hᵀ in CSR form for the
 //! back-projection Hᵀg, and the Gram matrix G = HᵀH (N×N, sparse: two object pixels interact

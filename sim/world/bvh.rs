@@ -5,7 +5,7 @@
 //!
 //! Why the candidate test is f64 and watertight: the BVH's boxes only cull (they are
 //! conservative), so the hit, its distance and its barycentrics come from f64 arithmetic on
-//! the original vertices (DESIGN.md: f32 only inside the BVH). The shear-and-scale test makes
+//! the original vertices (docs/design.md: f32 only inside the BVH). The shear-and-scale test makes
 //! rays through shared edges and vertices of a closed mesh hit at least one of the triangles
 //! sharing them (edge functions are evaluated identically for both neighbours and edges are
 //! inclusive), so such rays never pass through.

@@ -3,7 +3,7 @@
 //! `object.N.key` / `light.N.key`, the form `--set` accepts.
 //!
 //! Units: lengths in mm, angles in degrees. Radiometric scales are relative to the capture
-//! unit of stscam, the radiance of a white display pixel (physics.md §6.1): an area light or
+//! unit of stscam, the radiance of a white display pixel (docs/physics.md §6.1): an area light or
 //! environment of `scale` 1 with a spectrum normalised to mean 1 over 380–780 nm has the
 //! spectral radiance of the display's white. A point or spot light's `scale` is a radiant
 //! intensity in that radiance unit × mm²: at r mm it gives the irradiance of a 1 mm² patch of
@@ -106,7 +106,7 @@ pub struct ObjectDesc {
     /// Name used in the JSON sidecar (default: the mesh).
     #[serde(default)]
     pub name: Option<String>,
-    /// Translation in mm (DESIGN.md frame: the user side is z < 0).
+    /// Translation in mm (docs/design.md frame: the user side is z < 0).
     #[serde(default)]
     pub position_mm: [f64; 3],
     /// Rotation in degrees about x, then y, then z (extrinsic).

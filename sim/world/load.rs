@@ -1688,9 +1688,9 @@ mod tests {
     }
 
     #[test]
-    fn loads_the_shared_face_mesh() {
+    fn loads_the_shipped_face_mesh() {
         let path =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/canonical_face_model.obj");
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/canonical_face_model.obj");
         if !path.is_file() {
             println!("skipped: {} is absent", path.display());
             return;

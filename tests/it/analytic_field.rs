@@ -1,4 +1,4 @@
-//! `validation/analytic`: stscam against closed forms across the whole field (physics.md
+//! `validation/analytic`: stscam against closed forms across the whole field (docs/physics.md
 //! §0.3, §2, §3.2–3.4, §5): Bragg wavelength, guided angle, replica pitch 2w·tanΘ', replica
 //! count (also against bottom-vHOE height), FOV limits, and the replica rows of a rendered
 //! point target. Run with `cargo test --release --test analytic_field -- --nocapture` to print

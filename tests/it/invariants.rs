@@ -18,7 +18,7 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
     /// A ray entering the bottom vHOE and leaving the top vHOE comes out parallel to itself
-    /// (physics.md §0.3), for any incidence direction and wavelength that couples: forward
+    /// (docs/physics.md §0.3), for any incidence direction and wavelength that couples: forward
     /// physical trace in full 3-D wave vectors.
     #[test]
     fn periscope(theta_deg in 0.0f64..40.0, phi in 0.0f64..std::f64::consts::TAU, lambda in 360.0f64..830.0,

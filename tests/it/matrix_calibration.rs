@@ -201,7 +201,7 @@ fn noisy_calibration_puts_the_dark_offset_in_column_zero() {
         "{r:?}"
     );
     // Other columns: shot, read and quantisation noise spread over the row as predicted,
-    // Var(H_est[m,k]) = (4/N²)·Σ_i Var(v_i[m]) (the multiplex formula of physics.md §7.3).
+    // Var(H_est[m,k]) = (4/N²)·Σ_i Var(v_i[m]) (the multiplex formula of docs/physics.md §7.3).
     assert_eq!(r.saturated_rows, 0);
     let ratio = r.without_dark_frame.other_columns / r.predicted_noise_other_columns;
     assert!((ratio - 1.0).abs() < 0.05, "measured / predicted = {ratio}");

@@ -691,7 +691,7 @@ fn nested_gltf_emitter_lands_on_the_probed_replica_pixels() {
 /// their depths within the placed mesh's z range (file z ∈ [−2.44, 7.59] cm → 424–525 mm).
 #[test]
 fn canonical_face_mesh_renders() {
-    let path = Path::new(MANIFEST).join("../shared/assets/canonical_face_model.obj");
+    let path = Path::new(MANIFEST).join("scenes/assets/canonical_face_model.obj");
     if !path.is_file() {
         println!("skipped: {} is absent", path.display());
         return;

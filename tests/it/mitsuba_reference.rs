@@ -3,7 +3,7 @@
 //! The references `validation/mitsuba/reference/{plain-glass,waveguide}.npy` (128×128 float32,
 //! stscam's pixel unit) were rendered by `validation/mitsuba/run.sh --update-references` from
 //! the Mitsuba scenes of `validation/mitsuba/scenes.py` (own vHOE BSDF written from
-//! reference/physics.md); their JSON holds the Monte Carlo noise estimate. Here the same scenes
+//! docs/physics.md); their JSON holds the Monte Carlo noise estimate. Here the same scenes
 //! (`validation/mitsuba/*.toml`) are rendered in-process with two seeds and compared with the
 //! rules of `validation/mitsuba/compare.py`:
 //!  1. relative RMSE ‖s − m‖/‖m‖ ≤ 2·√(ε_s² + ε_m²) + δ at full resolution,
@@ -282,7 +282,7 @@ fn waveguide_matches_the_mitsuba_reference() {
 }
 
 /// The comparison has teeth: with the grating vector's sign flipped (a plausible sign error,
-/// physics.md §0.2) the waveguide image no longer matches, by a wide margin.
+/// docs/physics.md §0.2) the waveguide image no longer matches, by a wide margin.
 #[test]
 fn waveguide_with_the_wrong_sign_of_k_fails_the_comparison() {
     let mut sys = system("waveguide");

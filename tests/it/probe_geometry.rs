@@ -1,6 +1,6 @@
 //! The chief-ray geometry of `stscam probe` against closed forms: replica pitch 2w·tanΘ',
 //! object-side directions equal to the camera ray (periscope), and the Bragg colour of
-//! physics.md §3.2–3.3 along the vertical midline.
+//! docs/physics.md §3.2–3.3 along the vertical midline.
 
 use crate::common::{stscam_json, vec3};
 
@@ -61,7 +61,7 @@ fn replicas_are_spaced_by_the_guided_pitch_and_parallel_to_the_camera_ray() {
 #[test]
 fn bragg_colour_on_the_vertical_midline() {
     // With the glass index equal to the film index the probe wavelength follows
-    // λ = λ0 cos(Θ' − θ_R/2)/cos(θ_R/2) (physics.md §3.3) exactly.
+    // λ = λ0 cos(Θ' − θ_R/2)/cos(θ_R/2) (docs/physics.md §3.3) exactly.
     // An odd crop puts column 220 exactly on the vertical midline (in-plane rays).
     let sets = [
         "--set",

@@ -7,12 +7,12 @@ and a hero-wavelength integrator.  Usage:
 writes a 128x128 float32 image in stscam's unit (1 = a white display pixel seen on axis through
 lossless optics with a vanishing aperture, flat spectrum and response), cos^4 falloff included.
 
-Model (written from reference/physics.md, not from the Rust code):
+Model (written from docs/physics.md, not from the Rust code):
 * Frame and units: millimetres, plate 0 <= z <= w (front face z = 0 on the user side), y up,
   the display at z = -550 emitting toward +z, the camera at (0, 40, w + 32) looking along -z.
 * Faces are separate rectangles with outward normals.  Plain faces: `dielectric` 1.5 / 1.0.
   vHOE faces: the Python BSDF `vhoe` below.  The slab's four side faces: black.
-* vHOE (physics.md 0.2, 1.2, 1.5, 2.1, 2.2(b), 2.3): an infinitely thin film (d = 16 um,
+* vHOE (docs/physics.md 0.2, 1.2, 1.5, 2.1, 2.2(b), 2.3): an infinitely thin film (d = 16 um,
   n = 1.50 = glass, n1 = 0.015) on the face.  K = k0 (s_O - s_R), s_O = (0,0,1),
   s_R = (0, sin 61.2, -cos 61.2), k0 = 2 pi n / 532 nm.  For a wave rho = beta s (beta = 2 pi n/lam)
   and order m: sigma = rho - m K, k_d,t = sigma_t, k_d,z = sign(sigma_z) sqrt(beta^2 - |k_d,t|^2)
@@ -26,7 +26,7 @@ Model (written from reference/physics.md, not from the Rust code):
     - each reflection-type order: new direction k_d / beta, weight eta_m;
     - specular reflection at the film/air (or film/tape) face: Fresnel R (1 under TIR) times the
       two-pass factor (1 - sum_m eta_m(pass toward the face)) (1 - sum_m eta_m(pass back)),
-      physics.md 2.3;
+      docs/physics.md 2.3;
     - everything else (transmission-type orders, light leaving through the face) is lost: on the
       back face it leaves toward the camera side, where nothing is; on the front face the top
       vHOE is covered by absorbing tape.  TIR under the tape is not frustrated.
@@ -37,7 +37,7 @@ Model (written from reference/physics.md, not from the Rust code):
   factor for both (the difference is < 0.2 % at the <= 10 deg camera angles here).
 * Wavelengths: the `hero` integrator draws one wavelength per camera ray over the band, mixing a
   uniform part with a window of +-15 nm around the Bragg wavelength of the camera ray's own
-  direction in the glass (physics.md 3.2: lam_B = lam0 (s_z - s_y tan(theta_R/2))), and returns
+  direction in the glass (docs/physics.md 3.2: lam_B = lam0 (s_z - s_y tan(theta_R/2))), and returns
   the unpolarised mean of the TE and TM estimates divided by the density.
 * Mesh scenes (mesh-*.toml, display off): the plate and camera as above; the user side is the
   file's [[object]] (OBJ meshes, textured two-sided Lambertian) and [[light]] (rect, flat
@@ -187,7 +187,7 @@ def setup(variant):
 
     def fresnel_sp(cos_i, eta):
         """Fresnel reflectance (R_s, R_p) from the medium of index eta (relative to the outside
-        medium) toward the outside, |cos_i| inside; 1 under TIR (physics.md 4.3)."""
+        medium) toward the outside, |cos_i| inside; 1 under TIR (docs/physics.md 4.3)."""
         cos_i = dr.abs(cos_i)
         sin2_t = eta * eta * dr.maximum(0.0, 1.0 - cos_i * cos_i)
         tir = sin2_t >= 1.0
