@@ -101,12 +101,12 @@ fn timed_render(
 pub enum CurveSampler {
     /// The same kind at every spp.
     Kind(SamplerKind),
-    /// The lattice as it was the default until 2026-11: a Korobov rule only where its worst
+    /// The lattice's previous default (CHANGELOG.md): a Korobov rule only where its worst
     /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5; in
     /// 3-D scenes, hashed numbers on the user side.
     PreviousDefault,
     /// The default lattice with every branch of every camera sample traced on the user side
-    /// (`UserSideSampler::Padded`: the 3-D default 2026-11-23 to 2026-11-26).
+    /// (`UserSideSampler::Padded`: the previous 3-D default, CHANGELOG.md).
     EveryBranch,
 }
 

@@ -1,6 +1,6 @@
 //! stscam: a spectral Monte Carlo simulator of the see-through-screen camera built on a
-//! holographic waveguide (Optics Express 2022). See `docs/design.md`-style notes in the README and
-//! each module's header for the model, its assumptions and its sources.
+//! holographic waveguide (Optics Express 2022). The model is in `docs/physics.md`, the layers in
+//! `docs/design.md`; each module's header states its model, assumptions and sources.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 

@@ -53,7 +53,7 @@ pub enum UserSideSampler {
     /// [`Self::resolve`] gives the choice for a scene.
     #[default]
     Auto,
-    /// The pixel's branches share user-side paths (the default, through `Auto`, since 2026-11-26): every camera
+    /// The pixel's branches share user-side paths (the default, through `Auto`): every camera
     /// sample's branches are gathered per replica (plate contact), and each replica's sum is
     /// estimated from paths traced from branches chosen in proportion to their weight, about
     /// [`USER_SIDE_PATHS_PER_SAMPLE`] paths per camera sample in all, allotted to replicas by
@@ -63,10 +63,10 @@ pub enum UserSideSampler {
     /// Every branch of every camera sample traced (weak ones through Russian roulette), with
     /// padded 2-D point sets shared by a pixel's samples ([`crate::sampler::padded`]), one per
     /// (branch contact, purpose): the light and BSDF samples of a pixel's first vertices are
-    /// stratified. Hashed as well with `SamplerKind::Independent`. The default 2026-11-23 to
-    /// 2026-11-26.
+    /// stratified. Hashed as well with `SamplerKind::Independent`.
     Padded,
-    /// As `Padded` with independent hashed numbers (the only behaviour until 2026-11-23).
+    /// As `Padded` with independent hashed numbers (kept for the benchmark's earlier curve;
+    /// CHANGELOG.md).
     Hashed,
 }
 

@@ -256,8 +256,8 @@ pub const MAX_KOROBOV_N: u64 = 4096;
 /// in error, the one at 128 (0.117 N) ties with it (1.55–1.57 % against 1.50–1.59 %); N = 32
 /// (0.094 N) and 16 (0.062 N), where R_5 renders better, stay below. At N = 4 and 8 the best
 /// rule repeats dimensions (z = (1, 3, 1, 3, 1)), which its independent per-dimension shifts keep
-/// unbiased; at 8 it still renders better than R_5 (12.0 % against 15.3 % at 440 × 440). Until
-/// 2026-11 this was 0.15, which admitted, of the powers of two, only 4 and 64.
+/// unbiased; at 8 it still renders better than R_5 (12.0 % against 15.3 % at 440 × 440). It was 0.15
+/// before (CHANGELOG.md), which admitted, of the powers of two, only 4 and 64.
 pub const KOROBOV_MIN_QUALITY: f64 = 0.095;
 
 /// A rank-1 Korobov lattice rule with N points in `DIMS` dimensions.
@@ -565,7 +565,7 @@ mod tests {
                 "n = {n} has no good 5-D Korobov rule"
             );
         }
-        // The rules the render uses at the sample counts of the README's tables (the
+        // The rules the render uses at the sample counts of docs/performance.md's tables (the
         // indices found independently by an exhaustive search in Python: 64 → a = 19 with
         // worst index 11, 256 → 55 with 25, 512 → 115 with 60).
         for (n, a, index) in [(64u64, 19u64, 11u64), (256, 55, 25), (512, 115, 60)] {
@@ -609,7 +609,7 @@ mod tests {
         // Rules found independently (exhaustive search in Python over every a coprime to N:
         // worst 2-D index ≥ 0.095 N, then the largest worst 3-D index, then the largest worst
         // 2-D index, then the smallest a). The 3-D step changes the rule only at 1024
-        // (149 → 285) and 2048 (423 → 471), where it renders better (README).
+        // (149 → 285) and 2048 (423 → 471), where it renders better (docs/performance.md).
         for (n, a, worst3) in [
             (8u64, 3u64, 1u64),
             (64, 19, 2),

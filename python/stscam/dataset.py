@@ -1,4 +1,4 @@
-"""Reading a dataset made by ``stscam dataset`` (layout: README, "Datasets"), with numpy.
+"""Reading a dataset made by ``stscam dataset`` (layout: docs/datasets.md), with numpy.
 
 Every kind of dataset loads: 2-D (object and capture), planar objects over depth (also the
 sample's ``depth_mm``) and 3-D scenes (capture, frontal image, depth map and mask). Each

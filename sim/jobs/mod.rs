@@ -125,8 +125,8 @@ impl RunArgs {
 pub enum SamplerArg {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
     Lattice,
-    /// The R_5 lattice sequence at every spp (the lattice's fallback; until 2026-11 the default
-    /// at every spp but 4 and 64).
+    /// The R_5 lattice sequence at every spp (the lattice's fallback; once the default at every
+    /// spp but 4 and 64: CHANGELOG.md).
     R5,
     /// Independent hashed random numbers.
     Independent,

@@ -18,7 +18,7 @@ pub struct ReconstructOptions {
     /// Method (default: admm-tv with one H, joint with a depth stack).
     #[arg(long, value_enum)]
     pub method: Option<MethodArg>,
-    /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see the README).
+    /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see docs/validation.md).
     #[arg(long)]
     pub iters: Option<usize>,
     /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free).

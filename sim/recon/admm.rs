@@ -55,7 +55,7 @@ impl Default for AdmmSettings {
     }
 }
 
-/// Default τ_rel (chosen on the demo's targets with noise; see README).
+/// Default τ_rel (chosen on the demo's targets with noise; see docs/validation.md).
 pub const DEFAULT_TAU_REL: f64 = 1e-3;
 
 /// Outcome of ADMM.

@@ -8,7 +8,7 @@
 
 use super::{Problem, dot};
 
-/// Default CGM iteration count (chosen on the demo's noisy targets; see README).
+/// Default CGM iteration count (chosen on the demo's noisy targets; see docs/validation.md).
 pub const DEFAULT_CG_ITERS: usize = 30;
 
 /// CG settings.

@@ -101,7 +101,7 @@ fn column_centroid(v: &[f32], w: usize) -> f64 {
     num / den / w as f64
 }
 
-/// One 3-D sample's alignment (see README "Datasets over depth and 3-D scenes"); returns
+/// One 3-D sample's alignment (see docs/datasets.md); returns
 /// (mesh in view, |capture centroid − frontal centroid|, the same with the frontal mirrored).
 fn check_sample(dir: &Path, v: &serde_json::Value) -> (bool, f64, f64) {
     let f = |k: &str| dir.join(v[k].as_str().unwrap());
