@@ -119,14 +119,19 @@ fn frontal_preview_channels(f: &crate::world::frontal::Frontal) -> Option<Vec<Ve
     if f.space != FrontalSpace::Xyz || f.channels.len() != 3 {
         return None;
     }
-    let mut out = vec![vec![0f32; f.width * f.height]; 3];
-    for i in 0..f.width * f.height {
-        let xyz = [0, 1, 2].map(|k| f64::from(f.channels[k][i]));
-        for (k, v) in mat3(&XYZ_TO_LINEAR_SRGB, xyz).into_iter().enumerate() {
-            out[k][i] = v as f32;
-        }
-    }
-    Some(out)
+    let rgb: Vec<[f64; 3]> = (0..f.width * f.height)
+        .map(|i| {
+            mat3(
+                &XYZ_TO_LINEAR_SRGB,
+                [0, 1, 2].map(|k| f64::from(f.channels[k][i])),
+            )
+        })
+        .collect();
+    Some(
+        (0..3)
+            .map(|k| rgb.iter().map(|v| v[k] as f32).collect())
+            .collect(),
+    )
 }
 
 /// As [`write_capture`], plus (for 3-D scenes) `frontal.exr`, `frontal.png`, `depth.exr` and

@@ -91,8 +91,12 @@ fn cmd_render(
     let sm = &sys.scene.sampling;
     if sys.world.is_some()
         && frontal_space != crate::world::colour::FrontalSpace::Sensor
-        && crate::world::colour::ColourWeights::new(frontal_space, sm.lambda_min_nm, sm.lambda_max_nm)
-            .is_none()
+        && crate::world::colour::ColourWeights::new(
+            frontal_space,
+            sm.lambda_min_nm,
+            sm.lambda_max_nm,
+        )
+        .is_none()
     {
         return Err(bad_input(format!(
             "--frontal-space {}: the CIE luminance function is 0 over the sampling band {}-{} nm",

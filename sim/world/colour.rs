@@ -228,7 +228,7 @@ impl ColourWeights {
         }
         let cmfs = [cmf(0), cmf(1), cmf(2)];
         let ints = cmfs.clone().map(|c| c.integral(lo_nm, hi_nm));
-        if !(ints[1] > 0.0) {
+        if ints[1].is_nan() || ints[1] <= 0.0 {
             return None;
         }
         let inv_each = ints.map(|i| if i > 0.0 { 1.0 / i } else { 0.0 });
@@ -277,7 +277,10 @@ mod tests {
             crate::output::frontal_units(FrontalSpace::Sensor),
             crate::output::FRONTAL_UNITS
         );
-        assert_eq!(FrontalSpace::parse("linear-srgb"), Some(FrontalSpace::LinearSrgb));
+        assert_eq!(
+            FrontalSpace::parse("linear-srgb"),
+            Some(FrontalSpace::LinearSrgb)
+        );
         assert_eq!(FrontalSpace::parse("rgb"), None);
     }
 
@@ -300,7 +303,10 @@ mod tests {
         }
         let chroma = |v: [f64; 3]| (v[0] / v.iter().sum::<f64>(), v[1] / v.iter().sum::<f64>());
         let (x, y) = chroma(xyz);
-        assert!((x - 0.31272).abs() < 5e-4 && (y - 0.32903).abs() < 5e-4, "{x} {y}");
+        assert!(
+            (x - 0.31272).abs() < 5e-4 && (y - 0.32903).abs() < 5e-4,
+            "{x} {y}"
+        );
         let (xs, ys) = chroma(swapped);
         assert!((xs - 0.31272).abs() > 5e-3 || (ys - 0.32903).abs() > 5e-3);
         let rgb = mat3(&XYZ_TO_LINEAR_SRGB, xyz);

@@ -68,7 +68,10 @@ fn d65_white_reads_the_d65_white_point_and_equal_srgb() {
     // D65 (CIE 015): x = 0.31272, y = 0.32903. Tolerance 2e-3: the 380–780 nm band, the 5 nm
     // tables and the wavelength sampling noise.
     let (x, y) = xy(&xyz);
-    assert!((x - 0.31272).abs() < 2e-3 && (y - 0.32903).abs() < 2e-3, "x {x}, y {y}");
+    assert!(
+        (x - 0.31272).abs() < 2e-3 && (y - 0.32903).abs() < 2e-3,
+        "x {x}, y {y}"
+    );
     // D65 normalised to mean 1 over 380–780 nm has Y = ∫D65·ȳ/∫ȳ / mean(D65) = 1.129 (sums
     // of the CIE 5 nm D65 and ȳ tables over 380–780 nm); tolerance 1.5 % (sums vs the
     // interpolants' integrals, noise).
@@ -84,8 +87,8 @@ fn d65_white_reads_the_d65_white_point_and_equal_srgb() {
     for i in 0..f.channels[0].len() {
         let v = [0, 1, 2].map(|k| f64::from(f.channels[k][i]));
         let r = stscam::world::colour::mat3(&m, v);
-        for k in 0..3 {
-            assert!((r[k] - f64::from(g.channels[k][i])).abs() < 1e-5 * (1.0 + r[k].abs()));
+        for (rk, gk) in r.iter().zip(&g.channels) {
+            assert!((rk - f64::from(gk[i])).abs() < 1e-5 * (1.0 + rk.abs()));
         }
     }
     // A deliberately wrong illuminant (3500 K blackbody, x ≈ 0.405) fails the white point.
