@@ -98,11 +98,40 @@ pub fn write_capture(
 /// What the frontal ground truth's pixels mean.
 pub const FRONTAL_UNITS: &str = "spectral radiance weighted by the sensor response, in the capture unit (1 = a white display pixel), seen by an ideal pinhole at the front face at the bottom vHOE's centre over the capture's angular field; no waveguide, lens falloff or noise";
 
+/// Where the frontal ground truth is seen from (the part of [`FRONTAL_UNITS`] after the unit).
+const FRONTAL_VIEW: &str = "seen by an ideal pinhole at the front face at the bottom vHOE's centre over the capture's angular field; no waveguide, lens falloff or noise";
+
+/// What the frontal ground truth's pixels mean in `space` ([`FRONTAL_UNITS`] for the sensor's).
+pub fn frontal_units(space: crate::world::colour::FrontalSpace) -> String {
+    format!("{}, {FRONTAL_VIEW}", space.units())
+}
+
 fn fmt_err(path: std::path::PathBuf) -> impl Fn(String) -> IoError {
     move |m| IoError::Format {
         path: path.clone(),
         message: m,
     }
+}
+
+/// Linear sRGB channels for the preview of an XYZ frontal image (None: preview the channels).
+fn frontal_preview_channels(f: &crate::world::frontal::Frontal) -> Option<Vec<Vec<f32>>> {
+    use crate::world::colour::{FrontalSpace, XYZ_TO_LINEAR_SRGB, mat3};
+    if f.space != FrontalSpace::Xyz || f.channels.len() != 3 {
+        return None;
+    }
+    let rgb: Vec<[f64; 3]> = (0..f.width * f.height)
+        .map(|i| {
+            mat3(
+                &XYZ_TO_LINEAR_SRGB,
+                [0, 1, 2].map(|k| f64::from(f.channels[k][i])),
+            )
+        })
+        .collect();
+    Some(
+        (0..3)
+            .map(|k| rgb.iter().map(|v| v[k] as f32).collect())
+            .collect(),
+    )
 }
 
 /// As [`write_capture`], plus (for 3-D scenes) `frontal.exr`, `frontal.png`, `depth.exr` and
@@ -131,9 +160,15 @@ pub fn write_capture_with(
     if let Some(f) = frontal {
         let attrs = |units: &str| header_attrs(seed, units, scene_json);
         let chans = named_channels(&f.channel_names, &f.channels);
-        let fexr = encode_exr(f.width, f.height, chans, &attrs(FRONTAL_UNITS))
+        let fexr = encode_exr(f.width, f.height, chans, &attrs(&frontal_units(f.space)))
             .map_err(fmt_err(dir.join("frontal.exr")))?;
-        let refs: Vec<&[f32]> = f.channels.iter().map(|c| c.as_slice()).collect();
+        let srgb = frontal_preview_channels(f);
+        let refs: Vec<&[f32]> = srgb
+            .as_ref()
+            .unwrap_or(&f.channels)
+            .iter()
+            .map(|c| c.as_slice())
+            .collect();
         let fpng = encode_png16(
             f.width,
             f.height,

@@ -227,7 +227,7 @@ fn scene_json(scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -240,8 +240,15 @@ fn render<'py>(
     frontal_px: Option<(usize, usize)>,
     user_side: &str,
     batch: Vec<ImageArg>,
+    frontal_space: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
+    let frontal_space =
+        stscam::world::colour::FrontalSpace::parse(frontal_space).ok_or_else(|| {
+            value_error(format!(
+                "frontal_space {frontal_space:?}: expected \"sensor\", \"xyz\" or \"linear-srgb\""
+            ))
+        })?;
     let user_side = match user_side {
         "auto" => stscam::render::UserSideSampler::Auto,
         "resampled" => stscam::render::UserSideSampler::Resampled,
@@ -307,7 +314,8 @@ fn render<'py>(
         let cap = stscam::render::render(&sys, &settings);
         let render_s = t0.elapsed().as_secs_f64();
         let (fw, fh) = frontal_px.unwrap_or((cap.width, cap.height));
-        let frontal = stscam::world::frontal::render_frontal(&sys, fw, fh, spp, seed);
+        let frontal =
+            stscam::world::frontal::render_frontal_in(&sys, fw, fh, spp, seed, frontal_space);
         Ok::<_, String>((cap, frontal, render_s, more))
     })?
     .map_err(value_error)?;
@@ -336,6 +344,7 @@ fn render<'py>(
         fd.set_item("width", f.width)?;
         fd.set_item("height", f.height)?;
         fd.set_item("channels", f.channel_names.clone())?;
+        fd.set_item("space", f.space.name())?;
         fd.set_item("image", f32_bytes(py, &f.channels.concat()))?;
         fd.set_item("depth", f32_bytes(py, &f.depth_mm))?;
         let m: Vec<u8> = f.mask.iter().flat_map(|x| x.to_le_bytes()).collect();

@@ -267,6 +267,8 @@ class Frontal:
     image: np.ndarray  #: float32 [h, w] (mono) or [c, h, w], as ``frontal.exr``
     depth: np.ndarray  #: float32 [h, w], mm from the plate along -z (inf: nothing), ``depth.exr``
     mask: np.ndarray   #: uint16 [h, w]: object index + 1, 65535 the display, 0 nothing
+    channels: list[str] = field(default_factory=list)  #: as ``frontal.exr``: sensor, X,Y,Z or R,G,B
+    space: str = "sensor"  #: ``"sensor"``, ``"xyz"`` or ``"linear-srgb"`` (``frontal_space``)
 
 
 @dataclass
@@ -332,7 +334,7 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
            frontal_px: Any = None, user_side: str = "auto", target: Any = None,
            encoding: Optional[str] = None, noise: Optional[str] = None,
-           white_peak: Optional[float] = None) -> Render:
+           white_peak: Optional[float] = None, frontal_space: str = "sensor") -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
@@ -347,14 +349,16 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     ``encoding="linear"`` or ``"display"``) is shown instead of the scene's image.
     ``noise="sensor"`` passes the capture through the sensor model (:func:`sensor_noise` with
     ``seed`` and ``white_peak``). The CLI's limits (``--spp``, ``--threads``, memory) are checked
-    before any work: ValueError with its message."""
+    before any work: ValueError with its message. ``frontal_space`` (3-D scenes) is
+    ``"sensor"`` (default: the capture's response), ``"xyz"`` (CIE 1931 XYZ, Y = 1 for a flat
+    radiance at display white) or ``"linear-srgb"`` (Rec. 709, D65), as ``--frontal-space``."""
     s = _scene(scene)
     _check_noise(noise)
     if target is not None:
         s = s.with_image(target, encoding)
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                        _threads(threads), sampler, bool(spectral), _frontal_px(frontal_px),
-                       user_side, [])
+                       user_side, [], str(frontal_space))
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
     out = Render(
@@ -372,6 +376,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
             image=_image(f["image"], len(f["channels"]), fh, fw),
             depth=_f32(f["depth"], (fh, fw)),
             mask=np.frombuffer(f["mask"], dtype="<u2").reshape(fh, fw).astype(np.uint16),
+            channels=list(f["channels"]),
+            space=f["space"],
         )
     if noise == "sensor":
         out.image = sensor_noise(s, out.image, seed=seed, white_peak=white_peak).reshape(out.image.shape)
@@ -392,7 +398,7 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
     if not args:
         raise ValueError("targets: no targets")
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
-                       _threads(threads), sampler, False, None, user_side, args)
+                       _threads(threads), sampler, False, None, user_side, args, "sensor")
     w, h, names = d["width"], d["height"], d["channels"]
     imgs = [_image(d["image"], len(names), h, w)] + [_image(b, len(names), h, w) for b in d["batch_rest"]]
     out = np.stack(imgs)

@@ -47,6 +47,8 @@ class Frontal:
     image: np.ndarray
     depth: np.ndarray
     mask: np.ndarray
+    channels: list[str] = ...
+    space: str = ...
 
 @dataclass
 class Render:
@@ -68,7 +70,7 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
            frontal_px: Any = None, user_side: str = "auto", target: Any = None,
            encoding: Optional[str] = None, noise: Optional[str] = None,
-           white_peak: Optional[float] = None) -> Render: ...
+           white_peak: Optional[float] = None, frontal_space: str = "sensor") -> Render: ...
 def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
                  spp: int = 64, seed: int = 1, threads: Optional[int] = None,
                  sampler: str = "lattice", user_side: str = "auto",

@@ -307,6 +307,7 @@ pub fn render_sample(sys: &System, size: usize, spp: u32, seed: u64) -> (Vec<f64
         width: size,
         height: size,
         channel_names: sys.response.names.clone(),
+        space: crate::world::colour::FrontalSpace::Sensor,
         channels: vec![vec![0.0; size * size]; sys.response.names.len()],
         depth_mm: vec![f32::INFINITY; size * size],
         mask: vec![0; size * size],

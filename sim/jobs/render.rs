@@ -34,6 +34,11 @@ pub struct RenderOptions {
     /// capture's crop size).
     #[arg(long, value_name = "N|WxH")]
     pub frontal_px: Option<String>,
+    /// 3-D scenes: colour space of frontal.exr: `sensor` (the capture's response, raw camera
+    /// RGB), `xyz` (CIE 1931 2°, Y = 1 for a flat radiance at display white) or `linear-srgb`
+    /// (Rec. 709 primaries, D65 white).
+    #[arg(long, value_enum, default_value = "sensor")]
+    pub frontal_space: crate::world::colour::FrontalSpace,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -45,6 +50,7 @@ fn cmd_render(
     sampler: SamplerArg,
     user_side: UserSideSampler,
     frontal_px: Option<&str>,
+    frontal_space: crate::world::colour::FrontalSpace,
     con: &Console,
 ) -> Result<crate::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
@@ -82,7 +88,26 @@ fn cmd_render(
     let render_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
-    let frontal = pool.install(|| crate::world::frontal::render_frontal(&sys, fw, fh, spp, seed));
+    let sm = &sys.scene.sampling;
+    if sys.world.is_some()
+        && frontal_space != crate::world::colour::FrontalSpace::Sensor
+        && crate::world::colour::ColourWeights::new(
+            frontal_space,
+            sm.lambda_min_nm,
+            sm.lambda_max_nm,
+        )
+        .is_none()
+    {
+        return Err(bad_input(format!(
+            "--frontal-space {}: the CIE luminance function is 0 over the sampling band {}-{} nm",
+            frontal_space.name(),
+            crate::numfmt::sig6(sm.lambda_min_nm),
+            crate::numfmt::sig6(sm.lambda_max_nm)
+        )));
+    }
+    let frontal = pool.install(|| {
+        crate::world::frontal::render_frontal_in(&sys, fw, fh, spp, seed, frontal_space)
+    });
     let frontal_s = t1.elapsed().as_secs_f64();
     let scene_json = serde_json::to_string(&sys.scene).map_err(|e| Failure {
         code: 1,
@@ -120,11 +145,16 @@ fn cmd_render(
         });
         sidecar["frontal"] = serde_json::json!({
             "files": {
-                "frontal.exr": format!("channels {:?}: {}", f.channel_names, crate::output::FRONTAL_UNITS),
-                "frontal.png": "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)",
+                "frontal.exr": format!("channels {:?}: {}", f.channel_names, crate::output::frontal_units(f.space)),
+                "frontal.png": if f.space == crate::world::colour::FrontalSpace::Xyz {
+                    "16-bit preview of frontal.exr converted to linear sRGB (IEC 61966-2-1), sRGB-encoded, scaled to the 99.9th percentile"
+                } else {
+                    "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)"
+                },
                 "depth.exr": "channel Z: distance from the plate's front face along -z in mm, +inf where nothing is hit (pixel centre ray)",
                 "mask.png": "16-bit grey: object index + 1 (see world.objects[].mask_value), 65535 the display, 0 nothing (pixel centre ray)",
             },
+            "space": f.space.name(),
             "width": f.width,
             "height": f.height,
             "spp": spp,
@@ -207,6 +237,7 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, J
         o.sampler,
         o.user_side,
         o.frontal_px.as_deref(),
+        o.frontal_space,
         con,
     )
 }

@@ -22,6 +22,7 @@
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
+use super::colour::{ColourWeights, FrontalSpace};
 use super::integrator::{PathCounts, PathRng};
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
@@ -39,8 +40,10 @@ pub struct Frontal {
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Channel names (as the capture).
+    /// Channel names (as the capture for [`FrontalSpace::Sensor`], else X, Y, Z or R, G, B).
     pub channel_names: Vec<&'static str>,
+    /// The colour space of `channels`.
+    pub space: FrontalSpace,
     /// Channels, row-major.
     pub channels: Vec<Vec<f32>>,
     /// Depth in mm (+inf where nothing is hit).
@@ -51,7 +54,8 @@ pub struct Frontal {
     pub rays: u64,
 }
 
-/// A piecewise-constant density over the band ∝ Σ_c R_c(λ)/∫R_c on 1 nm bins.
+/// A piecewise-constant density over the band ∝ Σ_c R_c(λ)/∫R_c on 1 nm bins (for a
+/// standard colour space ∝ Σ_k cmf_k(λ)/∫cmf_k instead).
 struct ResponseTable {
     lo: f64,
     step: f64,
@@ -60,16 +64,19 @@ struct ResponseTable {
 }
 
 impl ResponseTable {
-    fn new(sys: &System, lo: f64, hi: f64) -> ResponseTable {
+    fn new(sys: &System, colour: Option<&ColourWeights>, lo: f64, hi: f64) -> ResponseTable {
         let n = ((hi - lo).ceil() as usize).clamp(1, 100_000);
         let step = (hi - lo) / n as f64;
         let w: Vec<f64> = (0..n)
             .map(|i| {
                 let l = lo + (i as f64 + 0.5) * step;
-                crate::render::channel_weights(sys, l)
-                    .iter()
-                    .sum::<f64>()
-                    .max(0.0)
+                match colour {
+                    Some(cw) => cw.density(l).max(0.0),
+                    None => crate::render::channel_weights(sys, l)
+                        .iter()
+                        .sum::<f64>()
+                        .max(0.0),
+                }
             })
             .collect();
         let total: f64 = w.iter().sum::<f64>() * step;
@@ -121,7 +128,8 @@ fn direction(sys: &System, w: usize, h: usize, x: f64, y: f64) -> DVec3 {
     cam.ray_through(img, DVec2::ZERO).dir
 }
 
-/// Renders the frontal image, depth and mask at `width`×`height` with `spp` samples per pixel.
+/// Renders the frontal image, depth and mask at `width`×`height` with `spp` samples per pixel,
+/// in the sensor's colour space.
 pub fn render_frontal(
     sys: &System,
     width: usize,
@@ -129,15 +137,45 @@ pub fn render_frontal(
     spp: u32,
     seed: u64,
 ) -> Option<Frontal> {
+    render_frontal_in(sys, width, height, spp, seed, FrontalSpace::Sensor)
+}
+
+/// As [`render_frontal`], with the channels in `space` (wavelengths then drawn in proportion
+/// to Σ_k cmf_k/∫cmf_k for a standard space; see [`super::colour`]).
+pub fn render_frontal_in(
+    sys: &System,
+    width: usize,
+    height: usize,
+    spp: u32,
+    seed: u64,
+    space: FrontalSpace,
+) -> Option<Frontal> {
     let world = sys.world.as_deref()?;
     let disp = &sys.display;
-    let nch = sys.response.curves.len();
     let (lo, hi) = (
         sys.scene.sampling.lambda_min_nm,
         sys.scene.sampling.lambda_max_nm,
     );
+    let colour = ColourWeights::new(space, lo, hi);
+    let (nch, channel_names, space) = match (&colour, space.channel_names()) {
+        (Some(_), Some(names)) => (3, names, space),
+        _ => (
+            sys.response.curves.len(),
+            sys.response.names.clone(),
+            FrontalSpace::Sensor,
+        ),
+    };
+    let weights = |lambda: f64| -> [f64; 4] {
+        match &colour {
+            Some(cw) => {
+                let [a, b, c] = cw.at(lambda);
+                [a, b, c, 0.0]
+            }
+            None => crate::render::channel_weights(sys, lambda),
+        }
+    };
     let origin = DVec3::ZERO;
-    let table = ResponseTable::new(sys, lo, hi);
+    let table = ResponseTable::new(sys, colour.as_ref(), lo, hi);
     let rule = LatticeRule::korobov(u64::from(spp));
     let cancel = crate::cancel::current();
     let rows: Vec<FrontalRow> = (0..height)
@@ -168,7 +206,7 @@ pub fn render_frontal(
                     if !v.is_finite() {
                         continue;
                     }
-                    let rc = crate::render::channel_weights(sys, lambda);
+                    let rc = weights(lambda);
                     for (k, w) in rc.iter().enumerate().take(nch) {
                         vals[c * nch + k] += v * w;
                     }
@@ -203,7 +241,8 @@ pub fn render_frontal(
     Some(Frontal {
         width,
         height,
-        channel_names: sys.response.names.clone(),
+        channel_names,
+        space,
         channels,
         depth_mm,
         mask,

@@ -14,6 +14,7 @@
 pub mod bench_bvh;
 pub mod bsdf;
 pub mod bvh;
+pub mod colour;
 pub mod desc;
 pub mod frontal;
 pub mod gltf_features;

@@ -11,6 +11,7 @@ mod dataset;
 mod dataset3d;
 mod depth;
 mod estimators;
+mod frontal_colour;
 mod grating_command;
 mod hardening3d;
 mod hostile;

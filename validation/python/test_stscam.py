@@ -119,6 +119,18 @@ def test_3d_scene_gives_frontal_depth_and_mask_equal_to_cli(tmp_path):
     assert np.isfinite(r.depth).any() and (r.mask > 0).any()
 
 
+def test_frontal_space_xyz_equals_cli(tmp_path):
+    path = ROOT / "scenes" / "gesture.toml"
+    sets = {"sensor.crop_px": [24, 24], "sensor.pitch_um": 40.0}
+    cli("render", path, "--out", tmp_path, "--spp", 1, "--frontal-space", "xyz", *set_args(sets))
+    r = stscam.render(stscam.Scene(path, sets), spp=1, frontal_space="xyz")
+    assert r.frontal_result.channels == ["X", "Y", "Z"] and r.frontal_result.space == "xyz"
+    exr = stscam.read_exr(tmp_path / "frontal.exr")
+    assert same_bits(r.frontal, np.stack([exr[c] for c in "XYZ"]))
+    with pytest.raises(ValueError, match="frontal_space"):
+        stscam.render(stscam.Scene(path, sets), spp=1, frontal_space="rgb")
+
+
 def test_3d_user_side_modes_equal_cli_and_differ(tmp_path):
     path = ROOT / "scenes" / "gesture.toml"
     sets = {"sensor.crop_px": [24, 24], "sensor.pitch_um": 40.0}
