@@ -1189,11 +1189,9 @@ impl<R: std::io::BufRead> std::io::BufRead for Utf8Lines<R> {
 fn resolve_reference(base: &Path, spec: &str, options_before_name: bool) -> Option<PathBuf> {
     let spec = spec.trim();
     let mut names = vec![spec.to_owned(), spec.replace('\\', "/")];
-    if options_before_name {
-        if let Some(last) = spec.split_whitespace().last() {
-            names.push(last.to_owned());
-            names.push(last.replace('\\', "/"));
-        }
+    if options_before_name && let Some(last) = spec.split_whitespace().last() {
+        names.push(last.to_owned());
+        names.push(last.replace('\\', "/"));
     }
     let windows_absolute = |n: &str| {
         let b = n.as_bytes();
