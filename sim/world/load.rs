@@ -24,7 +24,9 @@
 //! to the glTF convention (v ← 1 − v); materials are `Diffuse` with `Kd` as the linear base
 //! colour (0.8 grey if absent), `map_Kd` as the base colour texture, `Ke`/`map_Ke` as emission;
 //! texture paths are relative to the MTL file's folder (the last whitespace-separated word is
-//! used if the whole string is not a file, which skips `-o`/`-s`-style options). Faces without
+//! used if the whole string is not a file, which skips `-o`/`-s`-style options; backslashes
+//! are folder separators, as Windows tools write them). Lines that are not UTF-8 are read as
+//! Latin-1, and file names also as their Latin-1 bytes ([`resolve_reference`]). Faces without
 //! a material get [`AssetMaterial::default`]. A material library that cannot be opened is an
 //! error naming it, unless [`LoadOptions::allow_missing_mtl`] is set (then its materials are
 //! default materials).
@@ -921,7 +923,11 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
         ));
     }
     let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
-    let mut reader = BufReader::new(file);
+    let mut reader = Utf8Lines {
+        inner: BufReader::new(file),
+        line: Vec::new(),
+        pos: 0,
+    };
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
     let log = RefCell::new(MtlLog::default());
     let opts = tobj::LoadOptions {
@@ -932,7 +938,10 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
         ignore_lines: true,
     };
     let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
-        let full = dir.join(mtl);
+        let full = mtl
+            .to_str()
+            .and_then(|s| resolve_reference(&dir, s, false))
+            .unwrap_or_else(|| dir.join(mtl));
         let mut log = log.borrow_mut();
         let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
         match opened {
@@ -998,10 +1007,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     // Which library each tobj material came from (for texture paths).
     let mut lib_of = Vec::with_capacity(materials.len());
     for (p, n) in &log.loaded {
-        lib_of.extend(std::iter::repeat_n(
-            p.parent().unwrap_or(Path::new("")).to_path_buf(),
-            *n,
-        ));
+        lib_of.extend(std::iter::repeat_n(p.as_path(), *n));
     }
     let mut asset = Asset::default();
     let mut converted: HashMap<Option<usize>, u32> = HashMap::new();
@@ -1019,8 +1025,8 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             None => {
                 let mat = match key {
                     Some(i) => {
-                        let base = lib_of.get(i).cloned().unwrap_or_else(|| dir.clone());
-                        obj_material(&materials[i], &base, path, &mut cache)?
+                        let mtl = lib_of.get(i).copied().unwrap_or(path);
+                        obj_material(&materials[i], mtl, path, &mut cache)?
                     }
                     None => AssetMaterial::default(),
                 };
@@ -1100,7 +1106,7 @@ fn read_mtl_text(path: &Path) -> Result<String, LoadError> {
         IoError::Io { source, .. } => LoadError::new(path, source),
         IoError::Format { message, .. } => LoadError::new(path, message),
     })?;
-    let text = String::from_utf8_lossy(&bytes).into_owned();
+    let text = decode_text(&bytes).into_owned();
     check_mtl_arity(&text).map_err(|m| LoadError::new(path, m))?;
     Ok(text)
 }
@@ -1125,26 +1131,128 @@ fn check_mtl_arity(text: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Resolves an MTL texture reference against the library's folder.
-fn mtl_texture_path(base: &Path, spec: &str) -> PathBuf {
-    let whole = base.join(spec.trim());
-    if whole.is_file() {
-        return whole;
-    }
-    match spec.split_whitespace().last() {
-        Some(last) => base.join(last),
-        None => whole,
+/// Decodes a text line or file: as UTF-8 when it is valid, otherwise as Latin-1 (each byte
+/// to the code point of the same value), as files written by Windows tools often are.
+fn decode_text(bytes: &[u8]) -> std::borrow::Cow<'_, str> {
+    match std::str::from_utf8(bytes) {
+        Ok(s) => s.into(),
+        Err(_) => bytes
+            .iter()
+            .map(|&b| char::from(b))
+            .collect::<String>()
+            .into(),
     }
 }
 
+/// A reader handing each line on as UTF-8 ([`decode_text`]), for the OBJ parser, which
+/// refuses other bytes.
+struct Utf8Lines<R> {
+    inner: R,
+    line: Vec<u8>,
+    pos: usize,
+}
+
+impl<R: std::io::BufRead> std::io::Read for Utf8Lines<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        use std::io::BufRead;
+        let buf = self.fill_buf()?;
+        let n = buf.len().min(out.len());
+        out[..n].copy_from_slice(&buf[..n]);
+        self.consume(n);
+        Ok(n)
+    }
+}
+
+impl<R: std::io::BufRead> std::io::BufRead for Utf8Lines<R> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        if self.pos >= self.line.len() {
+            self.line.clear();
+            self.pos = 0;
+            self.inner.read_until(b'\n', &mut self.line)?;
+            if let std::borrow::Cow::Owned(s) = decode_text(&self.line) {
+                self.line = s.into_bytes();
+            }
+        }
+        Ok(&self.line[self.pos..])
+    }
+    fn consume(&mut self, n: usize) {
+        self.pos = (self.pos + n).min(self.line.len());
+    }
+}
+
+/// Resolves a file reference of an MTL or OBJ file (`mtllib`, `map_Kd`) against `base`, the
+/// folder of the referring file: the name as written if such a file exists, else with
+/// backslashes read as folder separators (Windows tools write `.\tex.jpg`); with
+/// `options_before_name`, also only the last word (`map_Kd -s 1 1 1 tex.png`); for an absolute
+/// Windows path (`C:\maps\tex.png`), the file name in `base`. Each name is also tried as the
+/// raw Latin-1 bytes of its characters (a file named in Latin-1 on disk). `None` if none exists.
+fn resolve_reference(base: &Path, spec: &str, options_before_name: bool) -> Option<PathBuf> {
+    let spec = spec.trim();
+    let mut names = vec![spec.to_owned(), spec.replace('\\', "/")];
+    if options_before_name && let Some(last) = spec.split_whitespace().last() {
+        names.push(last.to_owned());
+        names.push(last.replace('\\', "/"));
+    }
+    let windows_absolute = |n: &str| {
+        let b = n.as_bytes();
+        n.starts_with('/') || (b.len() > 2 && b[0].is_ascii_alphabetic() && b[1] == b':')
+    };
+    let tails: Vec<String> = names
+        .iter()
+        .filter(|n| n.contains('/') && windows_absolute(n))
+        .filter_map(|n| n.rsplit('/').next().map(str::to_owned))
+        .collect();
+    names.extend(tails);
+    names.into_iter().filter(|n| !n.is_empty()).find_map(|n| {
+        let as_written = base.join(&n);
+        if as_written.exists() {
+            return Some(as_written);
+        }
+        latin1_path(&n)
+            .map(|raw| base.join(raw))
+            .filter(|p| p.exists())
+    })
+}
+
+/// The path whose bytes are the Latin-1 codes of `name`'s characters, if `name` has a
+/// character above ASCII and none above U+00FF (Unix only: elsewhere names are not bytes).
+fn latin1_path(name: &str) -> Option<PathBuf> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStringExt;
+        if name.is_ascii() || name.chars().any(|c| u32::from(c) > 0xFF) {
+            return None;
+        }
+        let bytes = name.chars().map(|c| u32::from(c) as u8).collect();
+        Some(PathBuf::from(std::ffi::OsString::from_vec(bytes)))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = name;
+        None
+    }
+}
+
+/// Converts a material of the library `mtl` (used by `obj`).
 fn obj_material(
     m: &tobj::Material,
-    base: &Path,
+    mtl: &Path,
     obj: &Path,
     cache: &mut HashMap<PathBuf, Arc<Texture>>,
 ) -> Result<AssetMaterial, LoadError> {
-    let mut load = |spec: &str| -> Result<Arc<Texture>, LoadError> {
-        let p = mtl_texture_path(base, spec);
+    let base = mtl.parent().unwrap_or(Path::new(""));
+    let mut load = |key: &str, spec: &str| -> Result<Arc<Texture>, LoadError> {
+        let Some(p) = resolve_reference(base, spec, true) else {
+            return Err(LoadError::new(
+                mtl,
+                format!(
+                    "material {:?}: {key} \"{}\": no such texture file next to it (used by {})",
+                    m.name,
+                    spec.trim(),
+                    file_name(obj)
+                ),
+            ));
+        };
         if let Some(t) = cache.get(&p) {
             return Ok(t.clone());
         }
@@ -1192,11 +1300,11 @@ fn obj_material(
         }
     }
     let base_color_texture = match &m.diffuse_texture {
-        Some(s) => Some(load(s)?),
+        Some(s) => Some(load("map_Kd", s)?),
         None => None,
     };
     let emissive_texture = match m.unknown_param.get("map_Ke") {
-        Some(s) => Some(load(s)?),
+        Some(s) => Some(load("map_Ke", s)?),
         None => None,
     };
     Ok(AssetMaterial {
@@ -1593,6 +1701,31 @@ mod tests {
         let e = load_asset(path, 1.0).unwrap_err().to_string();
         assert!(!e.contains('\n'), "{e}");
         e
+    }
+
+    /// UTF-8 lines pass unchanged, other lines are Latin-1 (0xE9 → 'é', not U+FFFD as a lossy
+    /// reading gives), line by line, through the reader the OBJ parser gets.
+    #[cfg(unix)]
+    #[test]
+    fn text_decodes_as_utf8_or_latin1() {
+        use std::io::BufRead;
+        use std::os::unix::ffi::OsStrExt;
+        assert_eq!(decode_text("tête".as_bytes()), "tête");
+        assert_eq!(decode_text(b"t\xe9te"), "téte");
+        assert_ne!(String::from_utf8_lossy(b"t\xe9te"), "téte");
+        let r = Utf8Lines {
+            inner: &b"usemtl \xe9\nusemtl \xc3\xa9\n"[..],
+            line: Vec::new(),
+            pos: 0,
+        };
+        let lines: Vec<String> = r.lines().map(Result::unwrap).collect();
+        assert_eq!(lines, ["usemtl é", "usemtl é"]);
+        assert_eq!(
+            latin1_path("é"),
+            Some(PathBuf::from(std::ffi::OsStr::from_bytes(b"\xe9")))
+        );
+        assert_eq!(latin1_path("e"), None);
+        assert_eq!(latin1_path("頭"), None);
     }
 
     #[test]

@@ -22,6 +22,7 @@ mod mesh_scenes;
 mod mitsuba_reference;
 mod multiplex;
 mod npz_independent;
+mod obj_paths;
 mod output_sets;
 mod probe_geometry;
 mod reconstruction;
