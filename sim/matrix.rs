@@ -193,9 +193,11 @@ fn matrix_row(
     rule: Option<crate::sampler::LatticeRule>,
     depths_mm: &[f64],
     row: usize,
+    pixels: std::ops::Range<usize>,
 ) -> (Vec<RowBlock>, RenderStats) {
     use crate::optics::interface::lateral_shift;
     let w = sys.camera.width_px;
+    let (first_col, n_cols) = (pixels.start, pixels.len());
     let nch = sys.response.curves.len();
     let disp = &sys.display;
     let bl = disp.black_level;
@@ -209,9 +211,9 @@ fn matrix_row(
             recent: [(EMPTY, 0); RECENT],
             off: [0.0; 4],
             block: RowBlock {
-                counts: vec![Vec::with_capacity(w); nch],
+                counts: vec![Vec::with_capacity(n_cols); nch],
                 entries: vec![(Vec::new(), Vec::new()); nch],
-                offset: vec![vec![0.0; w]; nch],
+                offset: vec![vec![0.0; n_cols]; nch],
             },
         })
         .collect();
@@ -219,7 +221,7 @@ fn matrix_row(
     let mut branches: Vec<(f64, glam::DVec2)> = Vec::with_capacity(64);
     let mut weighted: Vec<(glam::DVec2, [f64; 4], [f64; 4])> = Vec::with_capacity(64);
     let grid = PixelGrid::of(disp);
-    for col in 0..w {
+    for col in pixels {
         let pixel = (row * w + col) as u64;
         let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
         for a in &mut acc {
@@ -317,7 +319,7 @@ fn matrix_row(
                 a.block.counts[ch].push(n);
             }
             for (o, &v) in a.block.offset.iter_mut().zip(&a.off) {
-                o[col] = v * inv_spp;
+                o[col - first_col] = v * inv_spp;
             }
             table.clear();
             a.recent = [(EMPTY, 0); RECENT];
@@ -363,32 +365,153 @@ pub fn compute_matrix_stack(
     stack_pass(sys, set, depths_mm, u64::MAX).unwrap_or_default()
 }
 
-/// [`compute_matrix_stack`] that stops once the stored entries of all depths pass `max_bytes`
-/// (8 bytes an entry: the matrices' own size), returning how far it got instead of matrices.
-/// A stack's size is not known before the pass (defocused planes store more entries), so this
-/// bounds the memory of `matrix --depth-mm` with many depths while it runs.
+/// Peak bytes a stored entry of a depth stack costs while it is computed and written: 8 in the
+/// pass's row blocks, up to 16 with their vectors' spare capacity (many small blocks: the
+/// allocator keeps their memory after they are freed), then 8 in its depth's matrix, 8 in the
+/// block matrix `H_stack.npz` and 8 + 8 in the two encoded files, all held until the output set
+/// is committed: 48. Measured peaks (maximum resident set of `matrix --depth-mm`) are 41 bytes
+/// an entry beyond the fixed bytes. Python's `matrix_stack` holds less (no encoded files).
+pub const STACK_BYTES_PER_ENTRY: u64 = 48;
+
+/// Most pilot sample-depths (pilot pixels × spp × depths) of [`estimate_stack_memory`]: about
+/// 0.2 s on two cores; the pilot grid shrinks from 16 × 16 towards 8 × 8 pixels to keep it.
+const PILOT_WORK: u64 = 1 << 21;
+
+/// A depth stack's memory, estimated before its pass.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StackMemory {
+    /// Bytes that do not depend on the entries: per row and depth an entry count, an offset and
+    /// a row pointer (in the pass, the matrices and the encoded files), and the block matrix's
+    /// row pointers and offset.
+    pub fixed_bytes: u128,
+    /// Estimated stored entries of all depths together.
+    pub entries: f64,
+    /// Pixels traced for the estimate (0: the bound of `cols` entries per row and depth was low
+    /// enough, nothing traced).
+    pub pilot_pixels: usize,
+}
+
+impl StackMemory {
+    /// The peak bytes of a stack of `entries` stored entries.
+    pub fn peak_bytes(&self, entries: f64) -> u128 {
+        self.fixed_bytes + (entries.max(0.0) * STACK_BYTES_PER_ENTRY as f64).ceil() as u128
+    }
+
+    /// The estimated peak bytes of the stack.
+    pub fn estimated_peak_bytes(&self) -> u128 {
+        self.peak_bytes(self.entries)
+    }
+
+    /// The most entries the pass may store for the peak to stay within `max_bytes`.
+    pub fn entry_budget(&self, max_bytes: u128) -> u64 {
+        (max_bytes.saturating_sub(self.fixed_bytes) / u128::from(STACK_BYTES_PER_ENTRY))
+            .min(u128::from(u64::MAX)) as u64
+    }
+}
+
+/// Estimates a depth stack's memory before its pass. Rows = channels × crop pixels, N depths.
+/// Every row of every depth stores at most one entry per object pixel: when that bound's peak
+/// stays within `max_bytes`, it is the estimate and nothing is traced. Otherwise a pilot traces
+/// a grid of 8 × 8 to 16 × 16 crop pixels spread evenly over the crop (fewer when spp × depths
+/// is large, see `PILOT_WORK`), at the job's spp and depths
+/// (each pilot pixel's entries are exactly those the pass will store for it), and scales their
+/// mean entry count to the crop: an unbiased estimate of the total (a stratified sample of the
+/// crop; measured within a few per cent of the true count, docs/limits.md). Its cost is about
+/// 256 / (crop pixels) of the pass.
+pub fn estimate_stack_memory(
+    sys: &System,
+    set: &RenderSettings,
+    depths_mm: &[f64],
+    max_bytes: u128,
+) -> StackMemory {
+    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+    let nch = sys.response.curves.len() as u128;
+    let n = depths_mm.len() as u128;
+    let rows = nch * w as u128 * h as u128;
+    let cols = (sys.display.width_px * sys.display.height_px) as u128;
+    // Per row and depth 24 bytes at most at once: the pass's count (4) and offset (8) beside
+    // the matrix's row pointer (8) and offset (4); later the matrix's beside their encoded
+    // copies (at most 8 + 4). The block matrix: row pointer (8, encoded 8), offset (4 + 4).
+    let fixed_bytes = rows * n * 24 + rows * 24;
+    let bound = StackMemory {
+        fixed_bytes,
+        entries: (rows * n * cols) as f64,
+        pilot_pixels: 0,
+    };
+    if bound.estimated_peak_bytes() <= max_bytes || w == 0 || h == 0 {
+        return bound;
+    }
+    let rule = lattice_rule(set);
+    let per_pixel = u64::from(set.spp.max(1)) * depths_mm.len().max(1) as u64;
+    let side = ((PILOT_WORK / per_pixel) as f64).sqrt().clamp(8.0, 16.0) as usize;
+    let (gx, gy) = (w.min(side), h.min(side));
+    let pixels: Vec<(usize, usize)> = (0..gy)
+        .flat_map(|j| {
+            (0..gx).map(move |i| ((2 * i + 1) * w / (2 * gx), (2 * j + 1) * h / (2 * gy)))
+        })
+        .collect();
+    let entries: usize = pixels
+        .par_iter()
+        .map(|&(col, row)| {
+            let (blocks, _) = matrix_row(sys, set, rule, depths_mm, row, col..col + 1);
+            blocks
+                .iter()
+                .flat_map(|b| b.entries.iter().map(|e| e.0.len()))
+                .sum::<usize>()
+        })
+        .sum();
+    StackMemory {
+        fixed_bytes,
+        entries: entries as f64 * (w * h) as f64 / pixels.len() as f64,
+        pilot_pixels: pixels.len(),
+    }
+}
+
+/// [`compute_matrix_stack`] whose peak memory (the pass, the matrices, the block matrix and the
+/// encoded files of `matrix --depth-mm`, [`STACK_BYTES_PER_ENTRY`] a stored entry plus the
+/// fixed bytes) stays within `max_bytes` (the CLI and Python pass `limits::MAX_JOB_BYTES`):
+/// refused before the pass when [`estimate_stack_memory`]'s peak passes it, and stopped during
+/// the pass once the stored entries would (the estimate can be low), returning what went wrong
+/// instead of matrices. Either error names `--depth-mm`. Returns the matrices with the estimate.
 pub fn compute_matrix_stack_within(
     sys: &System,
     set: &RenderSettings,
     depths_mm: &[f64],
-    max_bytes: u64,
-) -> Result<Vec<SystemMatrix>, crate::limits::LimitError> {
-    stack_pass(sys, set, depths_mm, max_bytes).ok_or_else(|| crate::limits::LimitError {
+    max_bytes: u128,
+) -> Result<(Vec<SystemMatrix>, StackMemory), crate::limits::LimitError> {
+    let gib = |b: u128| crate::numfmt::sig6(b as f64 / f64::from(1u32 << 30));
+    let mem = estimate_stack_memory(sys, set, depths_mm, max_bytes);
+    let peak = mem.estimated_peak_bytes();
+    let refuse = |message: String| crate::limits::LimitError {
         setting: "--depth-mm".into(),
-        message: format!(
-            "the {} matrices would hold more than {} GiB of entries (stopped early): use fewer depths, fewer --spp or a smaller crop",
+        message,
+    };
+    if peak > max_bytes {
+        return Err(refuse(format!(
+            "the {} matrices would need about {} GiB at their peak (estimated from {} pilot pixels), more than the {} GiB accepted: use fewer depths, fewer --spp or a smaller crop",
             depths_mm.len(),
-            crate::numfmt::sig6(max_bytes as f64 / f64::from(1u32 << 30))
-        ),
-    })
+            gib(peak),
+            mem.pilot_pixels,
+            gib(max_bytes)
+        )));
+    }
+    let stack = stack_pass(sys, set, depths_mm, mem.entry_budget(max_bytes)).ok_or_else(|| {
+        refuse(format!(
+            "the {} matrices would need more than the {} GiB accepted (stopped early, the estimate was {} GiB): use fewer depths, fewer --spp or a smaller crop",
+            depths_mm.len(),
+            gib(max_bytes),
+            gib(peak)
+        ))
+    })?;
+    Ok((stack, mem))
 }
 
-/// The stack pass; None when the entries passed `max_bytes`.
+/// The stack pass; None when the stored entries passed `max_entries`.
 fn stack_pass(
     sys: &System,
     set: &RenderSettings,
     depths_mm: &[f64],
-    max_bytes: u64,
+    max_entries: u64,
 ) -> Option<Vec<SystemMatrix>> {
     use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
@@ -417,12 +540,11 @@ fn stack_pass(
                     RenderStats::default(),
                 );
             }
-            let b = matrix_row(sys, set, rule, depths_mm, row);
-            let bytes: usize = (b.0.iter())
+            let b = matrix_row(sys, set, rule, depths_mm, row, 0..w);
+            let entries = (b.0.iter())
                 .flat_map(|blk| blk.entries.iter().map(|e| e.0.len()))
-                .sum::<usize>()
-                * 8;
-            if stored.fetch_add(bytes as u64, Ordering::Relaxed) + bytes as u64 > max_bytes {
+                .sum::<usize>() as u64;
+            if stored.fetch_add(entries, Ordering::Relaxed) + entries > max_entries {
                 over.store(true, Ordering::Relaxed);
             }
             pb.inc(1);
@@ -632,10 +754,29 @@ mod tests {
         let full = compute_matrix_stack(&sys, &set, &depths);
         let bytes: u64 = full.iter().map(|m| 8 * m.h.nnz() as u64).sum();
         assert!(bytes > 64, "{bytes}");
-        // Just enough: the same matrices; one entry short: refused, naming --depth-mm.
-        let ok = compute_matrix_stack_within(&sys, &set, &depths, bytes).expect("within");
+        let entries = bytes / 8;
+        // The pass: just enough entries gives the same matrices; one entry short stops it.
+        let ok = stack_pass(&sys, &set, &depths, entries).expect("within");
         assert_eq!(ok[1].h, full[1].h);
-        let e = compute_matrix_stack_within(&sys, &set, &depths, bytes - 8).unwrap_err();
+        assert!(stack_pass(&sys, &set, &depths, entries - 1).is_none());
+        // The library call: the true peak as the limit runs (the pilot traces 256 of these
+        // 24 x 24 pixels, so its estimate may differ from the count: allow 2x), a
+        // quarter of it is refused, naming --depth-mm.
+        let mem = estimate_stack_memory(&sys, &set, &depths, 0);
+        assert_eq!(mem.pilot_pixels, 256);
+        let rel = mem.entries / entries as f64;
+        assert!((0.5..2.0).contains(&rel), "{rel}");
+        let peak = mem.peak_bytes(entries as f64);
+        assert_eq!(mem.entry_budget(peak), entries);
+        let limit = 2 * peak.max(mem.estimated_peak_bytes());
+        let (ok, _) = compute_matrix_stack_within(&sys, &set, &depths, limit).expect("within");
+        assert_eq!(ok[0].h, full[0].h);
+        let e = compute_matrix_stack_within(&sys, &set, &depths, peak / 4).unwrap_err();
         assert_eq!(e.setting, "--depth-mm");
+        assert!(e.message.contains("pilot pixels"), "{e}");
+        // Below the bound of one entry per object pixel nothing is traced.
+        let none = estimate_stack_memory(&sys, &set, &depths, u128::MAX);
+        assert_eq!(none.pilot_pixels, 0);
+        assert_eq!(none.entries, (24 * 24 * 2 * 64) as f64);
     }
 }

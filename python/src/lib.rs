@@ -406,8 +406,8 @@ fn matrix_stack<'py>(
     check_spp(spp)?;
     let depths = stscam::stack::parse_depths(depth_spec)
         .map_err(|m| value_error(format!("--depth-mm {depth_spec}: {m}")))?;
-    // The CLI's bound on a stack's entries while the pass runs.
-    let budget = (stscam::limits::MAX_JOB_BYTES / 4) as u64;
+    // The CLI's bound on a stack's peak memory, estimated before the pass and kept during it.
+    let budget = stscam::limits::MAX_JOB_BYTES;
     let stack = run_job(py, threads, || {
         let sys = load(&scene)?;
         stscam::render::check_limits(&sys, &RenderSettings::lattice(spp, seed, false), 1, "--spp")
@@ -418,6 +418,7 @@ fn matrix_stack<'py>(
             &depths,
             budget,
         )
+        .map(|(stack, _)| stack)
         .map_err(|e| e.to_string())
     })?
     .map_err(value_error)?;

@@ -215,11 +215,17 @@ fn matrix_stack(
         STACK_MATRIX, STACK_OFFSET, STACK_SIDECAR, coverage, depth_file_names, layered_offset,
     };
     let t0 = Instant::now();
-    // Each H is held about four times while written (the matrices, the block matrix and both
-    // encoded): the pass stops once its entries pass a quarter of the job memory limit.
-    let budget = (crate::limits::MAX_JOB_BYTES / 4) as u64;
-    let stack = pool
-        .install(|| crate::matrix::compute_matrix_stack_within(sys, settings, depths, budget))
+    // The stack's peak (the pass, the matrices, the block matrix and the encoded files) is
+    // estimated before the pass and bounded during it by the job memory limit.
+    let (stack, memory) = pool
+        .install(|| {
+            crate::matrix::compute_matrix_stack_within(
+                sys,
+                settings,
+                depths,
+                crate::limits::MAX_JOB_BYTES,
+            )
+        })
         .map_err(limit)?;
     let matrix_s = t0.elapsed().as_secs_f64();
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
@@ -304,6 +310,13 @@ fn matrix_stack(
         "wall_time_s": start.elapsed().as_secs_f64(),
         "paths_per_second": m0.stats.camera_paths as f64 / matrix_s,
         "stats": m0.stats,
+        "memory": {
+            "estimated_entries": memory.entries.round(),
+            "pilot_pixels": memory.pilot_pixels,
+            "estimated_peak_bytes": memory.estimated_peak_bytes() as f64,
+            "peak_bytes_of_the_entries": memory.peak_bytes(block.nnz() as f64) as f64,
+            "accepted_bytes": crate::limits::MAX_JOB_BYTES as f64,
+        },
     });
     // Every matrix file (each depth's and the block matrix) encoded in parallel.
     let mut mats: Vec<&crate::sparse::CsrMatrix> = blocks.clone();

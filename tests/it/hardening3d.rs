@@ -661,3 +661,70 @@ fn mesh_dataset_with_a_huge_mesh_is_refused() {
     assert!(t < 20.0, "{t} s");
     assert!(!out.exists());
 }
+
+/// Depth-stack memory: a 256-depth stack at paper size and 64 spp is refused from its estimate
+/// (exit 2, one line naming `--depth-mm` with the estimate and the 16 GiB limit, nothing
+/// written) in well under a second; through the library a test limit below a small stack's
+/// estimated peak refuses it before the pass, and the job limit gives the unbounded pass's
+/// matrices.
+#[test]
+fn stack_memory_is_estimated_before_the_pass() {
+    use stscam::matrix::{compute_matrix_stack, compute_matrix_stack_within};
+    use stscam::render::RenderSettings;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("m");
+    let (code, err, secs) = run_timed(
+        &[
+            "matrix",
+            "--out",
+            out.to_str().unwrap(),
+            "--spp",
+            "64",
+            "--depth-mm",
+            "300:650:256",
+        ],
+        30,
+    );
+    assert_eq!(code, Some(2), "{err}");
+    let line = err.lines().find(|l| l.starts_with("error:")).unwrap_or("");
+    assert!(
+        line.starts_with("error: --depth-mm: the 256 matrices would need about ")
+            && line.contains("more than the 16 GiB accepted"),
+        "{err}"
+    );
+    assert!(secs < 3.0, "{secs} s");
+    assert!(!out.exists());
+
+    let ov = [
+        "sensor.crop_px=[48,48]".to_string(),
+        "sensor.pitch_um=60".to_string(),
+        "display.image=letter:F@16".to_string(),
+    ];
+    let sys =
+        stscam::system::System::build(&stscam::scene::load_scene(None, &ov).unwrap()).unwrap();
+    let set = RenderSettings::lattice(4, 1, false);
+    let depths = [350.0, 450.0, 550.0];
+    // A limit below the bound of one entry per object pixel makes the pilot run; half the
+    // estimated peak is refused before the pass, naming --depth-mm.
+    let mem = stscam::matrix::estimate_stack_memory(&sys, &set, &depths, 0);
+    assert_eq!(mem.pilot_pixels, 256);
+    let t = Instant::now();
+    let e = compute_matrix_stack_within(&sys, &set, &depths, mem.estimated_peak_bytes() / 2)
+        .unwrap_err();
+    assert_eq!(e.setting, "--depth-mm");
+    assert!(e.message.contains("estimated from 256 pilot pixels"), "{e}");
+    assert!(t.elapsed() < Duration::from_secs(2));
+    // The estimate against the pass's true count (a stratified sample of 256 of 2304 pixels:
+    // within 10 %), and the job limit runs the pass unchanged.
+    let full = compute_matrix_stack(&sys, &set, &depths);
+    let nnz: usize = full.iter().map(|m| m.h.nnz()).sum();
+    let rel = mem.entries / nnz as f64;
+    assert!((0.9..1.1).contains(&rel), "estimate / count = {rel}");
+    let (within, m2) =
+        compute_matrix_stack_within(&sys, &set, &depths, stscam::limits::MAX_JOB_BYTES).unwrap();
+    assert_eq!(m2.pilot_pixels, 0, "the bound fits: nothing traced");
+    for (a, b) in within.iter().zip(&full) {
+        assert_eq!(a.h, b.h);
+        assert_eq!(a.offset, b.offset);
+    }
+}
