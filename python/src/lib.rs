@@ -524,7 +524,6 @@ fn reconstruct_stack<'py>(
     tv: &str,
     threads: Option<usize>,
 ) -> PyResult<(Vec<(f64, Bound<'py, PyBytes>)>, Option<String>, String)> {
-    use stscam::recon::admm::TvKind;
     use stscam::recon::layered::{StackMethod, StackOptions, solve_stack, stack_setup_bytes};
     let method = match method {
         "joint" => StackMethod::Joint,
@@ -535,15 +534,7 @@ fn reconstruct_stack<'py>(
             )));
         }
     };
-    let tv = match tv {
-        "iso" => TvKind::Iso,
-        "aniso" => TvKind::Aniso,
-        t => {
-            return Err(value_error(format!(
-                "tv {t:?}: expected \"iso\" or \"aniso\""
-            )));
-        }
-    };
+    let tv = tv_kind(tv)?;
     for (name, v) in [("--tau", tau), ("--mu", mu)] {
         if !(v.is_finite() && v >= 0.0) {
             return Err(value_error(format!(
@@ -863,6 +854,18 @@ impl Solver {
     }
 }
 
+/// The TV kind of a `tv` argument (`"iso"` or `"aniso"`), as the CLI's `--tv`.
+fn tv_kind(tv: &str) -> PyResult<stscam::recon::admm::TvKind> {
+    use stscam::recon::admm::TvKind;
+    match tv {
+        "iso" => Ok(TvKind::Iso),
+        "aniso" => Ok(TvKind::Aniso),
+        t => Err(value_error(format!(
+            "tv {t:?}: expected \"iso\" or \"aniso\""
+        ))),
+    }
+}
+
 /// The solver options of `reconstruct`'s arguments, checked as the CLI checks its flags.
 fn solve_options(
     method: &str,
@@ -870,7 +873,7 @@ fn solve_options(
     tau: f64,
     tv: &str,
 ) -> PyResult<stscam::recon::SolveOptions> {
-    use stscam::recon::{Method, SolveOptions, admm::TvKind};
+    use stscam::recon::{Method, SolveOptions};
     let method = match method {
         "cg" => Method::Cg,
         "admm-tv" => Method::AdmmTv,
@@ -880,15 +883,7 @@ fn solve_options(
             )));
         }
     };
-    let tv = match tv {
-        "iso" => TvKind::Iso,
-        "aniso" => TvKind::Aniso,
-        t => {
-            return Err(value_error(format!(
-                "tv {t:?}: expected \"iso\" or \"aniso\""
-            )));
-        }
-    };
+    let tv = tv_kind(tv)?;
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(value_error(format!(
             "--tau {tau}: must be a non-negative number"

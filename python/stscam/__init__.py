@@ -21,7 +21,7 @@ import scipy.sparse
 
 from . import _native
 from .dataset import Dataset, load_dataset, load_splits
-from .operators import Operator
+from .operators import Operator, _object_shape_of
 
 __all__ = [
     "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
@@ -502,12 +502,7 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     h.sum_duplicates()
     h.sort_indices()
     rows, cols = h.shape
-    if object_shape is None:
-        side = int(round(cols ** 0.5))
-        if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
-        object_shape = (side, side)
-    hh, w = (int(v) for v in object_shape)
+    hh, w = _object_shape_of(cols, object_shape)
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     off = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()

@@ -23,6 +23,16 @@ import scipy.sparse.linalg
 from . import _native
 
 
+def _object_shape_of(cols: int, object_shape: Optional[Any]) -> tuple[int, int]:
+    """The object's (h, w) for H with `cols` columns: `object_shape`, or the square side."""
+    if object_shape is None:
+        side = int(round(cols ** 0.5))
+        if side * side != cols:
+            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
+        object_shape = (side, side)
+    return tuple(int(v) for v in object_shape)  # type: ignore[return-value]
+
+
 class Operator:
     """The linear forward model H (rows: capture values, columns: object pixels) with its
     offset (the capture of a black object). ``object_shape`` is (h, w) (default: square);
@@ -38,12 +48,7 @@ class Operator:
         if not np.all(np.isfinite(h.data)):
             raise ValueError("H: an entry is not a finite number")
         rows, cols = h.shape
-        if object_shape is None:
-            side = int(round(cols ** 0.5))
-            if side * side != cols:
-                raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
-            object_shape = (side, side)
-        oh, ow = (int(v) for v in object_shape)
+        oh, ow = _object_shape_of(cols, object_shape)
         if oh * ow != cols:
             raise ValueError(f"object_shape {(oh, ow)} has {oh * ow} pixels but H has {cols} columns")
         if capture_shape is not None and int(np.prod(capture_shape)) != rows:
