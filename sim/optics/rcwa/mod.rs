@@ -34,6 +34,7 @@
 //! Assumptions: isotropic non-magnetic media, no dispersion of the film index, the film and
 //! fringes unchanged since recording (no shrinkage), flat parallel interfaces.
 
+pub mod coupling;
 mod smatrix;
 pub mod table;
 
@@ -237,6 +238,18 @@ fn lattice(gratings: &[Grating]) -> Result<Lattice, RcwaError> {
         })
         .unwrap_or(0);
     Err(RcwaError::Incommensurate(bad + 1))
+}
+
+/// The order index m (as in [`Order`]) of each grating's first order (Kogelnik's order +1,
+/// σ = ρ − K_i): the integer p_i with K_i,t = p_i·G·ê on the film's common lateral lattice.
+/// Fails as [`solve`] does for gratings that are not parallel or commensurate.
+pub fn grating_orders(film: &Film) -> Result<Vec<i32>, RcwaError> {
+    let l = lattice(&film.gratings)?;
+    l.p.iter()
+        .map(|&p| {
+            i32::try_from(p).map_err(|_| RcwaError::BadInput("grating order out of range".into()))
+        })
+        .collect()
 }
 
 /// Square root on the branch of a wave travelling or decaying toward +z (Im ≥ 0, and

@@ -50,12 +50,12 @@ pub struct Axis {
 }
 
 impl Axis {
-    fn value(&self, i: usize) -> f64 {
+    pub(super) fn value(&self, i: usize) -> f64 {
         self.start + (self.stop - self.start) * i as f64 / (self.n - 1) as f64
     }
 
     /// Cell index and weight of `x`, or `None` outside [start, stop].
-    fn locate(&self, x: f64) -> Option<(usize, f64)> {
+    pub(super) fn locate(&self, x: f64) -> Option<(usize, f64)> {
         let t = (x - self.start) / (self.stop - self.start) * (self.n - 1) as f64;
         if !(t >= -1e-9 && t <= (self.n - 1) as f64 + 1e-9) {
             return None;
@@ -254,14 +254,7 @@ impl RcwaTable {
     }
 
     fn encode(&self, key: &str) -> Vec<u8> {
-        let mut out = Vec::with_capacity(80 + 8 * self.data.len());
-        out.extend_from_slice(key.as_bytes());
-        out.extend_from_slice(&self.max_error.to_le_bytes());
-        out.extend_from_slice(&(self.data.len() as u64).to_le_bytes());
-        for v in &self.data {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        out
+        encode_values(key, self.max_error, &self.data)
     }
 
     fn decode(
@@ -272,19 +265,8 @@ impl RcwaTable {
         spec: &TableSpec,
         settings: &Settings,
     ) -> Option<RcwaTable> {
-        let rest = bytes.strip_prefix(key.as_bytes())?;
-        let f = |b: &[u8]| -> Option<[u8; 8]> { b.get(..8)?.try_into().ok() };
-        let max_error = f64::from_le_bytes(f(rest)?);
-        let len = u64::from_le_bytes(f(&rest[8..])?) as usize;
         let nodes = spec.lambda_nm.n * spec.u_x.n * spec.u_y.n;
-        let body = &rest[16..];
-        if len != nodes * Self::per_node(spec) || body.len() != 8 * len {
-            return None;
-        }
-        let data = body
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
-            .collect();
+        let (max_error, data) = decode_values(bytes, key, nodes * Self::per_node(spec))?;
         Some(RcwaTable {
             spec: *spec,
             film: film.clone(),
@@ -391,8 +373,39 @@ impl RcwaTable {
     }
 }
 
+/// A cache file's bytes: the key, the measured interpolation error, the value count and the
+/// values (little-endian f64).
+pub(super) fn encode_values(key: &str, max_error: f64, data: &[f64]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(80 + 8 * data.len());
+    out.extend_from_slice(key.as_bytes());
+    out.extend_from_slice(&max_error.to_le_bytes());
+    out.extend_from_slice(&(data.len() as u64).to_le_bytes());
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// The (interpolation error, values) of a cache file written by [`encode_values`] under `key`
+/// with `len` values; `None` for any other file (another key, a truncated or foreign file).
+pub(super) fn decode_values(bytes: &[u8], key: &str, len: usize) -> Option<(f64, Vec<f64>)> {
+    let rest = bytes.strip_prefix(key.as_bytes())?;
+    let f = |b: &[u8]| -> Option<[u8; 8]> { b.get(..8)?.try_into().ok() };
+    let max_error = f64::from_le_bytes(f(rest)?);
+    let stored = u64::from_le_bytes(f(rest.get(8..)?)?);
+    let body = rest.get(16..)?;
+    if stored != len as u64 || body.len() != 8 * len {
+        return None;
+    }
+    let data = body
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+        .collect();
+    Some((max_error, data))
+}
+
 /// A uniform number in [0, 1) from (seed, i, k) (splitmix64).
-fn unit_hash(seed: u64, i: u64, k: u64) -> f64 {
+pub(super) fn unit_hash(seed: u64, i: u64, k: u64) -> f64 {
     let mut z = seed
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(i.wrapping_mul(0xBF58_476D_1CE4_E5B9))
