@@ -80,15 +80,8 @@ pub fn film(s: &Scene, gratings: &[GratingSpec]) -> Film {
     }
 }
 
-/// Grating model.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Model {
-    /// Kogelnik's two-wave coupled-wave theory, each grating on its own.
-    Kogelnik,
-    /// Rigorous coupled-wave analysis of the whole film.
-    Rcwa,
-}
+/// Grating model (the same enum as the scene key `hoe.model`).
+pub use crate::optics::GratingModel as Model;
 
 /// Layer stack around the film.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

@@ -159,6 +159,12 @@ pub struct HoeDesc {
     /// Gratings multiplexed in the film (`[[hoe.grating]]`); empty in the single-grating form.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub grating: Vec<GratingDesc>,
+    /// Efficiency model of the tracer: Kogelnik's closed form or RCWA tables (docs/rcwa.md).
+    #[serde(
+        default,
+        skip_serializing_if = "crate::optics::GratingModel::is_kogelnik"
+    )]
+    pub model: crate::optics::GratingModel,
 }
 
 /// One grating of a multiplexed film (`[[hoe.grating]]`): the recording that made it.

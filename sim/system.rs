@@ -117,6 +117,7 @@ pub fn build_waveguide(s: &Scene) -> Waveguide {
         top,
         covered: s.top_hoe.covered,
         cover_frustrates_tir: s.top_hoe.cover_frustrates_tir,
+        rcwa: None,
     }
 }
 
@@ -306,11 +307,68 @@ fn build_wavelength_sampler(
     )
 }
 
+/// Where RCWA tables are cached: `$STSCAM_CACHE_DIR`, else `$XDG_CACHE_HOME/stscam`, else
+/// `$HOME/.cache/stscam` (None if none is set: tables are then built for every run).
+pub fn rcwa_cache_dir() -> Option<std::path::PathBuf> {
+    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    var("STSCAM_CACHE_DIR")
+        .map(Into::into)
+        .or_else(|| var("XDG_CACHE_HOME").map(|d| std::path::PathBuf::from(d).join("stscam")))
+        .or_else(|| var("HOME").map(|d| std::path::PathBuf::from(d).join(".cache/stscam")))
+}
+
+/// Off-grid points per grating at which a new RCWA table's interpolation error is measured.
+pub const RCWA_ERROR_PROBES: usize = 200;
+
+/// The RCWA coupling tables of `hoe.model = "rcwa"` over the camera's field (every crop
+/// corner through the aperture's edge, plus a margin of 0.01), loaded from the cache or built.
+fn build_rcwa(
+    ls: &LoadedScene,
+    wg: &Waveguide,
+    cam: &Camera,
+) -> Result<crate::optics::rcwa::coupling::RcwaCouplings, SceneError> {
+    use crate::optics::rcwa::{
+        Settings,
+        coupling::{CouplingGrid, RcwaCouplings},
+    };
+    let (hw, hh) = (
+        0.5 * cam.width_px as f64 * cam.pitch_mm,
+        0.5 * cam.height_px as f64 * cam.pitch_mm,
+    );
+    let r = cam.aperture_radius_mm;
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for sx in [-hw, hw] {
+        for sy in [-hh, hh] {
+            for lens in [
+                DVec2::ZERO,
+                DVec2::new(r, 0.0),
+                DVec2::new(-r, 0.0),
+                DVec2::new(0.0, r),
+                DVec2::new(0.0, -r),
+            ] {
+                let ray = cam.ray_through(DVec2::new(sx, sy) + cam.offset_px * cam.pitch_mm, lens);
+                let u = -ray.dir.truncate();
+                lo = lo.min(u);
+                hi = hi.max(u);
+            }
+        }
+    }
+    let grid = CouplingGrid::for_field(lo - 0.01, hi + 0.01);
+    RcwaCouplings::load_or_build(
+        rcwa_cache_dir().as_deref(),
+        &wg.gratings,
+        &grid,
+        &Settings::default(),
+        RCWA_ERROR_PROBES,
+    )
+    .map_err(|e| ls.relation_error(&["hoe.model"], format!("hoe.model = \"rcwa\": {e}")))
+}
+
 impl System {
     /// Builds the runtime system from a validated scene (loads the display image).
     pub fn build(ls: &LoadedScene) -> Result<System, SceneError> {
         let s = &ls.scene;
-        let waveguide = build_waveguide(s);
+        let mut waveguide = build_waveguide(s);
         let camera = build_camera(s, &waveguide);
         if !(camera.focus_distance_mm > camera.focal_length_mm
             && camera.sensor_distance_mm.is_finite())
@@ -330,6 +388,9 @@ impl System {
             ));
         }
         let display = build_display(ls)?;
+        if s.hoe.model == crate::optics::GratingModel::Rcwa {
+            waveguide.rcwa = Some(std::sync::Arc::new(build_rcwa(ls, &waveguide, &camera)?));
+        }
         let r = spectra::sensor_response(response_kind(&s.sensor.response));
         let (lo, hi) = (s.sampling.lambda_min_nm, s.sampling.lambda_max_nm);
         let inv_integral: Vec<f64> = r

@@ -192,9 +192,22 @@ pub fn trace_camera_path_until(
     let u = -dir.truncate();
     let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
     let t_face = transmittance(1.0, n_g, u);
+    // The film's straight-through fraction of (u, +z), wherever it is needed (bottom entry,
+    // top straight branch, replica exits under the top vHOE): computed once.
+    // With RCWA tables (`hoe.model = "rcwa"`): every grating's film quantities for this ray,
+    // where the tables cover it (optics::rcwa::coupling).
+    let rcwa = wg.rcwa.as_deref().map(|r| {
+        let mut c = [None; MAX_GRATINGS];
+        for (j, c) in c.iter_mut().enumerate().take(gratings.len()) {
+            *c = r.lookup(j, lambda_nm, u);
+        }
+        c
+    });
+    let t0_cell = std::cell::OnceCell::new();
+    let film_t0 = || film_t0(&t0_cell, rcwa.as_ref(), gratings, u, lambda_nm);
     let mut wt = t_face;
     if wg.bottom.contains(p_back) {
-        wt = mul(wt, gratings.undiffracted(u, 1.0, lambda_nm));
+        wt = mul(wt, film_t0());
     }
     let cross_shift = lateral_shift(u, n_g, w);
     let cross_t = (-alpha * path_length(u, n_g, w)).exp();
@@ -215,7 +228,7 @@ pub fn trace_camera_path_until(
         return summary;
     }
     if !wg.covered {
-        let straight = mul(gratings.undiffracted(u, 1.0, lambda_nm), t_face);
+        let straight = mul(film_t0(), t_face);
         if visit(&direct(p_top, mul(wt, straight))).is_break() {
             return summary;
         }
@@ -236,6 +249,8 @@ pub fn trace_camera_path_until(
         cross_t,
         p_top,
         air_shift,
+        t0_cell: &t0_cell,
+        rcwa: rcwa.as_ref(),
     };
     if gratings.len() == 1 {
         // The single-grating film: no arrays, the path as it always was.
@@ -251,9 +266,9 @@ pub fn trace_camera_path_until(
     // Independent gratings (optics::multiplex): should two be near Bragg for the same ray,
     // their out-coupled shares are scaled to sum to at most 1 (energy conservation).
     for p in 0..2 {
-        let sum: f64 = tops.iter().flatten().map(|t| t.2[p]).sum();
+        let sum: f64 = tops.iter().flatten().map(|t| t.eta[p]).sum();
         if sum > 1.0 {
-            tops.iter_mut().flatten().for_each(|t| t.2[p] /= sum);
+            tops.iter_mut().flatten().for_each(|t| t.eta[p] /= sum);
         }
     }
     for (j, top) in tops.iter().enumerate().take(gratings.len()) {
@@ -264,6 +279,23 @@ pub fn trace_camera_path_until(
         }
     }
     summary
+}
+
+/// The film's straight-through fraction [TE, TM] of the camera ray's wave (u, +z), computed
+/// once per path (`cell`) when first needed: from the RCWA tables where they cover the ray,
+/// else Kogelnik's.
+#[inline(always)]
+fn film_t0(
+    cell: &std::cell::OnceCell<[f64; 2]>,
+    rcwa: Option<&[Option<crate::optics::rcwa::coupling::Coupling>; MAX_GRATINGS]>,
+    gratings: &crate::optics::multiplex::GratingSet,
+    u: DVec2,
+    lambda_nm: f64,
+) -> [f64; 2] {
+    *cell.get_or_init(|| match rcwa.and_then(|c| c.iter().flatten().next()) {
+        Some(c) => c.t0,
+        None => gratings.undiffracted(u, 1.0, lambda_nm),
+    })
 }
 
 /// What one path's guided waves share: the camera ray's quantities up to the top vHOE.
@@ -282,21 +314,43 @@ struct PathContext<'a> {
     cross_t: f64,
     p_top: DVec2,
     air_shift: DVec2,
+    /// The film's straight-through fraction of (u, +z), computed once when first needed.
+    t0_cell: &'a std::cell::OnceCell<[f64; 2]>,
+    /// Per grating, the RCWA tables' film quantities for this ray (None: Kogelnik).
+    rcwa: Option<&'a [Option<crate::optics::rcwa::coupling::Coupling>; MAX_GRATINGS]>,
 }
 
-/// The top vHOE's out-coupling by grating `j`: (guided u_g, its incident wave travelling −z,
-/// η [TE, TM] of order −1), or `None` if the guided wave cannot exist or the order is not
-/// reflection-type.
+/// The top vHOE's out-coupling by grating `j`.
+#[derive(Clone, Copy)]
+struct TopCoupling {
+    /// The guided wave's tangential direction cosines u_g.
+    u_g: DVec2,
+    /// Its incident wave travelling −z in the film (Kogelnik).
+    wave: Option<crate::optics::grating::Incident>,
+    /// η [TE, TM] of the out-coupling order.
+    eta: [f64; 2],
+    /// The film's rigorous quantities for this path (`hoe.model = "rcwa"` inside its tables).
+    rcwa: Option<crate::optics::rcwa::coupling::Coupling>,
+}
+
+/// The top vHOE's out-coupling by grating `j`, or `None` if the guided wave cannot exist or
+/// the order is not reflection-type. With RCWA tables covering the path, every film quantity
+/// of the path comes from them (optics::rcwa::coupling), else from Kogelnik.
 #[inline(always)]
-fn top_coupling(
-    ctx: &PathContext,
-    j: usize,
-) -> Option<(DVec2, Option<crate::optics::grating::Incident>, [f64; 2])> {
+fn top_coupling(ctx: &PathContext, j: usize) -> Option<TopCoupling> {
     let gratings = &ctx.wg.gratings;
     let grating = gratings.get(j);
     let u_g = ctx.u - grating.u_shift(ctx.lambda_nm);
     if u_g.length_squared() >= ctx.n_g * ctx.n_g {
         return None;
+    }
+    if let Some(c) = ctx.rcwa.and_then(|c| c[j]) {
+        return Some(TopCoupling {
+            u_g,
+            wave: None,
+            eta: c.eta_in,
+            rcwa: Some(c),
+        });
     }
     // Only a reflection-type order sends the guided light back toward the camera (+z); where
     // the same order is transmission-type (far off Bragg) it leaves toward the user instead.
@@ -304,7 +358,12 @@ fn top_coupling(
     top_wave
         .and_then(|w| w.order(grating, -1))
         .filter(|d| d.reflection)
-        .map(|d| (u_g, top_wave, d.eta))
+        .map(|d| TopCoupling {
+            u_g,
+            wave: top_wave,
+            eta: d.eta,
+            rcwa: None,
+        })
 }
 
 /// Traces grating `j`'s guided wave (out-coupled at the top vHOE with `top`) down the plate,
@@ -313,7 +372,7 @@ fn top_coupling(
 fn trace_guided(
     ctx: &PathContext,
     j: usize,
-    (u_g, top_wave, top_eta): (DVec2, Option<crate::optics::grating::Incident>, [f64; 2]),
+    top: TopCoupling,
     summary: &mut TraceSummary,
     visit: &mut impl FnMut(&Branch) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
@@ -330,7 +389,15 @@ fn trace_guided(
         cross_t,
         p_top,
         air_shift,
+        t0_cell,
+        rcwa: _,
     } = *ctx;
+    let TopCoupling {
+        u_g,
+        wave: top_wave,
+        eta: top_eta,
+        rcwa,
+    } = top;
     let w = wg.thickness_mm;
     let gratings = &wg.gratings;
     let grating = gratings.get(j);
@@ -341,7 +408,9 @@ fn trace_guided(
     // In-coupling efficiency u → u_g (order +1), the same for every contact of this path; by
     // reciprocity it equals the out-coupling efficiency when the film is lossless.
     // (Both orders are reflection-type together: the on-shell conditions coincide.)
-    let eta_in = if grating.alpha0_per_nm == 0.0 {
+    let eta_in = if let Some(c) = rcwa {
+        c.eta_in
+    } else if grating.alpha0_per_nm == 0.0 {
         top_eta
     } else {
         grating
@@ -360,8 +429,13 @@ fn trace_guided(
     // travels +z and vice versa, so both faces see the same pair of passes in opposite order.
     // Every grating's orders leave the guided wave (a cross-grating order leaves at another
     // angle, not toward this pixel: lost, like other stray orders).
-    let toward_back = gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None);
-    let toward_front = gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta)));
+    let (toward_back, toward_front) = match rcwa {
+        Some(c) => (c.t0_guided_up, c.t0_guided_down),
+        None => (
+            gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None),
+            gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta))),
+        ),
+    };
     let cont_bottom = mul(mul(toward_back, r_film), toward_front);
     let cont_top = if wg.covered && wg.cover_frustrates_tir {
         [0.0, 0.0]
@@ -390,7 +464,7 @@ fn trace_guided(
                     wb = if wg.covered {
                         [0.0, 0.0]
                     } else {
-                        mul(wb, gratings.undiffracted(u, 1.0, lambda_nm))
+                        mul(wb, film_t0(t0_cell, ctx.rcwa, gratings, u, lambda_nm))
                     };
                 }
                 let flow = visit(&Branch {

@@ -69,6 +69,8 @@ pub struct Waveguide {
     pub covered: bool,
     /// Cover in optical contact: TIR under it is frustrated (absorbed).
     pub cover_frustrates_tir: bool,
+    /// `hoe.model = "rcwa"`: the film's rigorous coupling tables (None: Kogelnik).
+    pub rcwa: Option<std::sync::Arc<crate::optics::rcwa::coupling::RcwaCouplings>>,
 }
 
 impl Waveguide {

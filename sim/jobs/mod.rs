@@ -160,7 +160,29 @@ pub(crate) fn limit(e: crate::limits::LimitError) -> Failure {
 
 pub(crate) fn load(args: &SceneArgs) -> Result<(LoadedScene, System), Failure> {
     let ls = load_scene(args.scene.as_deref(), &args.set).map_err(|e| bad_input(e.to_string()))?;
+    let t0 = std::time::Instant::now();
     let sys = System::build(&ls).map_err(|e| bad_input(e.to_string()))?;
+    if let Some(r) = sys.waveguide.rcwa.as_deref() {
+        let c = r.cache();
+        let whence = match (&c.path, c.from_cache) {
+            (Some(p), true) => format!("read from {}", p.display()),
+            (Some(p), false) => format!(
+                "built in {:.1} s, cached at {}",
+                t0.elapsed().as_secs_f64(),
+                p.display()
+            ),
+            (None, _) => format!(
+                "built in {:.1} s (no cache directory)",
+                t0.elapsed().as_secs_f64()
+            ),
+        };
+        eprintln!(
+            "stscam: hoe.model = rcwa: coupling tables {whence}; interpolation error <= {:.2e} (measured at {} off-grid points per grating), window edge step {:.2e}",
+            r.max_error(),
+            crate::system::RCWA_ERROR_PROBES,
+            r.edge_jump()
+        );
+    }
     Ok((ls, sys))
 }
 

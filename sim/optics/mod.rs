@@ -8,3 +8,31 @@ pub mod interface;
 pub mod kogelnik;
 pub mod multiplex;
 pub mod rcwa;
+
+/// How the tracer computes the vHOEs' efficiencies (`hoe.model`; also `stscam grating --model`).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum GratingModel {
+    /// Kogelnik's two-wave coupled-wave theory, each grating on its own (closed form).
+    #[default]
+    Kogelnik,
+    /// Rigorous coupled-wave analysis of the whole film (tables built once per design).
+    Rcwa,
+}
+
+impl GratingModel {
+    /// True for the default (Kogelnik): the key is left out of written scenes.
+    pub fn is_kogelnik(&self) -> bool {
+        *self == GratingModel::Kogelnik
+    }
+}

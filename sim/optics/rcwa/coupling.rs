@@ -45,7 +45,7 @@ use super::{Film, RcwaError, Settings, Stack, grating_orders, kogelnik_in_incide
 use crate::optics::multiplex::GratingSet;
 
 /// Format version of the cache files (part of the key).
-const FORMAT: &str = "stscam-rcwa-coupling-1";
+const FORMAT: &str = "stscam-rcwa-coupling-2";
 
 /// Values per node: [t0, eta_in, t0_guided_up, t0_guided_down] × [TE, TM].
 const PER_NODE: usize = 8;
@@ -66,7 +66,7 @@ pub struct CouplingGrid {
 
 impl CouplingGrid {
     /// The default grid for camera rays with u inside [`u_min`, `u_max`]: detuning ±40 nm in
-    /// 1-nm steps, u nodes every 0.025 (at least 2 per axis). Spacings chosen from the
+    /// 2-nm steps, u nodes every 0.05 (at least 2 per axis). Spacings chosen from the
     /// measured interpolation error on the paper film (docs/rcwa.md "The tracer's tables").
     pub fn for_field(u_min: DVec2, u_max: DVec2) -> CouplingGrid {
         let axis = |lo: f64, hi: f64, step: f64| {
@@ -85,10 +85,10 @@ impl CouplingGrid {
             detuning_nm: Axis {
                 start: -40.0,
                 stop: 40.0,
-                n: 81,
+                n: 41,
             },
-            u_x: axis(u_min.x, u_max.x, 0.025),
-            u_y: axis(u_min.y, u_max.y, 0.025),
+            u_x: axis(u_min.x, u_max.x, 0.05),
+            u_y: axis(u_min.y, u_max.y, 0.05),
         }
     }
 
@@ -147,23 +147,33 @@ pub struct RcwaCouplings {
     cache: CacheInfo,
 }
 
-/// The Kogelnik baseline of a node or a query: the same quantities from `set` (module notes).
+/// The baseline of a node or a query (module notes): what carries the sharp Bragg shape, from
+/// one Kogelnik evaluation, the in-coupling order of grating j (plane-of-incidence basis):
+/// t0 ≈ att(u)·(1 − η), η_in ≈ η, the reversed guided wave ≈ att(u_g) (off Bragg), the guided
+/// wave toward the top ≈ att(u_g)·(1 − η) (its out-coupling dip, η in that wave's basis). Anything smooth the
+/// baseline leaves out is in the interpolated residual.
+#[inline]
 fn baseline(set: &GratingSet, j: usize, lambda_nm: f64, u: DVec2) -> [f64; PER_NODE] {
     let g = set.get(j);
-    let conv =
-        |v: DVec2, eta: [f64; 2]| kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, v, eta);
     let ug = u - g.u_shift(lambda_nm);
-    let t0 = conv(u, set.undiffracted(u, 1.0, lambda_nm));
-    let eta_in = conv(
-        u,
-        g.diffract(u, 1.0, lambda_nm, 1)
-            .filter(|d| d.reflection)
-            .map_or([0.0, 0.0], |d| d.eta),
-    );
-    let up = conv(ug, set.undiffracted(ug, 1.0, lambda_nm));
-    let down = conv(-ug, set.undiffracted(-ug, 1.0, lambda_nm));
+    let raw = g
+        .diffract(u, 1.0, lambda_nm, 1)
+        .filter(|d| d.reflection)
+        .map_or([0.0, 0.0], |d| d.eta);
+    // The same pair of waves seen from each wave's own plane of incidence (at conical fields
+    // TE of one is partly TM of the other).
+    let eta = kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, u, raw);
+    let eta_g = kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, -ug, raw);
+    let (au, ag) = (g.film_attenuation(u), g.film_attenuation(ug));
     [
-        t0[0], t0[1], eta_in[0], eta_in[1], up[0], up[1], down[0], down[1],
+        au * (1.0 - eta[0]),
+        au * (1.0 - eta[1]),
+        eta[0],
+        eta[1],
+        ag,
+        ag,
+        ag * (1.0 - eta_g[0]),
+        ag * (1.0 - eta_g[1]),
     ]
 }
 
@@ -362,31 +372,56 @@ impl RcwaCouplings {
         &self.grid
     }
 
-    /// The film's four quantities for grating `j` at (λ, u) (module notes); `None` outside
-    /// the grid, where the tracer uses Kogelnik.
+    /// The trilinear cell of (λ, u) in grating `j`'s table: the first node and the weights.
     #[inline]
-    pub fn lookup(&self, j: usize, lambda_nm: f64, u: DVec2) -> Option<Coupling> {
+    fn cell(&self, j: usize, lambda_nm: f64, u: DVec2) -> Option<([usize; 8], [f64; 8])> {
         let g = &self.grid;
         let lb = self.set.get(j).bragg_wavelength_nm(u)?;
         let (id, wd) = g.detuning_nm.locate(lambda_nm - lb)?;
         let (ix, wx) = g.u_x.locate(u.x)?;
         let (iy, wy) = g.u_y.locate(u.y)?;
-        let data = &self.data[j];
-        let mut v = [0.0; PER_NODE];
+        let mut nodes = [0; 8];
+        let mut weights = [0.0; 8];
+        let mut k = 0;
         for (dd, fd) in [(0, 1.0 - wd), (1, wd)] {
             for (dx, fx) in [(0, 1.0 - wx), (1, wx)] {
                 for (dy, fy) in [(0, 1.0 - wy), (1, wy)] {
-                    let w = fd * fx * fy;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let node = ((id + dd) * g.u_x.n + ix + dx) * g.u_y.n + iy + dy;
-                    let row = &data[node * PER_NODE..(node + 1) * PER_NODE];
-                    for (a, b) in v.iter_mut().zip(row) {
-                        *a += w * b;
-                    }
+                    nodes[k] = ((id + dd) * g.u_x.n + ix + dx) * g.u_y.n + iy + dy;
+                    weights[k] = fd * fx * fy;
+                    k += 1;
                 }
             }
+        }
+        Some((nodes, weights))
+    }
+
+    /// Interpolated residual of quantity `q` (0 t0, 1 eta_in, 2 up, 3 down) over a cell;
+    /// NaN where a node with weight has no value.
+    #[inline]
+    fn residual(&self, j: usize, (nodes, weights): &([usize; 8], [f64; 8]), q: usize) -> [f64; 2] {
+        let data = &self.data[j];
+        let mut v = [0.0; 2];
+        for (&node, &w) in nodes.iter().zip(weights) {
+            if w == 0.0 {
+                continue;
+            }
+            let at = node * PER_NODE + 2 * q;
+            v[0] += w * data[at];
+            v[1] += w * data[at + 1];
+        }
+        v
+    }
+
+    /// The film's four quantities for grating `j` at (λ, u) (module notes); `None` outside
+    /// the grid, where the tracer uses Kogelnik.
+    #[inline]
+    pub fn lookup(&self, j: usize, lambda_nm: f64, u: DVec2) -> Option<Coupling> {
+        let cell = self.cell(j, lambda_nm, u)?;
+        let mut v = [0.0; PER_NODE];
+        for q in 0..4 {
+            let r = self.residual(j, &cell, q);
+            v[2 * q] = r[0];
+            v[2 * q + 1] = r[1];
         }
         if v.iter().any(|x| x.is_nan()) {
             return None;
@@ -396,13 +431,6 @@ impl RcwaCouplings {
             .zip(b)
             .for_each(|(a, b)| *a = (*a + b).clamp(0.0, 1.0));
         Some(Coupling::from_values(&v))
-    }
-
-    /// The zeroth transmitted order of (u, +z) from the first grating whose table covers
-    /// (λ, u); `None` if none does.
-    #[inline]
-    pub fn t0(&self, lambda_nm: f64, u: DVec2) -> Option<[f64; 2]> {
-        (0..self.set.len()).find_map(|j| self.lookup(j, lambda_nm, u).map(|c| c.t0))
     }
 
     /// Largest |lookup − direct RCWA| over `probes` pseudo-random off-grid points per grating
