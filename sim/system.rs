@@ -320,17 +320,9 @@ pub fn rcwa_cache_dir() -> Option<std::path::PathBuf> {
 /// Off-grid points per grating at which a new RCWA table's interpolation error is measured.
 pub const RCWA_ERROR_PROBES: usize = 200;
 
-/// The RCWA coupling tables of `hoe.model = "rcwa"` over the camera's field (every crop
-/// corner through the aperture's edge, plus a margin of 0.01), loaded from the cache or built.
-fn build_rcwa(
-    ls: &LoadedScene,
-    wg: &Waveguide,
-    cam: &Camera,
-) -> Result<crate::optics::rcwa::coupling::RcwaCouplings, SceneError> {
-    use crate::optics::rcwa::{
-        Settings,
-        coupling::{CouplingGrid, RcwaCouplings},
-    };
+/// The RCWA coupling grid of a camera: over its field (every crop corner through the
+/// aperture's edge, plus a margin of 0.01 in u), with [`CouplingGrid::for_field`]'s spacing.
+pub fn rcwa_grid(cam: &Camera) -> crate::optics::rcwa::coupling::CouplingGrid {
     let (hw, hh) = (
         0.5 * cam.width_px as f64 * cam.pitch_mm,
         0.5 * cam.height_px as f64 * cam.pitch_mm,
@@ -353,12 +345,21 @@ fn build_rcwa(
             }
         }
     }
-    let grid = CouplingGrid::for_field(lo - 0.01, hi + 0.01);
-    RcwaCouplings::load_or_build(
+    crate::optics::rcwa::coupling::CouplingGrid::for_field(lo - 0.01, hi + 0.01)
+}
+
+/// The RCWA coupling tables of `hoe.model = "rcwa"` over the camera's field ([`rcwa_grid`]),
+/// loaded from the cache ([`rcwa_cache_dir`]) or built.
+fn build_rcwa(
+    ls: &LoadedScene,
+    wg: &Waveguide,
+    cam: &Camera,
+) -> Result<crate::optics::rcwa::coupling::RcwaCouplings, SceneError> {
+    crate::optics::rcwa::coupling::RcwaCouplings::load_or_build(
         rcwa_cache_dir().as_deref(),
         &wg.gratings,
-        &grid,
-        &Settings::default(),
+        &rcwa_grid(cam),
+        &crate::optics::rcwa::Settings::default(),
         RCWA_ERROR_PROBES,
     )
     .map_err(|e| ls.relation_error(&["hoe.model"], format!("hoe.model = \"rcwa\": {e}")))

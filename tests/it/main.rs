@@ -25,6 +25,7 @@ mod npz_independent;
 mod obj_paths;
 mod output_sets;
 mod probe_geometry;
+mod rcwa_tracer;
 mod reconstruction;
 mod render_capture;
 mod scenes3d_physics;

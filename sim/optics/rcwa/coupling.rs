@@ -2,6 +2,11 @@
 //! camera path needs from each grating, computed rigorously once per design on a grid,
 //! cached on disk and interpolated.
 //!
+//! Polarisation: TE and TM are taken relative to each wave's plane of diffraction by grating j
+//! (TE ∥ ρ × K_j, [`super::solve_in_basis`]), the basis of Kogelnik's efficiencies and so of the
+//! tracer's per-polarisation weights; in the plane-of-incidence basis TE and TM would swap
+//! round the optical axis, where the plane of incidence turns with the ray's azimuth.
+//!
 //! Model: the film in its own mean index on both sides (the `bulk` stack: the tracer keeps the
 //! glass and air faces as Fresnel factors and the guided contacts as the two-pass model of
 //! docs/physics.md §2.3, exactly as with Kogelnik), solved by [`super::solve`] (all orders,
@@ -21,9 +26,8 @@
 //!
 //! Grid and interpolation: per grating j, nodes over (δ, u_x, u_y) with δ = λ − λ_B,j(u) the
 //! detuning from the grating's in-coupling Bragg wavelength at u (the Bragg ridge runs along a
-//! grid axis, so few u nodes are needed). Each node stores RCWA − Kogelnik (Kogelnik's values in
-//! the plane-of-incidence basis, [`super::kogelnik_in_incidence_basis`]) and a lookup adds the
-//! exact Kogelnik value at the query back: the sharp Bragg shape is carried by the closed form,
+//! grid axis, so few u nodes are needed). Each node stores RCWA − a Kogelnik baseline and a
+//! lookup adds the exact baseline at the query back: the sharp Bragg shape is carried by the closed form,
 //! only the smooth difference is interpolated (trilinear). Outside the grid (|δ| beyond the
 //! window, u outside the camera's field, a guided wave evanescent in the film) the lookup
 //! returns `None` and the tracer uses Kogelnik for the whole path; far off Bragg the two
@@ -41,11 +45,11 @@ use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
 use super::table::{Axis, decode_values, encode_values, unit_hash};
-use super::{Film, RcwaError, Settings, Stack, grating_orders, kogelnik_in_incidence_basis, solve};
+use super::{Film, RcwaError, Settings, Stack, grating_orders, solve_in_basis};
 use crate::optics::multiplex::GratingSet;
 
 /// Format version of the cache files (part of the key).
-const FORMAT: &str = "stscam-rcwa-coupling-2";
+const FORMAT: &str = "stscam-rcwa-coupling-3";
 
 /// Values per node: [t0, eta_in, t0_guided_up, t0_guided_down] × [TE, TM].
 const PER_NODE: usize = 8;
@@ -65,8 +69,8 @@ pub struct CouplingGrid {
 }
 
 impl CouplingGrid {
-    /// The default grid for camera rays with u inside [`u_min`, `u_max`]: detuning ±40 nm in
-    /// 2-nm steps, u nodes every 0.05 (at least 2 per axis). Spacings chosen from the
+    /// The default grid for camera rays with u inside [`u_min`, `u_max`]: detuning ±30 nm in
+    /// 1-nm steps, u nodes every 0.05 (at least 2 per axis). Spacings chosen from the
     /// measured interpolation error on the paper film (docs/rcwa.md "The tracer's tables").
     pub fn for_field(u_min: DVec2, u_max: DVec2) -> CouplingGrid {
         let axis = |lo: f64, hi: f64, step: f64| {
@@ -83,9 +87,9 @@ impl CouplingGrid {
         };
         CouplingGrid {
             detuning_nm: Axis {
-                start: -40.0,
-                stop: 40.0,
-                n: 41,
+                start: -30.0,
+                stop: 30.0,
+                n: 61,
             },
             u_x: axis(u_min.x, u_max.x, 0.05),
             u_y: axis(u_min.y, u_max.y, 0.05),
@@ -97,8 +101,8 @@ impl CouplingGrid {
     }
 }
 
-/// The rigorous film quantities of one (λ, u, grating), each [TE, TM] in the plane-of-incidence
-/// basis of its own wave (module notes).
+/// The rigorous film quantities of one (λ, u, grating), each [TE, TM] with TE normal to the
+/// grating's plane of diffraction of its own wave (Kogelnik's basis, module notes).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Coupling {
     /// Zeroth transmitted order of (u, +z).
@@ -148,22 +152,18 @@ pub struct RcwaCouplings {
 }
 
 /// The baseline of a node or a query (module notes): what carries the sharp Bragg shape, from
-/// one Kogelnik evaluation, the in-coupling order of grating j (plane-of-incidence basis):
+/// one Kogelnik evaluation, the in-coupling order of grating j:
 /// t0 ≈ att(u)·(1 − η), η_in ≈ η, the reversed guided wave ≈ att(u_g) (off Bragg), the guided
-/// wave toward the top ≈ att(u_g)·(1 − η) (its out-coupling dip, η in that wave's basis). Anything smooth the
+/// wave toward the top ≈ att(u_g)·(1 − η) (its out-coupling dip). Anything smooth the
 /// baseline leaves out is in the interpolated residual.
 #[inline]
 fn baseline(set: &GratingSet, j: usize, lambda_nm: f64, u: DVec2) -> [f64; PER_NODE] {
     let g = set.get(j);
     let ug = u - g.u_shift(lambda_nm);
-    let raw = g
+    let eta = g
         .diffract(u, 1.0, lambda_nm, 1)
         .filter(|d| d.reflection)
         .map_or([0.0, 0.0], |d| d.eta);
-    // The same pair of waves seen from each wave's own plane of incidence (at conical fields
-    // TE of one is partly TM of the other).
-    let eta = kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, u, raw);
-    let eta_g = kogelnik_in_incidence_basis(g.k_rad_per_nm, g.n_film, -ug, raw);
     let (au, ag) = (g.film_attenuation(u), g.film_attenuation(ug));
     [
         au * (1.0 - eta[0]),
@@ -172,8 +172,8 @@ fn baseline(set: &GratingSet, j: usize, lambda_nm: f64, u: DVec2) -> [f64; PER_N
         eta[1],
         ag,
         ag,
-        ag * (1.0 - eta_g[0]),
-        ag * (1.0 - eta_g[1]),
+        ag * (1.0 - eta[0]),
+        ag * (1.0 - eta[1]),
     ]
 }
 
@@ -213,8 +213,19 @@ impl RcwaCouplings {
                 .map_or([0.0, 0.0], |o| o.eta)
         };
         let mut sols = Vec::with_capacity(3);
+        let n = self.film.mean_index;
+        let k = self.set.get(j).k_rad_per_nm;
         for v in [u, ug, -ug] {
-            match solve(&self.film, &stack, lambda_nm, v, &self.settings) {
+            // TE normal to grating j's plane of diffraction (ρ × K), the tracer's basis.
+            let rho = v.extend((n * n - v.length_squared()).max(0.0).sqrt());
+            match solve_in_basis(
+                &self.film,
+                &stack,
+                lambda_nm,
+                v,
+                &self.settings,
+                rho.cross(k),
+            ) {
                 Ok(s) => sols.push(s),
                 Err(RcwaError::CannotEnter { .. }) => return Ok(None),
                 Err(e) => return Err(e),
@@ -436,8 +447,16 @@ impl RcwaCouplings {
     /// Largest |lookup − direct RCWA| over `probes` pseudo-random off-grid points per grating
     /// (deterministic in `seed`).
     pub fn measure_error(&self, probes: usize, seed: u64) -> Result<f64, RcwaError> {
+        Ok(self
+            .measure_errors(probes, seed)?
+            .into_iter()
+            .fold(0.0, f64::max))
+    }
+
+    /// [`Self::measure_error`] per quantity: [t0, eta_in, t0_guided_up, t0_guided_down].
+    pub fn measure_errors(&self, probes: usize, seed: u64) -> Result<[f64; 4], RcwaError> {
         let g = self.grid;
-        let errs: Result<Vec<f64>, RcwaError> = (0..self.set.len() * probes)
+        let errs: Result<Vec<[f64; 4]>, RcwaError> = (0..self.set.len() * probes)
             .into_par_iter()
             .map(|i| {
                 let j = i / probes.max(1);
@@ -445,20 +464,23 @@ impl RcwaCouplings {
                 let at = |a: &Axis, x: f64| a.start + (a.stop - a.start) * x;
                 let u = DVec2::new(at(&g.u_x, r(1)), at(&g.u_y, r(2)));
                 let Some(lb) = self.set.get(j).bragg_wavelength_nm(u) else {
-                    return Ok(0.0);
+                    return Ok([0.0; 4]);
                 };
                 let lam = lb + at(&g.detuning_nm, r(0));
                 let (Some(c), Some(d)) = (self.lookup(j, lam, u), self.direct(j, lam, u)?) else {
-                    return Ok(0.0);
+                    return Ok([0.0; 4]);
                 };
-                let v = [c.t0, c.eta_in, c.t0_guided_up, c.t0_guided_down].concat();
-                Ok(v.iter()
-                    .zip(d)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max))
+                let v = [c.t0, c.eta_in, c.t0_guided_up, c.t0_guided_down];
+                Ok([0, 1, 2, 3].map(|q| {
+                    (v[q][0] - d[2 * q])
+                        .abs()
+                        .max((v[q][1] - d[2 * q + 1]).abs())
+                }))
             })
             .collect();
-        Ok(errs?.into_iter().fold(0.0, f64::max))
+        Ok(errs?
+            .into_iter()
+            .fold([0.0; 4], |a, b| [0, 1, 2, 3].map(|q| a[q].max(b[q]))))
     }
 
     /// Largest |RCWA − Kogelnik| over the quantities at the window's two detuning edges

@@ -387,7 +387,22 @@ pub fn solve(
     u: DVec2,
     settings: &Settings,
 ) -> Result<Solution, RcwaError> {
-    solve_with(film, stack, lambda_nm, u, settings, false)
+    solve_with(film, stack, lambda_nm, u, settings, false, None)
+}
+
+/// [`solve`] with TE defined along `te_dir` (scene frame; its part normal to the incident wave
+/// vector is used) instead of normal to the plane of incidence, e.g. normal to a grating's
+/// plane of diffraction (ρ × K, Kogelnik's basis, which the tracer's polarisation weights use).
+/// Falls back to the plane-of-incidence basis where `te_dir` is (nearly) along the wave.
+pub fn solve_in_basis(
+    film: &Film,
+    stack: &Stack,
+    lambda_nm: f64,
+    u: DVec2,
+    settings: &Settings,
+    te_dir: DVec3,
+) -> Result<Solution, RcwaError> {
+    solve_with(film, stack, lambda_nm, u, settings, false, Some(te_dir))
 }
 
 /// [`solve`] with one eigendecomposition per slice even where the shift trick applies (tests).
@@ -399,7 +414,7 @@ pub(crate) fn solve_per_slice(
     u: DVec2,
     settings: &Settings,
 ) -> Result<Solution, RcwaError> {
-    solve_with(film, stack, lambda_nm, u, settings, true)
+    solve_with(film, stack, lambda_nm, u, settings, true, None)
 }
 
 fn solve_with(
@@ -409,6 +424,7 @@ fn solve_with(
     u: DVec2,
     settings: &Settings,
     per_slice: bool,
+    te_dir: Option<DVec3>,
 ) -> Result<Solution, RcwaError> {
     let finite_pos = |x: f64| x.is_finite() && x > 0.0;
     if !finite_pos(lambda_nm) || !finite_pos(film.thickness_nm) || !finite_pos(film.mean_index) {
@@ -480,10 +496,16 @@ fn solve_with(
     let i0 = big_m;
     let kz_inc = kz_in[i0].re;
     let k_inc = DVec3::new(kx0, ky, kz_inc) / stack.n_in;
-    let s_hat = if kx0 * kx0 + ky * ky < 1e-24 {
-        DVec3::Y
-    } else {
-        DVec3::new(-ky, kx0, 0.0).normalize()
+    let k_unit = k_inc.normalize();
+    let wanted = te_dir.map(|t| {
+        // Into the (ê, ẑ×ê, ẑ) frame, normal to the incident wave.
+        let t = DVec3::new(t.truncate().dot(pb.lat.e), t.truncate().dot(e_perp), t.z);
+        t - k_unit * t.dot(k_unit)
+    });
+    let s_hat = match wanted {
+        Some(t) if t.length_squared() > 1e-20 => t.normalize(),
+        _ if kx0 * kx0 + ky * ky < 1e-24 => DVec3::Y,
+        _ => DVec3::new(-ky, kx0, 0.0).normalize(),
     };
     let p_hat = s_hat.cross(k_inc).normalize();
     let c_inc = CMat::from_fn(2 * n, 2, |r, pol| {
