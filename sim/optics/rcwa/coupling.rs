@@ -508,6 +508,7 @@ mod tests {
     use super::*;
     use crate::optics::grating::VolumeGrating;
     use crate::optics::rcwa::Grating;
+    use crate::optics::rcwa::solve;
 
     fn paper_set(n1: f64, alpha0_per_mm: f64) -> GratingSet {
         GratingSet::single(VolumeGrating::from_recording(
