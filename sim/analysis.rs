@@ -627,7 +627,7 @@ fn count_above(p: &ProbeResult, frac: f64) -> usize {
 
 /// The unit direction (leaving the lens toward the screen) of the chief ray at field angle
 /// `deg` in air: (0, sin θ, −cos θ) when `vertical`, else (sin θ, 0, −cos θ).
-pub(crate) fn field_direction(deg: f64, vertical: bool) -> DVec3 {
+pub fn field_direction(deg: f64, vertical: bool) -> DVec3 {
     let t = deg.to_radians();
     if vertical {
         DVec3::new(0.0, t.sin(), -t.cos())
