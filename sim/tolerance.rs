@@ -416,10 +416,20 @@ pub struct ToleranceOutput {
     pub summary: Option<Summary>,
 }
 
+/// The scene a run drew from: its source (file or the embedded scene) and `--set` overrides.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Origin {
+    /// Scene file, or the embedded scene's name.
+    pub scene: String,
+    /// `--set` overrides, in order.
+    pub overrides: Vec<String>,
+}
+
 /// `shard.json`: a shard's settings and what it holds.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct ShardManifest {
     stscam_version: String,
+    origin: Origin,
     settings: ToleranceSettings,
     shard: Shard,
     draws: [usize; 2],
@@ -461,6 +471,10 @@ pub fn run_tolerance(
         return Err(input("--psnr-spp: must be at least 1"));
     }
     let ls = load_scene(scene, overrides)?;
+    let origin = Origin {
+        scene: ls.source.clone(),
+        overrides: overrides.to_vec(),
+    };
     let nominal = System::build(&ls)?;
     let weight = SpectralWeight::new(&nominal, &ResponseGrid::default());
     let psnr = match &set.psnr {
@@ -526,6 +540,7 @@ pub fn run_tolerance(
         Some(sh) => {
             let manifest = ShardManifest {
                 stscam_version: env!("CARGO_PKG_VERSION").to_string(),
+                origin,
                 settings: set.clone(),
                 shard: sh,
                 draws: [range.start, range.end],
@@ -546,7 +561,7 @@ pub fn run_tolerance(
             })
         }
         None => {
-            let (files, summary) = finish(set, &nominal_line, &lines)?;
+            let (files, summary) = finish(&origin, set, &nominal_line, &lines)?;
             Ok(ToleranceOutput {
                 files,
                 nominal: nominal_figures,
@@ -606,12 +621,16 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
         return Err(input("merge: give the shard folders"));
     };
     let (set, count) = (first.settings.clone(), first.shard.count);
+    let origin = first.origin.clone();
     let nominal_line = json_line(&first.nominal)?;
     for (m, _) in &parts {
-        if m.settings != set || m.shard.count != count || m.stscam_version != first.stscam_version
+        if m.settings != set
+            || m.origin != origin
+            || m.shard.count != count
+            || m.stscam_version != first.stscam_version
         {
             return Err(input(format!(
-                "merge: shard {}/{} comes from another run (settings, shard count or version differ)",
+                "merge: shard {}/{} comes from another run (scene, settings, shard count or version differ)",
                 m.shard.index, m.shard.count
             )));
         }
@@ -625,7 +644,7 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
         )));
     }
     let lines: Vec<String> = parts.into_iter().flat_map(|(_, l)| l).collect();
-    finish(&set, &nominal_line, &lines)
+    finish(&origin, &set, &nominal_line, &lines)
 }
 
 /// Statistics of one scalar figure over the draws (finite values only).
@@ -682,6 +701,8 @@ pub struct Yield {
 pub struct Summary {
     /// stscam version.
     pub stscam_version: String,
+    /// The scene and its overrides.
+    pub origin: Origin,
     /// Settings.
     pub settings: ToleranceSettings,
     /// The nominal design's figures.
@@ -814,6 +835,7 @@ pub fn spearman(x: &[f64], y: &[f64]) -> f64 {
 
 /// The outputs of a whole run from the nominal figures' and the draws' JSON lines.
 fn finish(
+    origin: &Origin,
     set: &ToleranceSettings,
     nominal_line: &str,
     lines: &[String],
@@ -908,6 +930,7 @@ fn finish(
     };
     let summary = Summary {
         stscam_version: env!("CARGO_PKG_VERSION").to_string(),
+        origin: origin.clone(),
         settings: set.clone(),
         nominal: nominal.clone(),
         figures,
