@@ -1282,7 +1282,13 @@ fn validate_fabrication(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
-    in_range(ls, h.temperature_change_k, -200.0, 200.0, "hoe.temperature_change_k")?;
+    in_range(
+        ls,
+        h.temperature_change_k,
+        -200.0,
+        200.0,
+        "hoe.temperature_change_k",
+    )?;
     for (v, key) in [
         (h.film_expansion_per_k, "hoe.film_expansion_per_k"),
         (h.substrate_expansion_per_k, "hoe.substrate_expansion_per_k"),
@@ -1338,7 +1344,10 @@ fn validate_fabrication(ls: &LoadedScene) -> Result<(), SceneError> {
     check(
         ls,
         total < n_eff,
-        blame(ls, &["hoe.mean_index_change", "hoe.index_modulation_shortfall"]),
+        blame(
+            ls,
+            &["hoe.mean_index_change", "hoe.index_modulation_shortfall"],
+        ),
         || {
             format!(
                 "the fabricated index modulations add up to {}, which must stay below the fabricated mean index {}",

@@ -334,11 +334,7 @@ impl StaleCalibration {
         );
         let (noise, dark) = crate::demo::exposure_and_dark(sys, &m, p.seed);
         Ok(StaleCalibration {
-            problem: crate::recon::Problem::new(
-                &m.h,
-                sys.display.width_px,
-                sys.display.height_px,
-            ),
+            problem: crate::recon::Problem::new(&m.h, sys.display.width_px, sys.display.height_px),
             truth,
             noise,
             dark,
@@ -348,14 +344,8 @@ impl StaleCalibration {
 
     /// PSNR of the target captured through `sys` and reconstructed with the nominal H.
     fn psnr(&self, sys: &System) -> f64 {
-        let (_, g) = crate::demo::measured_capture(
-            sys,
-            &self.truth,
-            &self.demo,
-            &self.noise,
-            &self.dark,
-            0,
-        );
+        let (_, g) =
+            crate::demo::measured_capture(sys, &self.truth, &self.demo, &self.noise, &self.dark, 0);
         let pr = &self.problem;
         let f = crate::recon::admm::admm_tv(pr, &pr.back_project(&g), &self.demo.admm).f;
         crate::recon::metrics::psnr(&f, &self.truth)
@@ -504,7 +494,12 @@ pub fn run_tolerance(
     for (i, v) in range.clone().zip(&values) {
         load_scene(scene, &{
             let mut ov = overrides.to_vec();
-            ov.extend(ctx.specs.iter().zip(v).map(|(s, x)| format!("{}={x}", s.key)));
+            ov.extend(
+                ctx.specs
+                    .iter()
+                    .zip(v)
+                    .map(|(s, x)| format!("{}={x}", s.key)),
+            );
             ov
         })
         .map_err(|e| draw_error(e.into(), i as u64, &ctx.specs, v))?;
@@ -548,10 +543,7 @@ pub fn run_tolerance(
             };
             let files = vec![
                 ("draws.jsonl".to_string(), jsonl(&lines)),
-                (
-                    "shard.json".to_string(),
-                    pretty(&manifest)?.into_bytes(),
-                ),
+                ("shard.json".to_string(), pretty(&manifest)?.into_bytes()),
             ];
             Ok(ToleranceOutput {
                 files,
@@ -604,7 +596,10 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
             std::fs::read_to_string(&p).map_err(|e| input(format!("{}: {e}", p.display())))
         };
         let m: ShardManifest = serde_json::from_str(&read("shard.json")?).map_err(|e| {
-            input(format!("{}: not a tolerance shard: {e}", dir.join("shard.json").display()))
+            input(format!(
+                "{}: not a tolerance shard: {e}",
+                dir.join("shard.json").display()
+            ))
         })?;
         let lines: Vec<String> = read("draws.jsonl")?.lines().map(str::to_string).collect();
         if lines.len() != m.draws[1] - m.draws[0] {
@@ -729,7 +724,11 @@ fn scalars(f: &Figures, nominal: &Figures, with_psnr: bool) -> Vec<(&'static str
         for (a, b) in g.iter().zip(gn) {
             if let (Some(a), Some(b)) = (a, b) {
                 let d = (a - b).abs();
-                shift_max = if shift_max.is_nan() { d } else { shift_max.max(d) };
+                shift_max = if shift_max.is_nan() {
+                    d
+                } else {
+                    shift_max.max(d)
+                };
             }
         }
     }
@@ -738,7 +737,10 @@ fn scalars(f: &Figures, nominal: &Figures, with_psnr: bool) -> Vec<(&'static str
         ("fov_horizontal_deg", f.fov_horizontal_deg),
         (
             "efficiency_min",
-            f.peak_efficiency.iter().copied().fold(f64::INFINITY, f64::min),
+            f.peak_efficiency
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min),
         ),
         ("throughput_on_axis", f.throughput_on_axis),
         ("band_shift_on_axis_nm", shift_on_axis),
@@ -897,7 +899,12 @@ fn finish(
     let checks: Vec<(String, Box<dyn Fn(usize) -> bool>)> = [
         ("min_fov_deg", "fov_vertical_deg", t.min_fov_deg, true),
         ("min_efficiency", "efficiency_min", t.min_efficiency, true),
-        ("max_band_shift_nm", "band_shift_max_nm", t.max_band_shift_nm, false),
+        (
+            "max_band_shift_nm",
+            "band_shift_max_nm",
+            t.max_band_shift_nm,
+            false,
+        ),
         ("min_psnr_db", "psnr_db", t.min_psnr_db, true),
     ]
     .into_iter()
@@ -911,7 +918,9 @@ fn finish(
     })
     .collect();
     let total = draws.len();
-    let passed = (0..total).filter(|&d| checks.iter().all(|(_, c)| c(d))).count();
+    let passed = (0..total)
+        .filter(|&d| checks.iter().all(|(_, c)| c(d)))
+        .count();
     let fraction = passed as f64 / total.max(1) as f64;
     let yield_ = Yield {
         passed,
@@ -1171,7 +1180,13 @@ mod tests {
         );
         assert_eq!(d.text(), "hoe.shrinkage=normal(0.01,0.005)");
         let u = DrawSpec::parse("hoe.temperature_change_k=uniform(-10, 30)").unwrap();
-        assert_eq!(u.dist, Dist::Uniform { lo: -10.0, hi: 30.0 });
+        assert_eq!(
+            u.dist,
+            Dist::Uniform {
+                lo: -10.0,
+                hi: 30.0
+            }
+        );
         for (bad, want) in [
             ("hoe.shrinkage", "expected KEY=normal"),
             ("plate.thickness_mm=normal(2,0.1)", "only hoe.* keys"),
@@ -1203,7 +1218,10 @@ mod tests {
         let m = x.iter().sum::<f64>() / n as f64;
         let v = x.iter().map(|a| (a - m) * (a - m)).sum::<f64>() / (n - 1) as f64;
         assert!((m - 1.0).abs() < 4.0 * 2.0 / (n as f64).sqrt(), "{m}");
-        assert!((v.sqrt() - 2.0).abs() < 4.0 * 2.0 / (2.0 * n as f64).sqrt(), "{v}");
+        assert!(
+            (v.sqrt() - 2.0).abs() < 4.0 * 2.0 / (2.0 * n as f64).sqrt(),
+            "{v}"
+        );
         let ud = DrawSpec::parse("hoe.shrinkage=uniform(-1,3)").unwrap();
         let y: Vec<f64> = (0..n).map(|i| ud.sample(7, i, 1)).collect();
         assert!(y.iter().all(|&a| (-1.0..3.0).contains(&a)));

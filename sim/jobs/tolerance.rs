@@ -130,7 +130,12 @@ fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
         .split(',')
         .map(|s| s.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
         .collect::<Option<_>>()
-        .ok_or_else(|| bad_input(format!("--field-deg {}: expected numbers separated by commas", o.field_deg)))?;
+        .ok_or_else(|| {
+            bad_input(format!(
+                "--field-deg {}: expected numbers separated by commas",
+                o.field_deg
+            ))
+        })?;
     if o.min_psnr_db.is_some() && !o.psnr {
         return Err(bad_input("--min-psnr-db: needs --psnr"));
     }
@@ -149,9 +154,9 @@ fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
             .map_err(|e| bad_input(format!("--psnr-target: {e}")))?;
     }
     let shard = match &o.shard {
-        Some(s) => Some(
-            crate::dataset::Shard::parse(s).map_err(|m| bad_input(format!("--shard: {m}")))?,
-        ),
+        Some(s) => {
+            Some(crate::dataset::Shard::parse(s).map_err(|m| bad_input(format!("--shard: {m}")))?)
+        }
         None => crate::dataset::Shard::from_env(|k| std::env::var(k).ok()).map_err(bad_input)?,
     };
     check_out_dir(&o.out)?;
@@ -186,7 +191,10 @@ fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
         "wrote {} ({} draws{}, {} files) in {:.1} s, {:.1} draws/s ({} threads)",
         o.out.display(),
         res.draws.len(),
-        shard.map_or(String::new(), |s| format!(", shard {}/{}", s.index, s.count)),
+        shard.map_or(String::new(), |s| format!(
+            ", shard {}/{}",
+            s.index, s.count
+        )),
         res.files.len(),
         secs,
         res.draws.len() as f64 / secs,

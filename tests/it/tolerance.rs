@@ -72,7 +72,10 @@ fn zero_width_draws_reproduce_the_nominal_figures() {
     let mut off = zero.to_vec();
     off[0] = "hoe.shrinkage=normal(0.000001,0)";
     let out = run_tolerance(None, &small(), &settings(&off, 1, false), None, false).unwrap();
-    assert_ne!(out.draws[0].figures.band_centre_nm, out.nominal.band_centre_nm);
+    assert_ne!(
+        out.draws[0].figures.band_centre_nm,
+        out.nominal.band_centre_nm
+    );
 }
 
 /// A shrinkage s = 0.02 moves each field's band centre to the closed form
@@ -110,7 +113,10 @@ fn shrinkage_moves_the_band_centre_by_the_closed_form() {
         let want = shrunk_bragg_wavelength_nm(532.0, 61.2, s, theta);
         let got = f.band_centre_nm[0][k].unwrap();
         assert!((got - want).abs() < 1e-9 * want, "{air}: {got} vs {want}");
-        assert!((got - wrong(theta)).abs() > 1.0, "{air}: the wrong form passes");
+        assert!(
+            (got - wrong(theta)).abs() > 1.0,
+            "{air}: the wrong form passes"
+        );
         // The shift against the nominal band centre, as the closed form gives it.
         let nominal = out.nominal.band_centre_nm[0][k].unwrap();
         let shift = want - shrunk_bragg_wavelength_nm(532.0, 61.2, 0.0, theta);
@@ -160,7 +166,10 @@ fn shrinkage_moves_the_band_centre_by_the_closed_form() {
     // The in-coupling efficiency the tracer uses (on-shell closure, `diffract`) peaks at the
     // closed form (0.001 nm grid), where it is Kogelnik's tanh²ν of the shrunk film.
     let g = *sys.waveguide.gratings.get(0);
-    let eta = |lam: f64| g.diffract(DVec2::ZERO, 1.0, lam, 1).map_or(0.0, |d| d.eta[0]);
+    let eta = |lam: f64| {
+        g.diffract(DVec2::ZERO, 1.0, lam, 1)
+            .map_or(0.0, |d| d.eta[0])
+    };
     let mut best = (f64::NAN, 0.0);
     for i in -3000..=3000 {
         let lam = on_axis + 0.001 * f64::from(i);
@@ -168,12 +177,19 @@ fn shrinkage_moves_the_band_centre_by_the_closed_form() {
             best = (lam, eta(lam));
         }
     }
-    assert!((best.0 - on_axis).abs() < 0.05, "η peaks at {} vs {on_axis}", best.0);
+    assert!(
+        (best.0 - on_axis).abs() < 0.05,
+        "η peaks at {} vs {on_axis}",
+        best.0
+    );
     // K_t is held, so the order leaves with n sin θ_S = sin θ_R · λ_B/λ0 · n.
     let c_s = (1.0 - (61.2f64.to_radians().sin() * on_axis / 532.0).powi(2)).sqrt();
     let nu = std::f64::consts::PI * 0.015 * 16000.0 * (1.0 - s) / (on_axis * c_s.sqrt());
     assert!((eta(on_axis) - nu.tanh().powi(2)).abs() < 1e-9);
-    assert!(eta(wrong(0.0)) < 0.5 * eta(on_axis), "the wrong form is Bragg-matched");
+    assert!(
+        eta(wrong(0.0)) < 0.5 * eta(on_axis),
+        "the wrong form is Bragg-matched"
+    );
     assert!(
         (traced_shift - (wrong(0.0) - 532.0)).abs() > 1.0,
         "the wrong form agrees with the tracer"
@@ -231,14 +247,22 @@ fn bad_input_is_one_line_naming_the_flag() {
     let o = out.to_str().unwrap();
     for (args, want) in [
         (
-            vec!["--draw", "plate.thickness_mm=normal(2,0.1)", "--samples", "3"],
+            vec![
+                "--draw",
+                "plate.thickness_mm=normal(2,0.1)",
+                "--samples",
+                "3",
+            ],
             "--draw plate.thickness_mm=normal(2,0.1): ",
         ),
         (
             vec!["--draw", "hoe.shrinkage=normal(0,-1)", "--samples", "3"],
             "needs SD >= 0",
         ),
-        (vec!["--draw", "hoe.shrinkage=normal(0,0.01)", "--samples", "0"], "--samples"),
+        (
+            vec!["--draw", "hoe.shrinkage=normal(0,0.01)", "--samples", "0"],
+            "--samples",
+        ),
         (
             vec!["--draw", "hoe.shrinkage=uniform(0.6,0.7)", "--samples", "2"],
             "--draw hoe.shrinkage: hoe.shrinkage: must be in [-0.5, 0.5]",
@@ -255,7 +279,14 @@ fn bad_input_is_one_line_naming_the_flag() {
             "--shard",
         ),
         (
-            vec!["--draw", "hoe.shrinkage=normal(0,0.01)", "--samples", "2", "--min-psnr-db", "20"],
+            vec![
+                "--draw",
+                "hoe.shrinkage=normal(0,0.01)",
+                "--samples",
+                "2",
+                "--min-psnr-db",
+                "20",
+            ],
             "--min-psnr-db: needs --psnr",
         ),
     ] {
