@@ -22,7 +22,7 @@ pub struct ToleranceOptions {
     pub draw: Vec<String>,
     /// Number of draws.
     #[arg(long, required = true)]
-    pub samples: usize,
+    pub samples: Option<usize>,
     /// Seed of the draws (and of H and the captures with --psnr).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -163,7 +163,9 @@ fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
     let pool = thread_pool(o.threads)?;
     let set = ToleranceSettings {
         draws: o.draw.clone(),
-        samples: o.samples,
+        samples: o
+            .samples
+            .ok_or_else(|| bad_input("--samples: give the number of draws"))?,
         seed: o.seed,
         field_deg,
         psnr: o.psnr.then(|| crate::sweep::PsnrSettings {

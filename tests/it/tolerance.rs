@@ -301,3 +301,42 @@ fn bad_input_is_one_line_naming_the_flag() {
         assert!(!out.exists());
     }
 }
+
+/// The command line: two shards merged by `stscam tolerance merge`, and one thread, write the
+/// same files as one run.
+#[test]
+fn cli_shards_merge_to_the_unsharded_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let base = [
+        "tolerance",
+        "--draw",
+        "hoe.shrinkage=normal(0.01,0.005)",
+        "--draw",
+        "hoe.thickness_error_um=uniform(-1,1)",
+        "--samples",
+        "9",
+        "--min-efficiency",
+        "0.7",
+    ];
+    let run = |extra: &[&str]| {
+        let mut a: Vec<&str> = base.to_vec();
+        a.extend(extra);
+        crate::common::stscam_ok(&a);
+    };
+    let (whole, one, s0, s1, merged) = (p("whole"), p("one"), p("s0"), p("s1"), p("merged"));
+    run(&["--out", &whole]);
+    run(&["--out", &one, "--threads", "1"]);
+    run(&["--out", &s1, "--shard", "1/2"]);
+    run(&["--out", &s0, "--shard", "0/2"]);
+    crate::common::stscam_ok(&["tolerance", "merge", &s1, &s0, "--out", &merged]);
+    crate::common::assert_same_tree(
+        dir.path().join("whole").as_path(),
+        dir.path().join("merged").as_path(),
+    );
+    crate::common::assert_same_tree(
+        dir.path().join("whole").as_path(),
+        dir.path().join("one").as_path(),
+    );
+    assert!(crate::common::files_in(dir.path().join("s0").as_path()).len() == 2);
+}
