@@ -1402,6 +1402,57 @@ mod tests {
         assert_eq!(ls.scene.display.image, "checker:8");
     }
 
+    /// Fabrication keys: out-of-range values name their key; a one-entry `[[hoe.grating]]`
+    /// list keeps its per-grating errors in the single-grating form; a list refuses the
+    /// single-grating form's per-grating keys.
+    #[test]
+    fn fabrication_keys_are_checked() {
+        for (set, want) in [
+            (
+                "hoe.shrinkage=0.6",
+                "--set hoe.shrinkage: hoe.shrinkage: must be in [-0.5, 0.5]",
+            ),
+            (
+                "hoe.thickness_error_um=-16",
+                "hoe.thickness_error_um: hoe.film_thickness_um + hoe.thickness_error_um must be positive",
+            ),
+            (
+                "hoe.reference_angle_error_deg=30",
+                "hoe.reference_angle_error_deg: the recorded reference angle 61.2 + 30",
+            ),
+            (
+                "hoe.index_modulation_shortfall=1.5",
+                "hoe.index_modulation_shortfall: must be in [-1, 1]",
+            ),
+            (
+                "hoe.temperature_change_k=1e4",
+                "hoe.temperature_change_k: must be in [-200, 200]",
+            ),
+        ] {
+            let e = load_scene(None, &[set.into()]).unwrap_err().to_string();
+            assert!(e.contains(want), "{set}: {e}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.toml");
+        std::fs::write(
+            &p,
+            "[[hoe.grating]]\nrecording_wavelength_nm = 532.0\nreference_angle_deg = 61.2\n\
+             index_modulation = 0.015\nindex_modulation_shortfall = 0.2\n",
+        )
+        .unwrap();
+        let h = load_scene(Some(&p), &[]).unwrap().scene.hoe;
+        assert!(h.grating.is_empty());
+        assert_eq!(h.index_modulation_shortfall, 0.2);
+        assert_eq!(h.gratings()[0].index_modulation_shortfall, 0.2);
+        let e = load_scene(Some(&p), &["hoe.reference_angle_error_deg=0.1".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("set hoe.grating.N.reference_angle_error_deg"),
+            "{e}"
+        );
+    }
+
     #[test]
     fn errors_name_source_and_key() {
         let e = load_scene(None, &["plate.nope=1".into()])
