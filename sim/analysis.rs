@@ -627,7 +627,7 @@ fn count_above(p: &ProbeResult, frac: f64) -> usize {
 
 /// The unit direction (leaving the lens toward the screen) of the chief ray at field angle
 /// `deg` in air: (0, sin θ, −cos θ) when `vertical`, else (sin θ, 0, −cos θ).
-pub(crate) fn field_direction(deg: f64, vertical: bool) -> DVec3 {
+pub fn field_direction(deg: f64, vertical: bool) -> DVec3 {
     let t = deg.to_radians();
     if vertical {
         DVec3::new(0.0, t.sin(), -t.cos())
@@ -718,7 +718,9 @@ fn grating_blocker(sys: &System, dir: DVec3, j: usize) -> Option<&'static str> {
     None
 }
 
-fn scan_fov(sys: &System, vertical: bool, with_crop: bool) -> Fov {
+/// The field of view along one axis from chief rays at their Bragg wavelengths (0.05° steps;
+/// `with_crop`: the sensor crop limits it too), each edge with what stops it.
+pub fn scan_fov(sys: &System, vertical: bool, with_crop: bool) -> Fov {
     let step = 0.05f64;
     let dir_of = |deg: f64| field_direction(deg, vertical);
     let edge = |sign: f64| -> FovEdge {

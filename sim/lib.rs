@@ -35,6 +35,7 @@ pub mod suggest;
 pub mod sweep;
 pub mod system;
 pub mod targets;
+pub mod tolerance;
 pub mod trace;
 pub mod waveguide;
 pub mod wavelength;

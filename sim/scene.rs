@@ -165,6 +165,77 @@ pub struct HoeDesc {
         skip_serializing_if = "crate::optics::GratingModel::is_kogelnik"
     )]
     pub model: crate::optics::GratingModel,
+    /// Fabrication: relative loss of film thickness after recording (shrinkage s; the fringes'
+    /// normal component scales, K_z → K_z/(1 − s), the in-plane period is held by the
+    /// substrate; `optics::fabrication`). 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub shrinkage: f64,
+    /// Fabrication: change of the mean film index after recording (post-cure, bleaching); the
+    /// fringes stay where they were recorded. 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub mean_index_change: f64,
+    /// Fabrication: error of the coated film thickness in µm (the fringes are recorded in the
+    /// film as coated, so only the thickness changes). 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub thickness_error_um: f64,
+    /// Playback temperature minus recording temperature, K (thermal expansion and dn/dT of
+    /// the film). 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub temperature_change_k: f64,
+    /// Linear thermal expansion of the film across its thickness, 1/K (used with
+    /// `temperature_change_k`).
+    #[serde(
+        default = "default_film_expansion",
+        skip_serializing_if = "is_default_film_expansion"
+    )]
+    pub film_expansion_per_k: f64,
+    /// Linear thermal expansion of the substrate (the film's in-plane period), 1/K.
+    #[serde(
+        default = "default_substrate_expansion",
+        skip_serializing_if = "is_default_substrate_expansion"
+    )]
+    pub substrate_expansion_per_k: f64,
+    /// Thermo-optic coefficient dn/dT of the film's mean index, 1/K.
+    #[serde(
+        default = "default_index_change_per_k",
+        skip_serializing_if = "is_default_index_change_per_k"
+    )]
+    pub index_change_per_k: f64,
+    /// Fabrication, single-grating form: relative shortfall f of the index modulation,
+    /// n1 → n1·(1 − f). 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub index_modulation_shortfall: f64,
+    /// Fabrication, single-grating form: error of the reference-beam angle at recording,
+    /// degrees inside the film. 0 = nominal.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub reference_angle_error_deg: f64,
+}
+
+/// Default of `hoe.film_expansion_per_k` (ASSUMPTION, docs/keys.md: a typical acrylate
+/// polymer's linear expansion).
+pub const DEFAULT_FILM_EXPANSION_PER_K: f64 = 1.0e-4;
+/// Default of `hoe.substrate_expansion_per_k`: soda-lime float glass.
+pub const DEFAULT_SUBSTRATE_EXPANSION_PER_K: f64 = 9.0e-6;
+/// Default of `hoe.index_change_per_k` (ASSUMPTION: typical of acrylate polymers).
+pub const DEFAULT_INDEX_CHANGE_PER_K: f64 = -1.0e-4;
+
+fn default_film_expansion() -> f64 {
+    DEFAULT_FILM_EXPANSION_PER_K
+}
+fn is_default_film_expansion(v: &f64) -> bool {
+    *v == DEFAULT_FILM_EXPANSION_PER_K
+}
+fn default_substrate_expansion() -> f64 {
+    DEFAULT_SUBSTRATE_EXPANSION_PER_K
+}
+fn is_default_substrate_expansion(v: &f64) -> bool {
+    *v == DEFAULT_SUBSTRATE_EXPANSION_PER_K
+}
+fn default_index_change_per_k() -> f64 {
+    DEFAULT_INDEX_CHANGE_PER_K
+}
+fn is_default_index_change_per_k(v: &f64) -> bool {
+    *v == DEFAULT_INDEX_CHANGE_PER_K
 }
 
 /// One grating of a multiplexed film (`[[hoe.grating]]`): the recording that made it.
@@ -182,6 +253,12 @@ pub struct GratingDesc {
     pub object_angle_deg: f64,
     /// Index modulation n1 of this grating (peak-to-mean).
     pub index_modulation: f64,
+    /// Fabrication: relative shortfall f of this grating's index modulation, n1 → n1·(1 − f).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub index_modulation_shortfall: f64,
+    /// Fabrication: error of this grating's reference-beam angle at recording, degrees.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub reference_angle_error_deg: f64,
 }
 
 /// The most gratings one film may hold (`[[hoe.grating]]` entries): the tracer keeps a
@@ -199,6 +276,19 @@ pub const SINGLE_GRATING_KEYS: &[&str] = &[
     "index_modulation",
 ];
 
+/// The single-grating form's per-grating fabrication keys of `[hoe]` (optional, default 0),
+/// which `[[hoe.grating]]` entries carry themselves.
+pub const SINGLE_GRATING_FABRICATION_KEYS: &[&str] =
+    &["index_modulation_shortfall", "reference_angle_error_deg"];
+
+/// Every single-grating key of `[hoe]` (required and optional).
+fn single_form_keys() -> impl Iterator<Item = &'static str> {
+    SINGLE_GRATING_KEYS
+        .iter()
+        .chain(SINGLE_GRATING_FABRICATION_KEYS)
+        .copied()
+}
+
 impl HoeDesc {
     /// The film's gratings in order: the `[[hoe.grating]]` entries, or the one grating of the
     /// single-grating keys.
@@ -211,6 +301,8 @@ impl HoeDesc {
             reference_angle_deg: self.reference_angle_deg.unwrap_or(f64::NAN),
             object_angle_deg: 0.0,
             index_modulation: self.index_modulation.unwrap_or(f64::NAN),
+            index_modulation_shortfall: self.index_modulation_shortfall,
+            reference_angle_error_deg: self.reference_angle_error_deg,
         }]
     }
 
@@ -578,7 +670,7 @@ fn take_grating_list(
         key: key.to_string(),
         message,
     };
-    if let Some(single) = SINGLE_GRATING_KEYS.iter().find(|k| over.contains_key(**k)) {
+    if let Some(single) = single_form_keys().find(|k| over.contains_key(*k)) {
         return Err(fail(
             &format!("hoe.{single}"),
             format!(
@@ -607,8 +699,8 @@ fn take_grating_list(
             ));
         }
     }
-    for k in SINGLE_GRATING_KEYS {
-        base.remove(*k);
+    for k in single_form_keys() {
+        base.remove(k);
     }
     Ok(())
 }
@@ -717,7 +809,7 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<String, SceneEr
 /// Why `--set hoe.PART…` cannot apply to the `[hoe]` table `t`: a single-grating key on a
 /// film that lists `[[hoe.grating]]` entries, or a grating entry on one that does not.
 fn grating_form_mismatch(t: &toml::Table, part: &str) -> Option<String> {
-    if t.contains_key("grating") && SINGLE_GRATING_KEYS.contains(&part) {
+    if t.contains_key("grating") && single_form_keys().any(|k| k == part) {
         Some(format!(
             "the scene lists [[hoe.grating]] entries; set hoe.grating.N.{part} (N from 0)"
         ))
@@ -795,6 +887,8 @@ fn canonical_single_grating(h: &mut HoeDesc) {
             h.recording_wavelength_nm = Some(g.recording_wavelength_nm);
             h.reference_angle_deg = Some(g.reference_angle_deg);
             h.index_modulation = Some(g.index_modulation);
+            h.index_modulation_shortfall = g.index_modulation_shortfall;
+            h.reference_angle_error_deg = g.reference_angle_error_deg;
             h.grating.clear();
         }
     }
@@ -1172,6 +1266,101 @@ fn validate_hoe(ls: &LoadedScene) -> Result<(), SceneError> {
         0.0,
         1e4,
         "hoe.amplitude_absorption_per_mm",
+    )?;
+    validate_fabrication(ls)
+}
+
+/// Checks the fabrication keys of `[hoe]` and of each grating: ranges, and that the film as
+/// fabricated is a film (positive thickness, index in [1, 4], the modulations below it).
+fn validate_fabrication(ls: &LoadedScene) -> Result<(), SceneError> {
+    let h = &ls.scene.hoe;
+    in_range(ls, h.shrinkage, -0.5, 0.5, "hoe.shrinkage")?;
+    in_range(ls, h.mean_index_change, -0.5, 0.5, "hoe.mean_index_change")?;
+    check(
+        ls,
+        h.thickness_error_um.is_finite() && h.film_thickness_um + h.thickness_error_um > 0.0,
+        blame(ls, &["hoe.thickness_error_um", "hoe.film_thickness_um"]),
+        || {
+            format!(
+                "hoe.film_thickness_um + hoe.thickness_error_um must be positive, got {} + {}",
+                sig6(h.film_thickness_um),
+                sig6(h.thickness_error_um)
+            )
+        },
+    )?;
+    in_range(
+        ls,
+        h.temperature_change_k,
+        -200.0,
+        200.0,
+        "hoe.temperature_change_k",
+    )?;
+    for (v, key) in [
+        (h.film_expansion_per_k, "hoe.film_expansion_per_k"),
+        (h.substrate_expansion_per_k, "hoe.substrate_expansion_per_k"),
+        (h.index_change_per_k, "hoe.index_change_per_k"),
+    ] {
+        in_range(ls, v, -1e-3, 1e-3, key)?;
+    }
+    let n_eff = h.mean_index + h.mean_index_change + h.index_change_per_k * h.temperature_change_k;
+    check(
+        ls,
+        (1.0..=4.0).contains(&n_eff),
+        blame(
+            ls,
+            &[
+                "hoe.mean_index_change",
+                "hoe.temperature_change_k",
+                "hoe.mean_index",
+            ],
+        ),
+        || {
+            format!(
+                "the fabricated mean index hoe.mean_index + hoe.mean_index_change + hoe.index_change_per_k * hoe.temperature_change_k = {} must be in [1, 4]",
+                sig6(n_eff)
+            )
+        },
+    )?;
+    let mut total = 0.0;
+    for (i, g) in h.gratings().iter().enumerate() {
+        let key = |f: &str| h.key_of(i, f);
+        in_range(
+            ls,
+            g.index_modulation_shortfall,
+            -1.0,
+            1.0,
+            &key("index_modulation_shortfall"),
+        )?;
+        let err_key = key("reference_angle_error_deg");
+        let theta = g.reference_angle_deg + g.reference_angle_error_deg;
+        check(
+            ls,
+            g.reference_angle_error_deg.is_finite() && theta > 0.0 && theta < 90.0,
+            &err_key,
+            || {
+                format!(
+                    "the recorded reference angle {} + {} must be in (0, 90) degrees",
+                    sig6(g.reference_angle_deg),
+                    sig6(g.reference_angle_error_deg)
+                )
+            },
+        )?;
+        total += g.index_modulation * (1.0 - g.index_modulation_shortfall);
+    }
+    check(
+        ls,
+        total < n_eff,
+        blame(
+            ls,
+            &["hoe.mean_index_change", "hoe.index_modulation_shortfall"],
+        ),
+        || {
+            format!(
+                "the fabricated index modulations add up to {}, which must stay below the fabricated mean index {}",
+                sig6(total),
+                sig6(n_eff)
+            )
+        },
     )
 }
 
@@ -1217,6 +1406,57 @@ mod tests {
         assert_eq!(ls.scene.plate.thickness_mm, 3.0);
         assert_eq!(ls.scene.sensor.crop_px.size(), (64, 64));
         assert_eq!(ls.scene.display.image, "checker:8");
+    }
+
+    /// Fabrication keys: out-of-range values name their key; a one-entry `[[hoe.grating]]`
+    /// list keeps its per-grating errors in the single-grating form; a list refuses the
+    /// single-grating form's per-grating keys.
+    #[test]
+    fn fabrication_keys_are_checked() {
+        for (set, want) in [
+            (
+                "hoe.shrinkage=0.6",
+                "--set hoe.shrinkage: hoe.shrinkage: must be in [-0.5, 0.5]",
+            ),
+            (
+                "hoe.thickness_error_um=-16",
+                "hoe.thickness_error_um: hoe.film_thickness_um + hoe.thickness_error_um must be positive",
+            ),
+            (
+                "hoe.reference_angle_error_deg=30",
+                "hoe.reference_angle_error_deg: the recorded reference angle 61.2 + 30",
+            ),
+            (
+                "hoe.index_modulation_shortfall=1.5",
+                "hoe.index_modulation_shortfall: must be in [-1, 1]",
+            ),
+            (
+                "hoe.temperature_change_k=1e4",
+                "hoe.temperature_change_k: must be in [-200, 200]",
+            ),
+        ] {
+            let e = load_scene(None, &[set.into()]).unwrap_err().to_string();
+            assert!(e.contains(want), "{set}: {e}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.toml");
+        std::fs::write(
+            &p,
+            "[[hoe.grating]]\nrecording_wavelength_nm = 532.0\nreference_angle_deg = 61.2\n\
+             index_modulation = 0.015\nindex_modulation_shortfall = 0.2\n",
+        )
+        .unwrap();
+        let h = load_scene(Some(&p), &[]).unwrap().scene.hoe;
+        assert!(h.grating.is_empty());
+        assert_eq!(h.index_modulation_shortfall, 0.2);
+        assert_eq!(h.gratings()[0].index_modulation_shortfall, 0.2);
+        let e = load_scene(Some(&p), &["hoe.reference_angle_error_deg=0.1".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("set hoe.grating.N.reference_angle_error_deg"),
+            "{e}"
+        );
     }
 
     #[test]

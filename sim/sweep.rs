@@ -300,7 +300,7 @@ impl ResponseGrid {
 }
 
 /// Settings of the optional PSNR figure.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct PsnrSettings {
     /// Built-in target spec without `@SIZE` (the size is the scene's display target size).
     pub target: String,
@@ -948,7 +948,7 @@ pub struct GratingFigures {
 }
 
 /// The demo settings that give the sweep's PSNR protocol.
-fn psnr_demo_settings(p: &PsnrSettings, progress: bool) -> crate::demo::DemoSettings {
+pub(crate) fn psnr_demo_settings(p: &PsnrSettings, progress: bool) -> crate::demo::DemoSettings {
     crate::demo::DemoSettings {
         spp: p.spp,
         seed: p.seed,
@@ -962,7 +962,7 @@ fn psnr_demo_settings(p: &PsnrSettings, progress: bool) -> crate::demo::DemoSett
 }
 
 /// The PSNR target of `sys`: its spec at the display-target size and its linear intensities.
-fn psnr_target(sys: &System, p: &PsnrSettings) -> Result<Vec<f64>, String> {
+pub(crate) fn psnr_target(sys: &System, p: &PsnrSettings) -> Result<Vec<f64>, String> {
     let (ow, oh) = (sys.display.width_px, sys.display.height_px);
     if ow != oh {
         return Err(format!(

@@ -82,21 +82,8 @@ fn spectrum_kind(name: &str) -> DisplaySpectrumKind {
 /// Builds the waveguide of a scene.
 pub fn build_waveguide(s: &Scene) -> Waveguide {
     let h = &s.hoe;
-    let list: Vec<VolumeGrating> = h
-        .gratings()
-        .iter()
-        .map(|g| {
-            VolumeGrating::from_recording_beams(
-                g.recording_wavelength_nm,
-                g.reference_angle_deg,
-                g.object_angle_deg,
-                h.mean_index,
-                h.film_thickness_um,
-                g.index_modulation,
-                h.amplitude_absorption_per_mm,
-            )
-        })
-        .collect();
+    // The gratings as fabricated (every fabrication key 0: the recorded design, bit for bit).
+    let list: Vec<VolumeGrating> = crate::optics::fabrication::fabricated_gratings(h);
     // Validation bounds the list to 1..=MAX_GRATINGS and the film is shared by construction.
     let gratings = GratingSet::new(&list).unwrap_or_else(|| GratingSet::single(list[0]));
     let bottom = Rect::centered(
@@ -247,7 +234,6 @@ fn build_wavelength_sampler(
     let pol = display.polarization_weights;
     let half_y = 0.5 * cam.height_px as f64 * cam.pitch_mm;
     let n_gratings = wg.gratings.len();
-    let descs = s.hoe.gratings();
     let per_grating: Vec<(Vec<(f64, Vec<f64>)>, bool)> = (0..n_gratings)
         .map(|j| {
             let grating = wg.gratings.get(j);
@@ -287,12 +273,12 @@ fn build_wavelength_sampler(
                     Some((lb, curve))
                 })
                 .collect();
-            let active = n_gratings == 1 || descs[j].index_modulation > 0.0;
+            let active = n_gratings == 1 || grating.n1 > 0.0;
             (shapes, active)
         })
         .collect();
     // Without index modulation nothing is Bragg-selective: sample the band uniformly.
-    let fu = if descs.iter().any(|g| g.index_modulation > 0.0) {
+    let fu = if wg.gratings.as_slice().iter().any(|g| g.n1 > 0.0) {
         sm.uniform_fraction
     } else {
         1.0

@@ -41,6 +41,11 @@ enum Command {
     /// Bragg range and optionally the ADMM-TV PSNR over a grid of scene-key values:
     /// DIR/sweep.{csv,json} and a PNG + SVG plot per quantity.
     Sweep(jobs::sweep::SweepOptions),
+    /// Fabrication tolerances: Monte Carlo draws of hoe.* errors (`--draw KEY=normal(M,SD)` or
+    /// `uniform(LO,HI)`), per draw FOV, peak efficiency, replica weights, band centres and
+    /// optionally the PSNR with the nominal H; yield and sensitivity ranking: DIR/draws.{csv,jsonl},
+    /// summary.json and PNG plots; or shards merged (`stscam tolerance merge SHARD_DIR... --out DIR`).
+    Tolerance(jobs::tolerance::ToleranceOptions),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -127,6 +132,7 @@ where
         Command::Demo(o) => jobs::demo::run(o, con),
         Command::Dataset(o) => jobs::dataset::run(o, con),
         Command::Sweep(o) => jobs::sweep::run(o, con),
+        Command::Tolerance(o) => jobs::tolerance::run(o, con),
         Command::Bench { which } => match which {
             BenchCommand::Bvh(o) => jobs::bench::run_bvh(o, con),
             BenchCommand::Recon(o) => jobs::bench::run_recon(o, con),

@@ -19,6 +19,7 @@ pub mod probe;
 pub mod reconstruct;
 pub mod render;
 pub mod sweep;
+pub mod tolerance;
 pub mod validate;
 
 use std::path::PathBuf;

@@ -25,7 +25,8 @@
 //!   film); the guided orders the camera uses have |c_S| ≥ 0.38 and are untouched.
 //!
 //! Assumptions: the film (thickness d, mean index n_film, no dispersion of n_film) and the
-//! fringes are unchanged since recording (no shrinkage); reflections at the glass–film boundary
+//! fringes are uniform through the film (fabrication errors such as shrinkage change K, d and
+//! n_film as a whole, `optics::fabrication`); reflections at the glass–film boundary
 //! are neglected (index mismatch ≲ 0.03). Absorption of a transmission-type order uses the
 //! lossless Kogelnik value times exp(−α0 d (1/c_R + 1/c_S)), an approximation used only for
 //! far-off-Bragg stray orders.

@@ -32,3 +32,4 @@ mod scenes3d_physics;
 mod shading_furnace;
 mod stress;
 mod sweep;
+mod tolerance;
