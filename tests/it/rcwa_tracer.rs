@@ -150,6 +150,39 @@ fn the_cli_builds_caches_and_reuses_the_tables() {
     assert!(e.contains("hoe.model") && e.contains("grating 2"), "{e}");
     assert_eq!(e.trim().lines().count(), 1, "{e}");
     assert!(!dir.path().join("c").exists());
+    // Three gratings of different slant (RGB sharing one in-plane period): RCWA can take the
+    // film, but every slice needs its own eigensolution (≈ 0.8 s a solve at 16 µm), so the
+    // tables would take hours: refused from a timed pilot node, in one line, nothing written.
+    let s55 = 55f64.to_radians().sin();
+    let mut rgb = String::from(
+        "[hoe]\nfilm_thickness_um = 16.0\nmean_index = 1.50\namplitude_absorption_per_mm = 0.0\n",
+    );
+    for l in [460.0f64, 532.0, 620.0] {
+        let a = (l / 532.0 * s55).asin().to_degrees();
+        rgb += &format!(
+            "[[hoe.grating]]\nrecording_wavelength_nm = {l}\nreference_angle_deg = {a}\nindex_modulation = 0.005\n"
+        );
+    }
+    let rgb_path = dir.path().join("rgb.toml");
+    std::fs::write(&rgb_path, rgb).unwrap();
+    let slow = cli(
+        &[
+            "render",
+            rgb_path.to_str().unwrap(),
+            "--set",
+            "hoe.model=rcwa",
+            "--out",
+            &out("e"),
+        ],
+        &cache,
+    );
+    assert_eq!(slow.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&slow.stderr);
+    assert!(
+        e.contains("hoe.model") && e.contains("would take about"),
+        "{e}"
+    );
+    assert!(!dir.path().join("e").exists());
     // An unknown model names the key too.
     let typo = cli(
         &["render", "--set", "hoe.model=rcwaa", "--out", &out("d")],

@@ -57,6 +57,18 @@ const PER_NODE: usize = 8;
 /// Most nodes per grating.
 pub const MAX_NODES: usize = 2_000_000;
 
+/// Longest estimated table build accepted by [`RcwaCouplings::load_or_build`], in seconds,
+/// unless `STSCAM_RCWA_MAX_BUILD_S` says otherwise.
+pub const DEFAULT_MAX_BUILD_S: f64 = 600.0;
+
+fn max_build_s() -> f64 {
+    std::env::var("STSCAM_RCWA_MAX_BUILD_S")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|v| *v >= 0.0)
+        .unwrap_or(DEFAULT_MAX_BUILD_S)
+}
+
 /// The grid of every grating's table.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CouplingGrid {
@@ -357,6 +369,19 @@ impl RcwaCouplings {
                 return Ok(c);
             }
         }
+        let est = c.estimate_build_s(probes)?;
+        let limit = max_build_s();
+        if est > limit {
+            return Err(RcwaError::BadInput(format!(
+                "building the RCWA tables of this film would take about {:.0} min on {} threads \
+                 (more than the {:.0} min accepted; set STSCAM_RCWA_MAX_BUILD_S to allow it): \
+                 gratings of different slant need an eigensolution per slice; use \
+                 hoe.model = \"kogelnik\" or gratings of one slant",
+                est / 60.0,
+                rayon::current_num_threads(),
+                limit / 60.0
+            )));
+        }
         let mut c = Self::build(set, grid, settings, probes)?;
         if let Some(dir) = cache_dir {
             let bytes = encode_values(&key, c.max_error, &c.data.concat());
@@ -365,6 +390,20 @@ impl RcwaCouplings {
             }
         }
         Ok(c)
+    }
+
+    /// Estimated wall seconds of [`Self::build`] on the current thread pool: one node's solves
+    /// timed here, times the nodes and probes of every grating, over the threads.
+    fn estimate_build_s(&self, probes: usize) -> Result<f64, RcwaError> {
+        let nodes = self.grid.nodes();
+        let Some((lam, u)) = (0..nodes).find_map(|n| self.node_point(0, n)) else {
+            return Ok(0.0);
+        };
+        let t0 = std::time::Instant::now();
+        self.direct(0, lam, u)?;
+        let per_node = t0.elapsed().as_secs_f64();
+        let work = (nodes + probes) as f64 * self.set.len() as f64;
+        Ok(per_node * work / rayon::current_num_threads().max(1) as f64)
     }
 
     /// Largest |interpolated − direct RCWA| over the probes of the build (every quantity,
