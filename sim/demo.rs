@@ -139,11 +139,21 @@ pub(crate) fn intensity_of_spec(
     spec: &str,
     gamma: f64,
 ) -> Result<(usize, usize, Vec<f64>), String> {
-    let t = crate::targets::builtin_target(spec)?;
+    planes_of_spec(spec, gamma, 1)
+}
+
+/// A built-in target spec (grey, or `rgb:R+G+B`) as (width, height, linear intensities) in
+/// `planes` object planes (1: luminance; 3: R, G, B primary-major).
+pub(crate) fn planes_of_spec(
+    spec: &str,
+    gamma: f64,
+    planes: usize,
+) -> Result<(usize, usize, Vec<f64>), String> {
+    let (w, h, c, values) = crate::targets::builtin_image(spec)?;
     Ok((
-        t.width,
-        t.height,
-        crate::display::Display::intensity_of(&t.values, 1, false, gamma),
+        w,
+        h,
+        crate::display::Display::planes_of(&values, c, false, gamma, planes),
     ))
 }
 
