@@ -10,6 +10,7 @@ pub mod bench;
 pub mod camera;
 pub mod cancel;
 pub mod colour;
+pub mod colour_demo;
 pub mod dataset;
 pub mod demo;
 pub mod display;

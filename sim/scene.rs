@@ -21,6 +21,12 @@ pub const SHIPPED_SCENES: &[(&str, &str)] = &[
     ("eye-contact", include_str!("../scenes/eye-contact.toml")),
     ("gesture", include_str!("../scenes/gesture.toml")),
 ];
+/// The full-colour design of `scenes/rgb-multiplex.toml`, compiled into the binary for
+/// `stscam demo --colour`.
+pub const RGB_MULTIPLEX_TOML: &str = include_str!("../scenes/rgb-multiplex.toml");
+/// Name used in messages for the embedded RGB design.
+pub const RGB_MULTIPLEX_NAME: &str = "<embedded scenes/rgb-multiplex.toml>";
+
 /// Name used in messages for the embedded scene.
 pub const EMBEDDED_NAME: &str = "<embedded scenes/paper-2022.toml>";
 
