@@ -646,6 +646,11 @@ pub fn calibrate_scene(
     let tm = match &job.matrix {
         Some(m) => m,
         None => {
+            if sys.display.primaries.is_some() {
+                return Err(
+                    "display.primaries: `calibrate` shows monochrome patterns; a colour display is calibrated per primary by `stscam demo --colour` (hadamard::calibrate_colour)".into(),
+                );
+            }
             if !n_obj.is_power_of_two() {
                 return Err(format!(
                     "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
