@@ -159,6 +159,9 @@ pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[
         .collect()
 }
 
+/// One row of the figure: (label, truth, noisy capture, reconstructions, captions).
+type FigRow = (String, Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<String>);
+
 /// Energy share per plane of a three-plane object (clipped to [0, 1]).
 fn shares(f: &[f64]) -> [f64; 3] {
     let n = f.len() / 3;
@@ -180,8 +183,6 @@ pub fn run_colour_demo(
 ) -> Result<ColourDemoOutput, String> {
     let mut rows = Vec::new();
     let mut reports = Vec::new();
-    // Figure rows: (label, truth, capture, recons, captions).
-    type FigRow = (String, Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<String>);
     let mut fig: Vec<FigRow> = Vec::new();
     let mut geometry = None;
     for (di, (name, sys)) in designs.iter().enumerate() {
@@ -444,7 +445,7 @@ pub fn table_markdown(rows: &[ColourRow], designs: &[DesignReport]) -> String {
 /// ADMM-TV (H calibrated), colour PSNR and mean ΔE00 under each reconstruction; 16-bit RGB
 /// PNG, display code values (the capture in the sensor's raw R, G, B, one scale for the three).
 fn colour_figure(
-    rows: &[(String, Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<String>)],
+    rows: &[FigRow],
     object: (usize, usize),
     crop: (usize, usize),
     gamma: f64,

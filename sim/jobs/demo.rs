@@ -93,7 +93,7 @@ fn cmd_demo(
 /// report sent to `con`.
 pub fn run(o: &DemoOptions, con: &Console) -> Result<(), JobError> {
     if o.colour {
-        return cmd_colour_demo(&o.scene, &o.out, &o.run, con).map_err(Into::into);
+        return cmd_colour_demo(&o.scene, &o.out, &o.run, con);
     }
     cmd_demo(&o.scene, &o.out, &o.run, con)
 }
