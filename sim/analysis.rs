@@ -300,6 +300,10 @@ pub struct DesignInfo {
     /// `grating_period_nm`, `field` and `replica_pitch_sensor_px` are the first grating's;
     /// `point_replicas` lists every grating's.
     pub gratings: Vec<GratingInfo>,
+    /// A colour display only (`display.primaries`): per field row of the crop, each grating's
+    /// Bragg wavelength and the level of each primary there (`colour::field_bands`, 9 rows).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub colour_bands: Option<Vec<crate::colour::FieldBands>>,
 }
 
 /// What `info` reports for one grating of the film.
@@ -831,5 +835,13 @@ pub fn info(sys: &System) -> DesignInfo {
         sensor_distance_mm: cam.sensor_distance_mm,
         object_coverage: object_coverage(sys),
         gratings,
+        colour_bands: sys
+            .display
+            .primaries
+            .is_some()
+            .then(|| crate::colour::field_bands(sys, COLOUR_BAND_ROWS)),
     }
 }
+
+/// Field rows of `info`'s colour bands.
+pub const COLOUR_BAND_ROWS: usize = 9;

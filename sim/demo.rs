@@ -139,11 +139,21 @@ pub(crate) fn intensity_of_spec(
     spec: &str,
     gamma: f64,
 ) -> Result<(usize, usize, Vec<f64>), String> {
-    let t = crate::targets::builtin_target(spec)?;
+    planes_of_spec(spec, gamma, 1)
+}
+
+/// A built-in target spec (grey, or `rgb:R+G+B`) as (width, height, linear intensities) in
+/// `planes` object planes (1: luminance; 3: R, G, B primary-major).
+pub(crate) fn planes_of_spec(
+    spec: &str,
+    gamma: f64,
+    planes: usize,
+) -> Result<(usize, usize, Vec<f64>), String> {
+    let (w, h, c, values) = crate::targets::builtin_image(spec)?;
     Ok((
-        t.width,
-        t.height,
-        crate::display::Display::intensity_of(&t.values, 1, false, gamma),
+        w,
+        h,
+        crate::display::Display::planes_of(&values, c, false, gamma, planes),
     ))
 }
 
@@ -151,8 +161,8 @@ pub(crate) fn intensity_of_spec(
 /// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
 pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
-    let (ow, oh) = m.object;
-    let white = m.capture_of(&vec![1.0; ow * oh]);
+    // All object pixels (of every primary) white.
+    let white = m.capture_of(&vec![1.0; m.h.cols]);
     let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
     let noise = SensorNoise::new(&sys.scene.noise, white_peak);
     let dark: Vec<f64> = m
@@ -675,6 +685,33 @@ fn figure(
     crop: (usize, usize),
     gamma: f64,
 ) -> Result<Vec<u8>, String> {
+    let (w, h, img) = figure_canvas(labels, shots, recons, captions, object, crop, gamma, None);
+    let samples: Vec<u16> = img
+        .iter()
+        .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+        .collect();
+    crate::io::encode_png16(
+        w,
+        h,
+        1,
+        &samples,
+        crate::io::PngTransfer::DisplayGamma(gamma),
+    )
+}
+
+/// The figure's canvas (width, height, display code values in [0, 1]) of [`figure`]; each
+/// capture is scaled by `capture_peaks[row]` if given, else by its own 99.9th percentile.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn figure_canvas(
+    labels: &[&str],
+    shots: &[(&str, &[f64], &[f64])],
+    recons: &[Vec<Vec<f64>>],
+    captions: &[Vec<String>],
+    object: (usize, usize),
+    crop: (usize, usize),
+    gamma: f64,
+    capture_peaks: Option<&[f64]>,
+) -> (usize, usize, Vec<f64>) {
     let cols = labels.len();
     let label_h = 9 * 2 + 4;
     // Row labels (target names) in a left column; each reconstruction's PSNR under its tile.
@@ -727,10 +764,9 @@ fn figure(
         }
         let mut tiles: Vec<Vec<f64>> = Vec::new();
         tiles.push(resample(truth, object.0, object.1, TILE, TILE));
-        let peak = {
-            let mut s: Vec<f64> = capture.to_vec();
-            s.sort_by(f64::total_cmp);
-            s[((s.len() as f64 - 1.0) * 0.999) as usize].max(f64::MIN_POSITIVE)
+        let peak = match capture_peaks {
+            Some(p) => p[r],
+            None => percentile_peak(capture),
         };
         let cap: Vec<f64> = capture.iter().map(|v| v / peak).collect();
         tiles.push(resample(&cap, crop.0, crop.1, TILE, TILE));
@@ -742,15 +778,13 @@ fn figure(
             blit(&t, col_x(c), y0, TILE, TILE);
         }
     }
-    let samples: Vec<u16> = img
-        .iter()
-        .map(|&v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
-        .collect();
-    crate::io::encode_png16(
-        w,
-        h,
-        1,
-        &samples,
-        crate::io::PngTransfer::DisplayGamma(gamma),
-    )
+    (w, h, img)
+}
+
+/// The 99.9th percentile of a capture (its display scale in the figures), at least the
+/// smallest positive number.
+pub(crate) fn percentile_peak(capture: &[f64]) -> f64 {
+    let mut s: Vec<f64> = capture.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[((s.len() as f64 - 1.0) * 0.999) as usize].max(f64::MIN_POSITIVE)
 }

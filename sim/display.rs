@@ -10,7 +10,17 @@
 //! Polarisation: linearly polarised at angle ψ from x → TE weight cos²ψ, TM weight sin²ψ
 //! (TE = E along x for the vertical diffraction plane); "none" → ½, ½.
 //!
-//! Assumptions: no sub-pixel (RGB stripe) structure, uniform backlight, no angular falloff.
+//! Colour (`display.primaries = "lcd"`): the pixel emits Σ_p L_p·P_p(λ) over three primaries
+//! p = R, G, B with spectra P_p (`spectra::display_primaries`: backlight × colour filter,
+//! white = P_R + P_G + P_B of mean 1), L_p = L_black + (1 − L_black)·f_p from the linear
+//! intensity f_p of primary p (an RGB target's channels, each linearised; a grey target drives
+//! the three primaries equally); the object is then three planes, primary-major. The
+//! backlight spectrum S of the monochrome model becomes the white W = Σ_p P_p, and a sample at λ
+//! sees the pixel as W(λ)·Σ_p w_p(λ)·L_p with w_p = P_p/W (Σ_p w_p = 1), so the monochrome
+//! code path and its numbers are untouched when the key is off.
+//!
+//! Assumptions: no sub-pixel (RGB stripe) structure (the three primaries of a pixel share its
+//! area), uniform backlight, no angular falloff.
 
 use glam::DVec2;
 
@@ -30,16 +40,20 @@ pub struct Display {
     /// Target height in pixels.
     pub height_px: usize,
     /// Linear intensity per target pixel in [0, 1] (0 = black, 1 = white; display gamma
-    /// already applied), row-major, row 0 top. This is the object vector f of g = Hf.
+    /// already applied), row-major, row 0 top. This is the object vector f of g = Hf. With
+    /// colour primaries: three planes (R, G, B), primary-major, index p·W·H + pixel.
     pub intensity: Vec<f64>,
-    /// Relative linear radiance per target pixel: black + (1 − black)·intensity.
+    /// Relative linear radiance per target pixel (and primary, as `intensity`):
+    /// black + (1 − black)·intensity.
     pub radiance: Vec<f64>,
     /// Relative radiance of black LCD pixels.
     pub black_level: f64,
     /// Half extents of the LCD, mm.
     pub half_extent_mm: DVec2,
-    /// Backlight spectrum (mean 1 over 380–780 nm).
+    /// Backlight spectrum (mean 1 over 380–780 nm); with colour primaries their sum, white.
     pub spectrum: Spectrum,
+    /// Colour primaries [R, G, B] (spectra summing to `spectrum`), or None: monochrome.
+    pub primaries: Option<Box<[Spectrum; 3]>>,
     /// Fractions of the emitted power in TE and TM.
     pub polarization_weights: [f64; 2],
 }
@@ -81,13 +95,120 @@ impl Display {
             .collect()
     }
 
-    /// Shows a new object: linear intensities in [0, 1] (clamped), one per target pixel,
-    /// row-major. The target size does not change.
+    /// Converts code values (or linear values if `linear`) into `planes` planes of linear
+    /// intensity (planar, primary-major): 1 plane is [`Display::intensity_of`]; 3 planes are an
+    /// RGB image's channels, each linearised, or a grey image's values in all three.
+    pub fn planes_of(
+        values: &[f32],
+        channels: usize,
+        linear: bool,
+        gamma: f64,
+        planes: usize,
+    ) -> Vec<f64> {
+        if planes != 3 {
+            return Self::intensity_of(values, channels, linear, gamma);
+        }
+        let c = channels.max(1);
+        let n = values.len() / c;
+        let lin = |v: f32| {
+            let v = f64::from(v).clamp(0.0, 1.0);
+            if linear { v } else { v.powf(gamma) }
+        };
+        (0..3)
+            .flat_map(|p| {
+                let ch = if c == 3 { p } else { 0 };
+                (0..n).map(move |i| lin(values[i * c + ch]))
+            })
+            .collect()
+    }
+
+    /// Relative radiance of target pixel `k` (row-major), summed over the primaries of a
+    /// colour display.
+    #[inline]
+    pub fn pixel_radiance(&self, k: usize) -> f64 {
+        let n = self.width_px * self.height_px;
+        (0..self.planes()).map(|p| self.radiance[p * n + k]).sum()
+    }
+
+    /// Object planes: 1 (monochrome) or 3 (colour primaries R, G, B).
+    pub fn planes(&self) -> usize {
+        if self.primaries.is_some() { 3 } else { 1 }
+    }
+
+    /// Object pixels, planes × width × height (the columns of H).
+    pub fn object_len(&self) -> usize {
+        self.planes() * self.width_px * self.height_px
+    }
+
+    /// Shows a new object: linear intensities in [0, 1] (clamped), row-major, one per target
+    /// pixel and plane ([`Display::object_len`] values); a colour display also takes one plane,
+    /// shown on all three primaries (grey). The target size does not change.
     pub fn set_intensity(&mut self, intensity: &[f64]) {
-        debug_assert_eq!(intensity.len(), self.width_px * self.height_px);
+        let n = self.width_px * self.height_px;
+        debug_assert!(intensity.len() == n || intensity.len() == self.object_len());
         let bl = self.black_level;
-        self.intensity = intensity.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let reps = if intensity.len() == n {
+            self.planes()
+        } else {
+            1
+        };
+        self.intensity = (0..reps)
+            .flat_map(|_| intensity.iter().map(|v| v.clamp(0.0, 1.0)))
+            .collect();
         self.radiance = self.intensity.iter().map(|l| bl + (1.0 - bl) * l).collect();
+    }
+
+    /// The primaries' shares w_p(λ) = P_p(λ)/W(λ) of white at `lambda_nm` (0 where W is 0);
+    /// [1, 0, 0] for a monochrome display.
+    #[inline]
+    pub fn primary_weights(&self, lambda_nm: f64) -> [f64; 3] {
+        match &self.primaries {
+            None => [1.0, 0.0, 0.0],
+            Some(p) => {
+                let w = self.spectrum.eval(lambda_nm);
+                if w > 0.0 {
+                    let inv = 1.0 / w;
+                    std::array::from_fn(|k| p[k].eval(lambda_nm) * inv)
+                } else {
+                    [0.0; 3]
+                }
+            }
+        }
+    }
+
+    /// Relative radiance at `p` of a colour display for primary shares `w`
+    /// ([`Display::primary_weights`]): Σ_k w_k·L_k, black on the rest of the LCD, 0 beyond.
+    /// For a monochrome display this is [`Display::radiance_at`].
+    #[inline]
+    pub fn radiance_weighted_at(&self, p: DVec2, w: &[f64; 3]) -> f64 {
+        if self.primaries.is_none() {
+            return self.radiance_at(p);
+        }
+        if let Some((c, r)) = self.pixel_at(p) {
+            let n = self.width_px * self.height_px;
+            let k = r * self.width_px + c;
+            return w[0] * self.radiance[k]
+                + w[1] * self.radiance[n + k]
+                + w[2] * self.radiance[2 * n + k];
+        }
+        let d = (p - self.center_mm).abs();
+        if d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y {
+            self.black_level
+        } else {
+            0.0
+        }
+    }
+
+    /// Spectral radiance (relative, white's spectrum of mean 1) at `p` and `lambda_nm`: the
+    /// backlight spectrum times [`Display::radiance_at`] for a monochrome display, Σ_k L_k·P_k(λ)
+    /// for a colour one.
+    #[inline]
+    pub fn spectral_radiance_at(&self, p: DVec2, lambda_nm: f64) -> f64 {
+        if self.primaries.is_none() {
+            return self.radiance_at(p) * self.spectrum.eval(lambda_nm);
+        }
+        let w = self.primary_weights(lambda_nm);
+        self.radiance_weighted_at(p, &w) * self.spectrum.eval(lambda_nm)
     }
 
     /// TE/TM power fractions for a polariser at `angle_deg` from x, or unpolarised (`None`).
@@ -127,7 +248,8 @@ impl Display {
         d.x <= self.half_extent_mm.x && d.y <= self.half_extent_mm.y
     }
 
-    /// Relative radiance (white = 1) at point `p` on the display plane.
+    /// Relative radiance (white = 1) at point `p` on the display plane (monochrome; the red
+    /// plane of a colour display: use [`Display::radiance_weighted_at`] there).
     #[inline]
     pub fn radiance_at(&self, p: DVec2) -> f64 {
         if let Some((c, r)) = self.pixel_at(p) {
@@ -160,6 +282,7 @@ mod tests {
             black_level: 0.001,
             half_extent_mm: DVec2::new(259.2, 162.0),
             spectrum: display_spectrum(DisplaySpectrumKind::Flat),
+            primaries: None,
             polarization_weights: Display::polarization_weights(None),
         }
     }

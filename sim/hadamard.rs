@@ -66,6 +66,45 @@ pub fn display_pattern(n: usize, i: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The colour calibration of a colour H (`planes` column blocks, one per display primary):
+/// for each primary p the display shows the N Sylvester patterns in that primary only (the
+/// others black), v_{p,i} = H_p u_i + o, and H_p is estimated from its own N frames (plus the
+/// shared all-white-of-p frame u_0 and, with `dark_frame`, the dark frame) exactly as
+/// [`calibrate`] does for a monochrome display: N·planes frames in all. The exposure of
+/// `set.noise` is kept for every frame (set once, as for the monochrome camera); primary p's
+/// noise comes from the stream of seed `set.seed + p`. Returns H_est (blocks side by side, the
+/// shape of `h_true`) and one report per primary, whose
+/// `with_dark_frame.other_columns` / `without_dark_frame.other_columns` against
+/// `predicted_noise_other_columns` is the check "within the noise prediction, per primary".
+pub fn calibrate_colour(
+    h_true: &CsrMatrix,
+    offset: &[f32],
+    planes: usize,
+    set: &CalibrationSettings,
+) -> Result<(CsrMatrix, Vec<CalibrationReport>), HadamardError> {
+    let blocks = h_true
+        .hsplit(planes.max(1))
+        .ok_or(HadamardError::NotPowerOfTwo(h_true.cols))?;
+    let mut est = Vec::with_capacity(blocks.len());
+    let mut reports = Vec::with_capacity(blocks.len());
+    for (p, b) in blocks.iter().enumerate() {
+        let c = calibrate(
+            b,
+            offset,
+            FrameSource::Matrix,
+            &CalibrationSettings {
+                seed: set.seed.wrapping_add(p as u64),
+                ..set.clone()
+            },
+        )?;
+        est.push(c.h_est);
+        reports.push(c.report);
+    }
+    let refs: Vec<&CsrMatrix> = est.iter().collect();
+    let h_est = CsrMatrix::hstack(&refs).ok_or(HadamardError::NotPowerOfTwo(h_true.cols))?;
+    Ok((h_est, reports))
+}
+
 /// Default threshold of stored H_est entries, in predicted noise standard deviations: at 5σ
 /// a Gaussian floor leaves about 5.7·10⁻⁷ of the pure-noise elements (≈ 450 of the paper's
 /// 7.9·10⁸), so H_est stays as sparse as H.
@@ -405,6 +444,66 @@ mod tests {
     use super::*;
 
     #[test]
+    fn colour_calibration_recovers_each_primary_within_the_noise_prediction() {
+        let ov: Vec<String> = [
+            "sensor.crop_px=24",
+            "sensor.pitch_um=60",
+            "sensor.response=rgb-bayer",
+            "display.primaries=lcd",
+            "display.image=rgb:letter:F@8+shape:disk@8+checker:2@8",
+            // 12-bit frames with a dark level clear of 0 (as tests/it/matrix_calibration.rs):
+            // Mono8 quantisation and clipping at 0 are outside the Gaussian prediction.
+            "noise.bit_depth=12",
+            "noise.dark_offset_dn=8",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let sys =
+            crate::system::System::build(&crate::scene::load_scene(None, &ov).unwrap()).unwrap();
+        let m = crate::matrix::compute_matrix(
+            &sys,
+            &crate::render::RenderSettings::lattice(4, 3, false),
+        );
+        let (noise, _) = crate::demo::exposure_and_dark(&sys, &m, 5);
+        let set = CalibrationSettings {
+            noise: Some(noise),
+            seed: 7,
+            dark_frame: false,
+            threshold_sigma: 0.0,
+        };
+        let (h_est, reports) = calibrate_colour(&m.h, &m.offset, 3, &set).unwrap();
+        assert_eq!((h_est.rows, h_est.cols), (m.h.rows, m.h.cols));
+        assert_eq!(reports.len(), 3);
+        // Per primary: the error of the multiplexed columns is the predicted noise
+        // (docs/physics.md §7.3) within 10 % (about 10⁵ noisy elements each).
+        for (p, r) in reports.iter().enumerate() {
+            assert_eq!(r.patterns, 64);
+            let ratio = r.without_dark_frame.other_columns / r.predicted_noise_other_columns;
+            assert!((ratio - 1.0).abs() < 0.1, "primary {p}: {ratio} {r:?}");
+        }
+        // It can fail: primary R's estimate against primary G's true block is far outside it.
+        let est = h_est.hsplit(3).unwrap();
+        let tru = m.h.hsplit(3).unwrap();
+        let mut a = vec![0.0; 64];
+        let mut b = vec![0.0; 64];
+        let (mut err, mut norm) = (0.0, 0.0);
+        for i in 0..m.h.rows {
+            est[0].row_dense_into(i, &mut a);
+            tru[1].row_dense_into(i, &mut b);
+            for k in 1..64 {
+                err += (a[k] - b[k]).powi(2);
+                norm += b[k] * b[k];
+            }
+        }
+        let wrong = (err / norm).sqrt();
+        assert!(
+            wrong > 3.0 * reports[1].predicted_noise_other_columns,
+            "{wrong}"
+        );
+    }
+
+    #[test]
     fn fwht_matches_dense_product_and_is_orthogonal() {
         let n = 64;
         let x: Vec<f64> = (0..n).map(|i| ((i * 37 + 11) % 17) as f64 - 8.0).collect();
@@ -547,6 +646,11 @@ pub fn calibrate_scene(
     let tm = match &job.matrix {
         Some(m) => m,
         None => {
+            if sys.display.primaries.is_some() {
+                return Err(
+                    "display.primaries: `calibrate` shows monochrome patterns; a colour display is calibrated per primary by `stscam demo --colour` (hadamard::calibrate_colour)".into(),
+                );
+            }
             if !n_obj.is_power_of_two() {
                 return Err(format!(
                     "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",

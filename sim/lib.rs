@@ -9,6 +9,8 @@ pub mod analytic;
 pub mod bench;
 pub mod camera;
 pub mod cancel;
+pub mod colour;
+pub mod colour_demo;
 pub mod dataset;
 pub mod demo;
 pub mod display;

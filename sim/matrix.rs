@@ -16,9 +16,13 @@
 //! leakage). This is the contract between `matrix` and `render`, tested to float rounding.
 //!
 //! Rows are crop pixels, row-major (row 0 at the top); with several sensor channels (RGB) the
-//! rows are channel-major: row = c·(W·H) + pixel. Columns are object pixels, row-major. The
-//! display is monochrome (its spectrum is the backlight's), so there is one column per object
-//! pixel whatever the sensor.
+//! rows are channel-major: row = c·(W·H) + pixel. Columns are object pixels, row-major. A
+//! monochrome display (its spectrum is the backlight's) has one column per object pixel
+//! whatever the sensor. A colour display (`display.primaries`) has one column block per
+//! primary, column = p·(W·H) + pixel for p = R, G, B: the branch's c is split over the
+//! primaries by their shares w_p(λ) = P_p(λ)/W(λ) of white at the sample's wavelength
+//! (`Display::primary_weights`), H[m, p·N + k] = (1 − b)·Σ c·w_p/spp, and the offset is the
+//! black level on all primaries, b·Σ c/spp (Σ_p w_p = 1).
 //!
 //! Memory grows with the number of stored entries, never with rows × columns: each pixel
 //! accumulates into a small open-addressing table keyed by column, summed in sample order
@@ -37,6 +41,12 @@ use crate::system::System;
 /// What one unit of H means (recorded in `H.json`).
 pub const MATRIX_UNITS: &str = "H[m,k] is the capture value of crop pixel m (units of `stscam render`: relative irradiance, 1 = a white display pixel seen on axis through lossless optics with a vanishing aperture) per unit linear intensity of object pixel k (0 = black, 1 = white, display gamma already applied); the capture of object f is H f + offset, offset = the capture of an all-black object (LCD black level)";
 
+/// Names of a colour display's primaries, in the order of H's column blocks.
+pub const PRIMARY_NAMES: [&str; 3] = ["R", "G", "B"];
+
+/// The `columns` text of a colour H's sidecar.
+pub const COLOUR_COLUMNS: &str = "object (target) pixels of the colour display, one block per primary (R, G, B, in `object_primaries` order): column = primary_index * width * height + pixel, pixels row-major in the same orientation; the value is the primary's linear intensity (0 = off, 1 = full), so an object is an (h, w, 3) image transposed to (3, h, w) and flattened";
+
 /// H with its offset vector and the shapes that give its rows and columns meaning.
 #[derive(Clone, Debug)]
 pub struct SystemMatrix {
@@ -48,17 +58,21 @@ pub struct SystemMatrix {
     pub crop: (usize, usize),
     /// Object size (width, height) in pixels.
     pub object: (usize, usize),
+    /// Object planes (column blocks): 1 for a monochrome display, 3 (R, G, B primaries) for a
+    /// colour one.
+    pub planes: usize,
     /// Sensor channel names (row blocks, in order).
     pub channels: Vec<&'static str>,
     /// Counters of the pass.
     pub stats: RenderStats,
 }
 
-/// Per-pixel accumulator: columns → per-channel sums, in first-visit order.
-struct ColumnTable {
+/// Per-pixel accumulator: columns → per-channel sums (`L` = 4 channel lanes, times 3
+/// primaries for a colour display), in first-visit order.
+struct ColumnTable<const L: usize> {
     slots: Vec<u32>,
     keys: Vec<u32>,
-    sums: Vec<[f64; 4]>,
+    sums: Vec<[f64; L]>,
 }
 
 const EMPTY: u32 = u32::MAX;
@@ -72,7 +86,7 @@ fn recent_slot(key: u32) -> usize {
     (key.wrapping_mul(0x9E37_79B1) >> 26) as usize & (RECENT - 1)
 }
 
-impl ColumnTable {
+impl<const L: usize> ColumnTable<L> {
     fn new() -> Self {
         ColumnTable {
             slots: vec![EMPTY; 64],
@@ -105,7 +119,7 @@ impl ColumnTable {
             }
             self.slots[s] = self.keys.len() as u32;
             self.keys.push(key);
-            self.sums.push([0.0; 4]);
+            self.sums.push([0.0; L]);
         }
         self.slots[s] as usize
     }
@@ -174,9 +188,9 @@ struct RowBlock {
 }
 
 /// One depth plane's per-pixel state while a row is traced.
-struct DepthAccumulator {
+struct DepthAccumulator<const L: usize> {
     depth_mm: f64,
-    table: ColumnTable,
+    table: ColumnTable<L>,
     /// Direct-mapped cache of (column, entry index), by [`recent_slot`] of the column.
     recent: [(u32, u32); RECENT],
     off: [f64; 4],
@@ -195,6 +209,23 @@ fn matrix_row(
     row: usize,
     pixels: std::ops::Range<usize>,
 ) -> (Vec<RowBlock>, RenderStats) {
+    if sys.display.primaries.is_some() {
+        matrix_row_lanes::<12>(sys, set, rule, depths_mm, row, pixels)
+    } else {
+        matrix_row_lanes::<4>(sys, set, rule, depths_mm, row, pixels)
+    }
+}
+
+/// [`matrix_row`] with `L` lanes per column: 4 channel lanes (monochrome display), or 3
+/// primaries × 4 channel lanes (lane p·4 + channel).
+fn matrix_row_lanes<const L: usize>(
+    sys: &System,
+    set: &RenderSettings,
+    rule: Option<crate::sampler::LatticeRule>,
+    depths_mm: &[f64],
+    row: usize,
+    pixels: std::ops::Range<usize>,
+) -> (Vec<RowBlock>, RenderStats) {
     use crate::optics::interface::lateral_shift;
     let w = sys.camera.width_px;
     let (first_col, n_cols) = (pixels.start, pixels.len());
@@ -203,7 +234,9 @@ fn matrix_row(
     let bl = disp.black_level;
     let inv_spp = 1.0 / f64::from(set.spp.max(1));
     let mut stats = RenderStats::default();
-    let mut acc: Vec<DepthAccumulator> = depths_mm
+    let planes = L / 4;
+    let n_obj = (disp.width_px * disp.height_px) as u32;
+    let mut acc: Vec<DepthAccumulator<L>> = depths_mm
         .iter()
         .map(|&depth_mm| DepthAccumulator {
             depth_mm,
@@ -219,7 +252,7 @@ fn matrix_row(
         .collect();
     let mut order: Vec<usize> = Vec::new();
     let mut branches: Vec<(f64, glam::DVec2)> = Vec::with_capacity(64);
-    let mut weighted: Vec<(glam::DVec2, [f64; 4], [f64; 4])> = Vec::with_capacity(64);
+    let mut weighted: Vec<(glam::DVec2, [f64; L], [f64; 4])> = Vec::with_capacity(64);
     let grid = PixelGrid::of(disp);
     for col in pixels {
         let pixel = (row * w + col) as u64;
@@ -252,14 +285,22 @@ fn matrix_row(
                     continue;
                 }
                 let r = channel_weights(sys, s.lambda_nm);
-                // Per branch, once for every depth: its H contribution c·r_ch and its offset
-                // contribution c·r_ch·bl (unused channels stay 0, so whole 4-lanes add).
+                let wp = disp.primary_weights(s.lambda_nm);
+                // Per branch, once for every depth: its H contribution c·r_ch (times w_p per
+                // primary of a colour display) and its offset contribution c·r_ch·bl (unused
+                // channels stay 0, so whole lanes add).
                 weighted.clear();
                 weighted.extend(branches.iter().map(|&(wt, exit)| {
                     let c = s.factor * wt;
-                    let (mut cr, mut crb) = ([0.0f64; 4], [0.0f64; 4]);
+                    let (mut cr, mut crb) = ([0.0f64; L], [0.0f64; 4]);
                     for ch in 0..nch {
-                        cr[ch] = c * r[ch];
+                        if L == 4 {
+                            cr[ch] = c * r[ch];
+                        } else {
+                            for (p, w) in wp.iter().enumerate() {
+                                cr[4 * p + ch] = c * r[ch] * w;
+                            }
+                        }
                         crb[ch] = c * r[ch] * bl;
                     }
                     (exit, cr, crb)
@@ -308,12 +349,15 @@ fn matrix_row(
             for ch in 0..nch {
                 let (cols, vals) = &mut a.block.entries[ch];
                 let mut n = 0u32;
-                for &i in &order {
-                    let v = (table.sums[i][ch] * (1.0 - bl) * inv_spp) as f32;
-                    if v != 0.0 {
-                        cols.push(table.keys[i]);
-                        vals.push(v);
-                        n += 1;
+                // Columns increase: primary blocks in order, object pixels sorted within.
+                for p in 0..planes {
+                    for &i in &order {
+                        let v = (table.sums[i][4 * p + ch] * (1.0 - bl) * inv_spp) as f32;
+                        if v != 0.0 {
+                            cols.push(p as u32 * n_obj + table.keys[i]);
+                            vals.push(v);
+                            n += 1;
+                        }
                     }
                 }
                 a.block.counts[ch].push(n);
@@ -428,7 +472,7 @@ pub fn estimate_stack_memory(
     let nch = sys.response.curves.len() as u128;
     let n = depths_mm.len() as u128;
     let rows = nch * w as u128 * h as u128;
-    let cols = (sys.display.width_px * sys.display.height_px) as u128;
+    let cols = sys.display.object_len() as u128;
     // Per row and depth 24 bytes at most at once: the pass's count (4) and offset (8) beside
     // the matrix's row pointer (8) and offset (4); later the matrix's beside their encoded
     // copies (at most 8 + 4). The block matrix: row pointer (8, encoded 8), offset (4 + 4).
@@ -516,7 +560,7 @@ fn stack_pass(
     use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let nch = sys.response.curves.len();
-    let cols = sys.display.width_px * sys.display.height_px;
+    let cols = sys.display.object_len();
     let what = if depths_mm.len() == 1 {
         "matrix rows".to_string()
     } else {
@@ -594,6 +638,7 @@ fn stack_pass(
                     offset,
                     crop: (w, h),
                     object: (sys.display.width_px, sys.display.height_px),
+                    planes: sys.display.planes(),
                     channels: sys.response.names.clone(),
                     stats: st,
                 }
@@ -622,6 +667,8 @@ pub struct LoadedMatrix {
     pub h: CsrMatrix,
     /// Object size (width, height).
     pub object: (usize, usize),
+    /// Object planes: 1, or 3 for a colour H (column blocks R, G, B).
+    pub planes: usize,
     /// Offset vector (capture of an all-black object), if found.
     pub offset: Option<Vec<f32>>,
     /// Where the offset came from.
@@ -663,11 +710,25 @@ pub fn load_matrix(
 ) -> Result<LoadedMatrix, crate::io::IoError> {
     use crate::io::IoError;
     let h = read_checked_csr(path)?;
-    let sidecar_shape = || -> Option<(usize, usize)> {
+    let sidecar = || -> Option<serde_json::Value> {
         let text = crate::io::read_text(&path.with_extension("json")).ok()?;
-        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+        serde_json::from_str(&text).ok()
+    };
+    let sidecar_shape = || -> Option<(usize, usize)> {
+        let v = sidecar()?;
         let o = v.get("object_px")?.as_array()?;
         Some((o.first()?.as_u64()? as usize, o.get(1)?.as_u64()? as usize))
+    };
+    // A colour H says so in its sidecar (`object_primaries`); without one, an object shape
+    // given with a third of H's columns means three planes.
+    let sidecar_planes = sidecar()
+        .and_then(|v| v.get("object_primaries")?.as_array().map(|a| a.len()))
+        .filter(|&n| n > 0);
+    let planes_of = |o: (usize, usize)| {
+        sidecar_planes.unwrap_or_else(|| {
+            let px = o.0.saturating_mul(o.1);
+            if px > 0 && h.cols == 3 * px { 3 } else { 1 }
+        })
     };
     let object = match object.or_else(sidecar_shape) {
         Some(o) => o,
@@ -685,14 +746,25 @@ pub fn load_matrix(
             (s, s)
         }
     };
-    if object.0.checked_mul(object.1) != Some(h.cols) {
+    let planes = planes_of(object);
+    if object
+        .0
+        .checked_mul(object.1)
+        .and_then(|n| n.checked_mul(planes))
+        != Some(h.cols)
+    {
         return Err(IoError::format(
             path,
             format!(
-                "the object {}x{} has {} pixels but H has {} columns",
+                "the object {}x{}{} has {} pixels but H has {} columns",
                 object.0,
                 object.1,
-                object.0.saturating_mul(object.1),
+                if planes > 1 {
+                    format!("x{planes}")
+                } else {
+                    String::new()
+                },
+                object.0.saturating_mul(object.1).saturating_mul(planes),
                 h.cols
             ),
         ));
@@ -718,6 +790,7 @@ pub fn load_matrix(
     Ok(LoadedMatrix {
         h,
         object,
+        planes,
         offset,
         offset_path: off_path,
     })
@@ -739,6 +812,58 @@ mod tests {
         assert_eq!(check_depth(1e7), Ok(()));
         assert!(check_depth(f64::NAN).is_err());
         assert!(check_depth(0.0).is_err());
+    }
+
+    /// max |H f + offset − render| over the render's peak.
+    fn rel_diff(m: &SystemMatrix, f: &[f64], cap: &crate::render::Capture) -> f64 {
+        let pred = m.capture_of(f);
+        let (mut d, mut peak) = (0.0f64, 0.0f64);
+        for (p, c) in pred.iter().zip(&cap.channels) {
+            for (a, &b) in p.iter().zip(c) {
+                d = d.max((a - f64::from(b)).abs());
+                peak = peak.max(f64::from(b).abs());
+            }
+        }
+        d / peak
+    }
+
+    #[test]
+    fn colour_h_reproduces_the_render_of_a_colour_target() {
+        let ov = [
+            "sensor.crop_px=24".to_string(),
+            "sensor.pitch_um=60".to_string(),
+            "sensor.response=rgb-bayer".to_string(),
+            "display.primaries=lcd".to_string(),
+            "display.image=rgb:letter:F@8+shape:disk@8+checker:2@8".to_string(),
+        ];
+        let sys = System::build(&crate::scene::load_scene(None, &ov).unwrap()).unwrap();
+        let set = RenderSettings::lattice(4, 3, false);
+        let m = compute_matrix(&sys, &set);
+        assert_eq!((m.h.rows, m.h.cols, m.planes), (3 * 24 * 24, 3 * 64, 3));
+        m.h.check().unwrap();
+        // Every primary's block holds light.
+        let blocks = m.h.hsplit(3).unwrap();
+        for b in &blocks {
+            assert!(b.frobenius_sq() > 0.0);
+        }
+        let cap = crate::render::render(&sys, &set);
+        let f = &sys.display.intensity;
+        assert_eq!(f.len(), 3 * 64);
+        // The contract to float rounding (f32 storage of H, offset and capture: 1e-5).
+        let ok = rel_diff(&m, f, &cap);
+        assert!(ok < 1e-5, "{ok}");
+        // It can fail: the same object with its red and blue planes swapped.
+        let mut swapped = f.clone();
+        swapped[..64].copy_from_slice(&f[128..]);
+        swapped[128..].copy_from_slice(&f[..64]);
+        let bad = rel_diff(&m, &swapped, &cap);
+        assert!(bad > 1e-2, "{bad}");
+        // A grey target drives the three primaries equally: its H f is H's blocks summed.
+        let mut grey = sys.clone();
+        grey.display.set_intensity(&vec![0.5; 64]);
+        assert_eq!(grey.display.intensity, vec![0.5; 192]);
+        let g = crate::render::render(&grey, &set);
+        assert!(rel_diff(&m, &grey.display.intensity, &g) < 1e-5);
     }
 
     #[test]

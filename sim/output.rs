@@ -251,3 +251,40 @@ pub fn encode_object_exr(
         attrs,
     )
 }
+
+/// Encodes a colour object (three planes R, G, B, primary-major, `width`×`height` each) as a
+/// 16-bit RGB PNG with the display gamma applied (clipped to [0, 1]).
+pub fn encode_colour_object_png(
+    planes: &[f64],
+    width: usize,
+    height: usize,
+    gamma: f64,
+) -> Result<Vec<u8>, String> {
+    let n = width * height;
+    let samples: Vec<u16> = (0..n)
+        .flat_map(|k| (0..3).map(move |p| planes.get(p * n + k).copied().unwrap_or(0.0)))
+        .map(|v| (v.clamp(0.0, 1.0).powf(1.0 / gamma) * 65535.0).round() as u16)
+        .collect();
+    encode_png16(width, height, 3, &samples, PngTransfer::DisplayGamma(gamma))
+}
+
+/// Encodes a colour object (three planes R, G, B, primary-major) as a linear float32 EXR with
+/// channels `R`, `G`, `B` (not clipped).
+pub fn encode_colour_object_exr(
+    planes: &[f64],
+    width: usize,
+    height: usize,
+) -> Result<Vec<u8>, String> {
+    let n = width * height;
+    let channels = crate::matrix::PRIMARY_NAMES
+        .iter()
+        .enumerate()
+        .map(|(p, name)| ExrChannel {
+            name: name.to_string(),
+            data: (0..n)
+                .map(|k| planes.get(p * n + k).copied().unwrap_or(0.0) as f32)
+                .collect(),
+        })
+        .collect();
+    encode_exr(width, height, channels, &[])
+}

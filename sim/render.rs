@@ -496,8 +496,10 @@ fn trace_analog(
         crate::sampler::to_unit(crate::sampler::mix64(h)),
     );
     let pol = usize::from(u_pol >= sys.display.polarization_weights[0]);
-    choose_branch(sys, s, pol, u_branch, stats)
-        .map_or(0.0, |b| sys.display.radiance_at(b.object_point_mm))
+    choose_branch(sys, s, pol, u_branch, stats).map_or(0.0, |b| {
+        let w = sys.display.primary_weights(s.lambda_nm);
+        sys.display.radiance_weighted_at(b.object_point_mm, &w)
+    })
 }
 
 /// Per-channel spectral weights R_c(λ)/∫R_c of the sensor response.
@@ -574,6 +576,17 @@ fn render_row(
         (Some(world), Estimator::UniformAnalog) => {
             render_row_with(sys, set, estimator, rule, row, |s, pixel, i, stats| {
                 s.ray.cos4 * world_sample_analog(sys, world, s, [set.seed, pixel, i], stats) / s.pdf
+            })
+        }
+        (None, Estimator::Bragg) if disp.primaries.is_some() => {
+            // Colour primaries: the shares of white at the sample's wavelength, once per sample.
+            render_row_with(sys, set, estimator, rule, row, |s, _, _, stats| {
+                let w = disp.primary_weights(s.lambda_nm);
+                let mut radiance = 0.0;
+                trace_sample(sys, s, stats, |wt, x| {
+                    radiance += wt * disp.radiance_weighted_at(x, &w);
+                });
+                s.factor * radiance
             })
         }
         (None, Estimator::Bragg) => {

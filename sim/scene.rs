@@ -21,6 +21,12 @@ pub const SHIPPED_SCENES: &[(&str, &str)] = &[
     ("eye-contact", include_str!("../scenes/eye-contact.toml")),
     ("gesture", include_str!("../scenes/gesture.toml")),
 ];
+/// The full-colour design of `scenes/rgb-multiplex.toml`, compiled into the binary for
+/// `stscam demo --colour`.
+pub const RGB_MULTIPLEX_TOML: &str = include_str!("../scenes/rgb-multiplex.toml");
+/// Name used in messages for the embedded RGB design.
+pub const RGB_MULTIPLEX_NAME: &str = "<embedded scenes/rgb-multiplex.toml>";
+
 /// Name used in messages for the embedded scene.
 pub const EMBEDDED_NAME: &str = "<embedded scenes/paper-2022.toml>";
 
@@ -402,6 +408,12 @@ pub struct DisplayDesc {
     pub center_mm: [f64; 2],
     /// Backlight spectrum name.
     pub spectrum: String,
+    /// Colour primaries of the display: "none" (monochrome: every pixel emits the backlight
+    /// spectrum, one object plane) or "lcd" (three primaries, backlight × colour filter; the
+    /// object is linear R, G, B per pixel). Left out of serialised scenes at "none", so
+    /// monochrome outputs keep their bytes.
+    #[serde(default = "default_primaries", skip_serializing_if = "is_no_primaries")]
+    pub primaries: String,
     /// Polarisation of the emitted light.
     pub polarization: PolarizationSpec,
     /// Display gamma (code value → linear radiance).
@@ -494,6 +506,14 @@ fn yes() -> bool {
 
 fn is_true(v: &bool) -> bool {
     *v
+}
+
+fn default_primaries() -> String {
+    "none".into()
+}
+
+fn is_no_primaries(v: &String) -> bool {
+    v == "none"
 }
 
 fn default_max_depth() -> u32 {
@@ -931,6 +951,9 @@ fn placeholder_free_deserialize(
 pub const GLASS_NAMES: &[&str] = &["soda-lime", "n-bk7"];
 /// Names `sensor.response` accepts.
 pub const RESPONSE_NAMES: &[&str] = &["mono-qe", "mono-bayer-y", "flat", "rgb-bayer"];
+/// Names `display.primaries` accepts.
+pub const PRIMARIES_NAMES: &[&str] = &["none", "lcd"];
+
 /// Names `display.spectrum` accepts.
 pub const SPECTRUM_NAMES: &[&str] = &["white-led", "flat", "ccfl"];
 
@@ -1080,6 +1103,17 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             format!(
                 "unknown spectrum {:?}; expected one of {SPECTRUM_NAMES:?}",
                 s.display.spectrum
+            )
+        },
+    )?;
+    check(
+        ls,
+        PRIMARIES_NAMES.contains(&s.display.primaries.as_str()),
+        "display.primaries",
+        || {
+            format!(
+                "unknown primaries {:?}; expected one of {PRIMARIES_NAMES:?}",
+                s.display.primaries
             )
         },
     )?;

@@ -235,6 +235,34 @@ pub fn display_spectrum(kind: DisplaySpectrumKind) -> Spectrum {
     }
 }
 
+/// The three primaries (R, G, B) of a colour LCD with backlight `backlight`: primary p
+/// emits P_p(λ) = k·B(λ)·T_p(λ), with T_p the colour filter of sub-pixel p, and k chosen so
+/// that white, P_R + P_G + P_B, has mean 1 over 380–780 nm (the unit of every display
+/// spectrum). Returns ([P_R, P_G, P_B], white).
+///
+/// ASSUMPTION (no measured LCD filter data): the LCD's colour filters are the same
+/// illustrative dye curves as the sensor's CFA model (`cfa_rgb`: B peak 0.8 at 460 nm, G 0.85
+/// at 535 nm, both FWHM 100 nm, R a step through 590 nm to 0.9, 0.02 leakage floor); LCD and
+/// image-sensor colour filters are both pigment-dispersed dye filters of similar shape. With
+/// the white-LED backlight the blue primary is the 450 nm pump, green and red are the YAG:Ce
+/// band cut by the filters, as in a typical sRGB-class white-LED LCD. White is backlight ×
+/// (T_R + T_G + T_B) as physics reference §6.1 puts it; the sub-pixels' equal drive at code 1
+/// (no white-balance scaling per primary) is part of the assumption.
+pub fn display_primaries(backlight: &Spectrum) -> ([Spectrum; 3], Spectrum) {
+    let raw: [Spectrum; 3] =
+        std::array::from_fn(|p| Spectrum::on_grid(|l| backlight.eval(l) * cfa_rgb(l)[p]));
+    let white_raw = Spectrum::on_grid(|l| raw.iter().map(|s| s.eval(l)).sum());
+    let mean = white_raw.integral(NORM_LO_NM, NORM_HI_NM) / (NORM_HI_NM - NORM_LO_NM);
+    let k = if mean > 0.0 && mean.is_finite() {
+        1.0 / mean
+    } else {
+        1.0
+    };
+    let prim = raw.map(|s| s.scaled(k));
+    let white = Spectrum::on_grid(|l| prim.iter().map(|s| s.eval(l)).sum());
+    (prim, white)
+}
+
 /// Camera spectral-response model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SensorResponseKind {
@@ -403,6 +431,27 @@ mod tests {
         // Coarse grid with non-integer step.
         let c = Spectrum::from_fn(0.0, 10.0, 2.5, |l| 2.0 * l + 3.0);
         assert!((c.integral(1.1, 9.3) - (prim(9.3) - prim(1.1))).abs() < 1e-9);
+    }
+
+    #[test]
+    fn lcd_primaries_sum_to_a_unit_white_and_peak_in_their_colour() {
+        let bl = display_spectrum(DisplaySpectrumKind::WhiteLed);
+        let (p, white) = display_primaries(&bl);
+        assert!((white.integral(380.0, 780.0) - 400.0).abs() < 1e-9);
+        for l in [400.0, 450.0, 531.0, 612.0, 700.0] {
+            // (grid wavelengths: between them the table interpolates the product)
+            let sum: f64 = p.iter().map(|s| s.eval(l)).sum();
+            assert!((sum - white.eval(l)).abs() < 1e-12 * white.eval(l), "{l}");
+            // Each primary is the backlight times its filter, up to one common factor.
+            let k = p[1].eval(l) / (bl.eval(l) * cfa_rgb(l)[1]);
+            let k0 = p[1].eval(500.0) / (bl.eval(500.0) * cfa_rgb(500.0)[1]);
+            assert!((k / k0 - 1.0).abs() < 1e-9);
+        }
+        // Peaks: blue at the 450 nm pump, green in the YAG band near the filter's 535 nm,
+        // red beyond the 590 nm filter edge.
+        assert!((argmax(&p[2]) - 450.0).abs() <= 2.0, "{}", argmax(&p[2]));
+        assert!((520.0..560.0).contains(&argmax(&p[1])), "{}", argmax(&p[1]));
+        assert!((595.0..640.0).contains(&argmax(&p[0])), "{}", argmax(&p[0]));
     }
 
     #[test]

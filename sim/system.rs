@@ -155,13 +155,13 @@ fn load_target(ls: &LoadedScene) -> Result<LoadedImage, SceneError> {
         let img = load_image(&path).map_err(|e| ls.key_error("display.image", e.to_string()))?;
         Ok(img)
     } else {
-        let t =
-            crate::targets::builtin_target(spec).map_err(|e| ls.key_error("display.image", e))?;
+        let (width, height, channels, values) =
+            crate::targets::builtin_image(spec).map_err(|e| ls.key_error("display.image", e))?;
         Ok(LoadedImage {
-            width: t.width,
-            height: t.height,
-            channels: 1,
-            values: t.values,
+            width,
+            height,
+            channels,
+            values,
             linear: false,
         })
     }
@@ -191,18 +191,32 @@ pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
         PolarizationSpec::AngleDeg(a) => Some(a),
         PolarizationSpec::Word(_) => None,
     };
+    let backlight = spectra::display_spectrum(spectrum_kind(&d.spectrum));
+    let (spectrum, primaries) = if d.primaries == "lcd" {
+        let (p, white) = spectra::display_primaries(&backlight);
+        (white, Some(Box::new(p)))
+    } else {
+        (backlight, None)
+    };
+    let planes = if primaries.is_some() { 3 } else { 1 };
+    let intensity = Display::planes_of(&values, channels, linear, d.gamma, planes);
+    let radiance = intensity
+        .iter()
+        .map(|l| d.black_level + (1.0 - d.black_level) * l)
+        .collect();
     Ok(Display {
         z_mm: -d.distance_mm,
         center_mm: DVec2::new(d.center_mm[0], d.center_mm[1]),
         image_pixel_mm: d.pixel_pitch_mm * f64::from(d.lcd_pixels_per_image_pixel),
         width_px: w,
         height_px: h,
-        intensity: Display::intensity_of(&values, channels, linear, d.gamma),
-        radiance: Display::linearise(&values, channels, linear, d.gamma, d.black_level),
+        intensity,
+        radiance,
         black_level: d.black_level,
         half_extent_mm: DVec2::new(f64::from(d.size_px[0]), f64::from(d.size_px[1]))
             * (0.5 * d.pixel_pitch_mm),
-        spectrum: spectra::display_spectrum(spectrum_kind(&d.spectrum)),
+        spectrum,
+        primaries,
         polarization_weights: Display::polarization_weights(angle),
     })
 }

@@ -16,6 +16,10 @@
 //!   `cross`, `heart`; a pixel is lit when its centre is inside.
 //! - `smooth:SEED` — smooth photo-like field from a seeded PRNG, in
 //!   `[0.05, 0.95]`, bit-identical on every platform.
+//!
+//! Colour: `rgb:R+G+B` composes three of the above (each with its own `@SIZE`, all the same
+//! size) into the red, green and blue channels of one image ([`builtin_image`]), e.g.
+//! `rgb:letter:F+black+black` (a red F); a monochrome display shows its luminance.
 
 use std::f64::consts::{LN_2, PI, TAU};
 
@@ -77,6 +81,35 @@ pub fn builtin_target(spec: &str) -> Result<Target, String> {
             NAMES.join(", ")
         )
     })
+}
+
+/// A built-in image: (width, height, channels, values interleaved by pixel). Grey targets have
+/// one channel; `rgb:R+G+B` has three (see the module documentation).
+pub fn builtin_image(spec: &str) -> Result<(usize, usize, usize, Vec<f32>), String> {
+    let Some(body) = spec.strip_prefix("rgb:") else {
+        let t = builtin_target(spec)?;
+        return Ok((t.width, t.height, 1, t.values));
+    };
+    let parts: Vec<&str> = body.split('+').collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "invalid target {spec:?}: rgb: needs three targets joined by '+' (red+green+blue), e.g. rgb:letter:F+black+black"
+        ));
+    }
+    let planes = parts
+        .iter()
+        .map(|p| builtin_target(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (w, h) = (planes[0].width, planes[0].height);
+    if planes.iter().any(|t| (t.width, t.height) != (w, h)) {
+        return Err(format!(
+            "invalid target {spec:?}: the three targets of rgb: must have the same size"
+        ));
+    }
+    let values = (0..w * h)
+        .flat_map(|i| planes.iter().map(move |t| t.values[i]))
+        .collect();
+    Ok((w, h, 3, values))
 }
 
 fn parse(spec: &str) -> Result<Target, String> {

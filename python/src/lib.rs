@@ -138,7 +138,8 @@ fn show_image(sys: &mut System, img: &ImageArg, values: &[f32]) {
     // A linear RGB target is reduced to luminance in f32 first, as the EXR loader does
     // (`io::image_load`), so an array equals the same image written as an EXR bit for bit.
     let luma: Vec<f32>;
-    let (values, c) = if linear && c == 3 {
+    let planes = sys.display.planes();
+    let (values, c) = if linear && c == 3 && planes == 1 {
         luma = values
             .chunks_exact(3)
             .map(|p| {
@@ -152,8 +153,11 @@ fn show_image(sys: &mut System, img: &ImageArg, values: &[f32]) {
     };
     sys.display.width_px = w;
     sys.display.height_px = h;
-    sys.display.intensity = Display::intensity_of(values, c, linear, gamma);
-    sys.display.radiance = Display::linearise(values, c, linear, gamma, black);
+    // A colour display (`display.primaries`) keeps an RGB array's channels as its primaries.
+    sys.display.intensity = Display::planes_of(values, c, linear, gamma, planes);
+    sys.display.radiance = (sys.display.intensity.iter())
+        .map(|l| black + (1.0 - black) * l)
+        .collect();
 }
 
 /// The CLI's warning (`stscam matrix`, `dataset`, `demo`) when part of the object has no

@@ -208,6 +208,13 @@ fn load_system(
     let ls = load_scene(scene_file, &overrides)
         .map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
     let sys = System::build(&ls).map_err(|e| recipe_err(recipe_path, key, e.to_string()))?;
+    if sys.display.primaries.is_some() {
+        return Err(recipe_err(
+            recipe_path,
+            key,
+            "display.primaries: datasets have one object plane; a colour display (\"lcd\") is not supported by datasets yet",
+        ));
+    }
     Ok((ls, sys))
 }
 

@@ -104,6 +104,62 @@ fn cmd_info(
         "{}",
         fmt_fov("horizontal FOV, capture", &info.fov_horizontal_capture)
     ));
+    if let Some(bands) = &info.colour_bands {
+        con.out(format_args!(
+            "colour bands (level = primary's spectrum at the best grating's Bragg wavelength / its peak; a band needs >= {}):",
+            crate::colour::BAND_LEVEL
+        ));
+        con.out(format_args!(
+            "{:>8} {:>10} {:>28} {:>12} {:>12} {:>12}",
+            "crop row",
+            "field (°)",
+            "λ_B per grating (nm)",
+            "R (grating)",
+            "G (grating)",
+            "B (grating)"
+        ));
+        for b in bands {
+            let lb: Vec<String> = b
+                .bragg_nm
+                .iter()
+                .map(|l| l.map_or("-".into(), |v| format!("{v:.1}")))
+                .collect();
+            let lv = |p: usize| match b.grating[p] {
+                Some(j) => format!(
+                    "{:.2} ({j}){}",
+                    b.level[p],
+                    if b.has_band(p) { "" } else { "!" }
+                ),
+                None => "- !".into(),
+            };
+            con.out(format_args!(
+                "{:>8} {:>10.2} {:>28} {:>12} {:>12} {:>12}",
+                b.crop_row,
+                b.field_deg,
+                lb.join(" "),
+                lv(0),
+                lv(1),
+                lv(2)
+            ));
+        }
+        let missing: Vec<String> = (0..3)
+            .filter_map(|p| {
+                let n = bands.iter().filter(|b| !b.has_band(p)).count();
+                (n > 0).then(|| {
+                    format!(
+                        "{} in {n} of {} rows",
+                        crate::matrix::PRIMARY_NAMES[p],
+                        bands.len()
+                    )
+                })
+            })
+            .collect();
+        if missing.is_empty() {
+            con.out(format_args!("every field row has a band in each primary"));
+        } else {
+            con.out(format_args!("no band (marked !): {}", missing.join(", ")));
+        }
+    }
     let cov = &info.object_coverage;
     match cov.warning() {
         _ if !sys.scene.display.enabled => {}

@@ -63,7 +63,7 @@ fn matrix_sidecar(
     [npz, offset, _]: [&str; 3],
     linearity: Option<f64>,
 ) -> serde_json::Value {
-    serde_json::json!({
+    let mut v = serde_json::json!({
         "stscam_version": crate::VERSION,
         "command": "matrix",
         "linearity_check_max_rel_diff": linearity,
@@ -86,7 +86,12 @@ fn matrix_sidecar(
         "units": crate::matrix::MATRIX_UNITS,
         "offset_file": offset,
         "files": {npz: "scipy.sparse CSR (float32 data, int32 indices and indptr while they fit)", offset: "float32 vector, one value per row of H"},
-    })
+    });
+    if m.planes == 3 {
+        v["columns"] = crate::matrix::COLOUR_COLUMNS.into();
+        v["object_primaries"] = serde_json::json!(crate::matrix::PRIMARY_NAMES);
+    }
+    v
 }
 
 /// `matrix --check`: renders `sys`'s target and returns max |H f + offset − render(f)| over the

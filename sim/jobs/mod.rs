@@ -286,20 +286,27 @@ pub(crate) fn load_capture(path: &std::path::Path) -> Result<Vec<f64>, Failure> 
     Ok(values)
 }
 
-/// Linear intensities of a truth image or built-in target.
-pub(crate) fn load_truth(spec: &str, gamma: f64, w: usize, h: usize) -> Result<Vec<f64>, Failure> {
+/// Linear intensities of a truth image or built-in target (`planes` = 3: the object planes
+/// R, G, B of a colour H, primary-major).
+pub(crate) fn load_truth(
+    spec: &str,
+    gamma: f64,
+    w: usize,
+    h: usize,
+    planes: usize,
+) -> Result<Vec<f64>, Failure> {
+    use crate::display::Display;
     let (tw, th, v) = if crate::system::is_image_path(spec) {
         let path = std::path::Path::new(spec);
         let img = crate::io::load_image(path).map_err(|e| bad_input(e.to_string()))?;
         crate::io::check_finite(path, "value", &img.values)
             .map_err(|e| bad_input(format!("--truth: {e}")))?;
-        let v = crate::display::Display::intensity_of(&img.values, img.channels, img.linear, gamma);
+        let v = Display::planes_of(&img.values, img.channels, img.linear, gamma, planes);
         (img.width, img.height, v)
     } else {
-        let t =
-            crate::targets::builtin_target(spec).map_err(|e| bad_input(format!("--truth: {e}")))?;
-        let v = crate::display::Display::intensity_of(&t.values, 1, false, gamma);
-        (t.width, t.height, v)
+        let (tw, th, c, values) =
+            crate::targets::builtin_image(spec).map_err(|e| bad_input(format!("--truth: {e}")))?;
+        (tw, th, Display::planes_of(&values, c, false, gamma, planes))
     };
     if (tw, th) != (w, h) {
         return Err(bad_input(format!(

@@ -181,7 +181,10 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         }
     }
     let (w, h) = lm.object;
-    let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    let planes = lm.planes;
+    let truth_v = truth
+        .map(|t| load_truth(t, gamma, w, h, planes))
+        .transpose()?;
     crate::limits::check_bytes(
         "--matrix",
         "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
@@ -189,7 +192,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     )
     .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
     let t0 = Instant::now();
-    let problem = pool.install(|| Problem::new(&lm.h, w, h));
+    let problem = pool.install(|| Problem::new(&lm.h, w, planes * h));
     let setup_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let opts = SolveOptions {
@@ -202,16 +205,27 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         tau_rel: tau,
         tv,
     };
-    let Solution { f, info } = pool.install(|| crate::recon::solve(&problem, &g, &opts));
+    let Solution { f, info } =
+        pool.install(|| crate::recon::solve_planes(&problem, planes, &g, &opts));
     let solve_s = t0.elapsed().as_secs_f64();
     // Computed in f64; stored as float32, which must hold every value.
     check_f32_range(&f, capture, matrix)?;
     let metrics = truth_v.as_ref().map(|t| {
-        serde_json::json!({
+        let mut m = serde_json::json!({
             "psnr_db": crate::recon::metrics::psnr(&f, t),
-            "ssim": crate::recon::metrics::ssim(&f, t, w, h),
+            "ssim": crate::recon::metrics::ssim(&f, t, w, planes * h),
             "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
-        })
+        });
+        if planes == 3 {
+            let xyz = colour_matrix(gamma);
+            let e = crate::recon::colour::colour_errors(&f, t, &xyz);
+            m["ssim_note"] = "SSIM of the three planes stacked vertically".into();
+            m["ciede2000_mean"] = e.ciede2000_mean.into();
+            m["ciede2000_p95"] = e.ciede2000_p95.into();
+            m["energy_share_rgb"] = serde_json::json!(e.energy_share);
+            m["colour_space"] = crate::recon::colour::LAB_NOTE.into();
+        }
+        m
     });
     let json = serde_json::json!({
         "stscam_version": crate::VERSION,
@@ -220,6 +234,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         "capture": capture.display().to_string(),
         "offset": lm.offset_path.as_ref().map(|p| p.display().to_string()),
         "object_px": [w, h],
+        "object_planes": planes,
         "solver": info,
         "gram_layout": problem.gram_layout(),
         "setup_time_s": setup_s,
@@ -227,8 +242,17 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         "metrics": metrics,
         "units": "linear object intensity (0 = black, 1 = white display pixel)",
     });
-    let exr = crate::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?;
-    let png = crate::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?;
+    let (exr, png) = if planes == 3 {
+        (
+            crate::output::encode_colour_object_exr(&f, w, h).map_err(write_failure)?,
+            crate::output::encode_colour_object_png(&f, w, h, gamma).map_err(write_failure)?,
+        )
+    } else {
+        (
+            crate::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?,
+            crate::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?,
+        )
+    };
     let jb = serde_json::to_vec_pretty(&json).map_err(write_failure)?;
     crate::io::write_all_atomic(
         out,
@@ -257,6 +281,15 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         solve_s * 1e3
     ));
     Ok(())
+}
+
+/// The XYZ matrix of the colour display a colour H was made for: the default scene's LCD
+/// primaries (white-LED backlight; `display.primaries = "lcd"`). `gamma` is unused: the
+/// conversion is from linear intensities.
+fn colour_matrix(_gamma: f64) -> [[f64; 3]; 3] {
+    use crate::spectra::{DisplaySpectrumKind, display_primaries, display_spectrum};
+    let (p, _) = display_primaries(&display_spectrum(DisplaySpectrumKind::WhiteLed));
+    crate::recon::colour::primaries_to_xyz(&p)
 }
 
 /// Refuses a reconstruction f64 → float32 would not hold (H and the capture on incompatible
@@ -317,7 +350,7 @@ fn reconstruct_stack(
         )));
     }
     let (w, h) = ls.object;
-    let truth_v = truth.map(|t| load_truth(t, gamma, w, h)).transpose()?;
+    let truth_v = truth.map(|t| load_truth(t, gamma, w, h, 1)).transpose()?;
     crate::limits::check_bytes(
         "--matrix",
         "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",

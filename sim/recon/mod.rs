@@ -10,6 +10,7 @@
 
 pub mod admm;
 pub mod cg;
+pub mod colour;
 pub mod depth;
 pub mod joint;
 pub mod layered;
@@ -308,5 +309,30 @@ pub fn solve(problem: &Problem, g: &[f64], opts: &SolveOptions) -> Solution {
             let info = serde_json::json!({"method": "admm-tv", "iterations": set.iters, "tau_rel": opts.tau_rel, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "primal_residual": r.primal_residual, "dual_residual": r.dual_residual});
             Solution { f: r.f, info }
         }
+    }
+}
+
+/// [`solve`] for an object of `planes` planes (a colour H: planes R, G, B, primary-major, the
+/// problem set up with height = `planes` × the object height, planes stacked along y). One
+/// plane is [`solve`]. Several: CG as [`solve`] (it has no spatial prior); ADMM-TV jointly
+/// over the planes with TV per plane and non-negativity ([`joint::joint_admm_tv`] without its
+/// cross-plane group prior, μ = 0), so no difference is taken across a plane boundary.
+pub fn solve_planes(problem: &Problem, planes: usize, g: &[f64], opts: &SolveOptions) -> Solution {
+    if planes <= 1 || opts.method == Method::Cg {
+        return solve(problem, g, opts);
+    }
+    let htg = problem.back_project(g);
+    let set = joint::JointSettings {
+        iters: opts.iters.unwrap_or(50),
+        tau_rel: opts.tau_rel,
+        mu_rel: 0.0,
+        tv: opts.tv,
+        ..Default::default()
+    };
+    let r = joint::joint_admm_tv(problem, planes, &htg, &set);
+    let info = serde_json::json!({"method": "admm-tv", "planes": planes, "iterations": set.iters, "tau_rel": opts.tau_rel, "tau": r.tau, "rho": r.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters, "prior": "TV per plane, non-negative (joint ADMM, no cross-plane term)"});
+    Solution {
+        f: r.planes.concat(),
+        info,
     }
 }

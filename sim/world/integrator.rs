@@ -188,7 +188,7 @@ impl World {
                 let q = o + d * t;
                 if disp.on_lcd(q.truncate()) {
                     let le = if d.z < 0.0 {
-                        disp.radiance_at(q.truncate()) * disp.spectrum.eval(lambda_nm)
+                        disp.spectral_radiance_at(q.truncate(), lambda_nm)
                     } else {
                         0.0
                     };
@@ -298,7 +298,7 @@ impl World {
                     return None;
                 }
                 let pdf = sel * dl.pdf_area(disp, q2) * dist * dist / cos_l;
-                let le = disp.radiance_at(q2) * disp.spectrum.eval(lambda_nm);
+                let le = disp.spectral_radiance_at(q2, lambda_nm);
                 (pdf > 0.0).then_some((wi, dist, le / pdf, Some(pdf), e))
             }
             Emitter::Environment => {

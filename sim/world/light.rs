@@ -490,7 +490,7 @@ pub fn rect_axes(normal: DVec3, size_mm: [f64; 2]) -> (DVec3, DVec3) {
 /// Sampling support for the display as an emitter of the 3-D scene.
 #[derive(Clone, Debug)]
 pub struct DisplayLight {
-    /// CDF over target pixels (radiance × area), normalised to end at 1.
+    /// CDF over target pixels (radiance summed over primaries × area), normalised to end at 1.
     cdf: Vec<f64>,
     /// Σ radiance (relative) over target pixels.
     total: f64,
@@ -505,11 +505,9 @@ impl DisplayLight {
     /// Tabulates the display's target for sampling.
     pub fn new(d: &Display) -> DisplayLight {
         let mut acc = 0.0;
-        let cdf: Vec<f64> = d
-            .radiance
-            .iter()
-            .map(|r| {
-                acc += r;
+        let cdf: Vec<f64> = (0..d.width_px * d.height_px)
+            .map(|k| {
+                acc += d.pixel_radiance(k);
                 acc
             })
             .collect();
@@ -545,7 +543,7 @@ impl DisplayLight {
         if fu < 1.0
             && let Some((c, r)) = d.pixel_at(q)
         {
-            p += (1.0 - fu) * d.radiance[r * d.width_px + c] / (self.total * self.pixel_area);
+            p += (1.0 - fu) * d.pixel_radiance(r * d.width_px + c) / (self.total * self.pixel_area);
         }
         p
     }
