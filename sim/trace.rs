@@ -32,6 +32,7 @@ use glam::{DVec2, DVec3};
 
 use crate::optics::interface::{lateral_shift, path_length, reflectance, transmittance};
 use crate::optics::multiplex::MAX_GRATINGS;
+use crate::optics::rcwa::coupling::{Coupling, RcwaCouplings};
 use crate::waveguide::Waveguide;
 
 /// Which kind of branch reached the display.
@@ -175,6 +176,88 @@ pub fn trace_camera_path_until(
     origin: DVec3,
     dir: DVec3,
     lambda_nm: f64,
+    visit: impl FnMut(&Branch) -> ControlFlow<()>,
+) -> TraceSummary {
+    // The model is resolved here, once per path: the Kogelnik instantiation carries nothing of
+    // the tables.
+    match wg.rcwa.as_deref() {
+        None => trace_path(
+            wg,
+            Kogelnik,
+            display_z_mm,
+            limits,
+            origin,
+            dir,
+            lambda_nm,
+            visit,
+        ),
+        Some(t) => trace_path(wg, t, display_z_mm, limits, origin, dir, lambda_nm, visit),
+    }
+}
+
+/// Where a path's film quantities come from: Kogelnik's closed form, or the RCWA tables
+/// (`hoe.model = "rcwa"`, optics::rcwa::coupling) where they cover the ray. A closed set,
+/// resolved at compile time ([`trace_camera_path_until`]).
+trait FilmTables: Copy {
+    /// The tables' values for one ray, per grating (nothing for Kogelnik).
+    type Ray: Copy;
+    /// The values for the ray (u, λ) and the first `n` gratings.
+    fn ray(self, n: usize, lambda_nm: f64, u: DVec2) -> Self::Ray;
+    /// Grating `j`'s values, if the tables cover the ray.
+    fn get(ray: &Self::Ray, j: usize) -> Option<Coupling>;
+    /// The straight-through fraction of (u, +z), if some grating's table covers the ray.
+    fn t0(ray: &Self::Ray) -> Option<[f64; 2]>;
+}
+
+/// Kogelnik's closed form everywhere (the default model).
+#[derive(Clone, Copy)]
+struct Kogelnik;
+
+impl FilmTables for Kogelnik {
+    type Ray = ();
+    #[inline(always)]
+    fn ray(self, _: usize, _: f64, _: DVec2) {}
+    #[inline(always)]
+    fn get(_: &(), _: usize) -> Option<Coupling> {
+        None
+    }
+    #[inline(always)]
+    fn t0(_: &()) -> Option<[f64; 2]> {
+        None
+    }
+}
+
+impl FilmTables for &RcwaCouplings {
+    type Ray = [Option<Coupling>; MAX_GRATINGS];
+    #[inline(always)]
+    fn ray(self, n: usize, lambda_nm: f64, u: DVec2) -> Self::Ray {
+        let mut c = [None; MAX_GRATINGS];
+        for (j, c) in c.iter_mut().enumerate().take(n) {
+            *c = self.lookup(j, lambda_nm, u);
+        }
+        c
+    }
+    #[inline(always)]
+    fn get(ray: &Self::Ray, j: usize) -> Option<Coupling> {
+        ray[j]
+    }
+    #[inline(always)]
+    fn t0(ray: &Self::Ray) -> Option<[f64; 2]> {
+        ray.iter().flatten().next().map(|c| c.t0)
+    }
+}
+
+/// [`trace_camera_path_until`] with the film model `tables`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn trace_path<T: FilmTables>(
+    wg: &Waveguide,
+    tables: T,
+    display_z_mm: f64,
+    limits: TraceLimits,
+    origin: DVec3,
+    dir: DVec3,
+    lambda_nm: f64,
     mut visit: impl FnMut(&Branch) -> ControlFlow<()>,
 ) -> TraceSummary {
     let w = wg.thickness_mm;
@@ -196,15 +279,9 @@ pub fn trace_camera_path_until(
     // top straight branch, replica exits under the top vHOE): computed once.
     // With RCWA tables (`hoe.model = "rcwa"`): every grating's film quantities for this ray,
     // where the tables cover it (optics::rcwa::coupling).
-    let rcwa = wg.rcwa.as_deref().map(|r| {
-        let mut c = [None; MAX_GRATINGS];
-        for (j, c) in c.iter_mut().enumerate().take(gratings.len()) {
-            *c = r.lookup(j, lambda_nm, u);
-        }
-        c
-    });
+    let ray = tables.ray(gratings.len(), lambda_nm, u);
     let t0_cell = std::cell::OnceCell::new();
-    let film_t0 = || film_t0(&t0_cell, rcwa.as_ref(), gratings, u, lambda_nm);
+    let film_t0 = || film_t0::<T>(&t0_cell, &ray, gratings, u, lambda_nm);
     let mut wt = t_face;
     if wg.bottom.contains(p_back) {
         wt = mul(wt, film_t0());
@@ -236,7 +313,7 @@ pub fn trace_camera_path_until(
     // Out-coupling at the top vHOE, once per grating j: guided u_g = u − (λ/2π)K_j,t
     // (travelling −z) → u (order −1 of grating j). Each grating's guided wave is its own
     // zig-zag and its own replicas (grating, contact).
-    let ctx = PathContext {
+    let ctx: PathContext<T> = PathContext {
         wg,
         limits,
         lambda_nm,
@@ -250,7 +327,7 @@ pub fn trace_camera_path_until(
         p_top,
         air_shift,
         t0_cell: &t0_cell,
-        rcwa: rcwa.as_ref(),
+        ray: &ray,
     };
     if gratings.len() == 1 {
         // The single-grating film: no arrays, the path as it always was.
@@ -285,21 +362,21 @@ pub fn trace_camera_path_until(
 /// once per path (`cell`) when first needed: from the RCWA tables where they cover the ray,
 /// else Kogelnik's.
 #[inline(always)]
-fn film_t0(
+fn film_t0<T: FilmTables>(
     cell: &std::cell::OnceCell<[f64; 2]>,
-    rcwa: Option<&[Option<crate::optics::rcwa::coupling::Coupling>; MAX_GRATINGS]>,
+    ray: &T::Ray,
     gratings: &crate::optics::multiplex::GratingSet,
     u: DVec2,
     lambda_nm: f64,
 ) -> [f64; 2] {
-    *cell.get_or_init(|| match rcwa.and_then(|c| c.iter().flatten().next()) {
-        Some(c) => c.t0,
+    *cell.get_or_init(|| match T::t0(ray) {
+        Some(t) => t,
         None => gratings.undiffracted(u, 1.0, lambda_nm),
     })
 }
 
 /// What one path's guided waves share: the camera ray's quantities up to the top vHOE.
-struct PathContext<'a> {
+struct PathContext<'a, T: FilmTables> {
     wg: &'a Waveguide,
     limits: TraceLimits,
     lambda_nm: f64,
@@ -316,8 +393,8 @@ struct PathContext<'a> {
     air_shift: DVec2,
     /// The film's straight-through fraction of (u, +z), computed once when first needed.
     t0_cell: &'a std::cell::OnceCell<[f64; 2]>,
-    /// Per grating, the RCWA tables' film quantities for this ray (None: Kogelnik).
-    rcwa: Option<&'a [Option<crate::optics::rcwa::coupling::Coupling>; MAX_GRATINGS]>,
+    /// The tables' film quantities for this ray (nothing for Kogelnik).
+    ray: &'a T::Ray,
 }
 
 /// The top vHOE's out-coupling by grating `j`.
@@ -330,21 +407,21 @@ struct TopCoupling {
     /// η [TE, TM] of the out-coupling order.
     eta: [f64; 2],
     /// The film's rigorous quantities for this path (`hoe.model = "rcwa"` inside its tables).
-    rcwa: Option<crate::optics::rcwa::coupling::Coupling>,
+    rcwa: Option<Coupling>,
 }
 
 /// The top vHOE's out-coupling by grating `j`, or `None` if the guided wave cannot exist or
 /// the order is not reflection-type. With RCWA tables covering the path, every film quantity
 /// of the path comes from them (optics::rcwa::coupling), else from Kogelnik.
 #[inline(always)]
-fn top_coupling(ctx: &PathContext, j: usize) -> Option<TopCoupling> {
+fn top_coupling<T: FilmTables>(ctx: &PathContext<T>, j: usize) -> Option<TopCoupling> {
     let gratings = &ctx.wg.gratings;
     let grating = gratings.get(j);
     let u_g = ctx.u - grating.u_shift(ctx.lambda_nm);
     if u_g.length_squared() >= ctx.n_g * ctx.n_g {
         return None;
     }
-    if let Some(c) = ctx.rcwa.and_then(|c| c[j]) {
+    if let Some(c) = T::get(ctx.ray, j) {
         return Some(TopCoupling {
             u_g,
             wave: None,
@@ -369,8 +446,8 @@ fn top_coupling(ctx: &PathContext, j: usize) -> Option<TopCoupling> {
 /// Traces grating `j`'s guided wave (out-coupled at the top vHOE with `top`) down the plate,
 /// visiting its replicas; `Break` if `visit` stopped the path.
 #[inline(always)]
-fn trace_guided(
-    ctx: &PathContext,
+fn trace_guided<T: FilmTables>(
+    ctx: &PathContext<T>,
     j: usize,
     top: TopCoupling,
     summary: &mut TraceSummary,
@@ -390,7 +467,7 @@ fn trace_guided(
         p_top,
         air_shift,
         t0_cell,
-        rcwa: _,
+        ray,
     } = *ctx;
     let TopCoupling {
         u_g,
@@ -464,7 +541,7 @@ fn trace_guided(
                     wb = if wg.covered {
                         [0.0, 0.0]
                     } else {
-                        mul(wb, film_t0(t0_cell, ctx.rcwa, gratings, u, lambda_nm))
+                        mul(wb, film_t0::<T>(t0_cell, ray, gratings, u, lambda_nm))
                     };
                 }
                 let flow = visit(&Branch {
