@@ -281,9 +281,14 @@ impl RcwaCouplings {
         settings: &Settings,
         probes: usize,
     ) -> Result<RcwaCouplings, RcwaError> {
-        let mut c = Self::empty(set, grid, settings)?;
-        let nodes = grid.nodes();
-        for j in 0..set.len() {
+        Self::empty(set, grid, settings)?.fill(probes)
+    }
+
+    /// Computes the tables of an [`Self::empty`] set-up and measures their error.
+    fn fill(mut self, probes: usize) -> Result<RcwaCouplings, RcwaError> {
+        let c = &mut self;
+        let nodes = c.grid.nodes();
+        for j in 0..c.set.len() {
             let rows: Result<Vec<[f64; PER_NODE]>, RcwaError> = (0..nodes)
                 .into_par_iter()
                 .map(|node| {
@@ -298,10 +303,11 @@ impl RcwaCouplings {
                     Ok(v)
                 })
                 .collect();
-            c.data.push(rows?.concat());
+            let rows = rows?.concat();
+            c.data.push(rows);
         }
         c.max_error = c.measure_error(probes, 1)?;
-        Ok(c)
+        Ok(self)
     }
 
     fn empty(
@@ -382,7 +388,7 @@ impl RcwaCouplings {
                 limit / 60.0
             )));
         }
-        let mut c = Self::build(set, grid, settings, probes)?;
+        let mut c = c.fill(probes)?;
         if let Some(dir) = cache_dir {
             let bytes = encode_values(&key, c.max_error, &c.data.concat());
             if crate::io::write_all_atomic(dir, &[(name.as_str(), &bytes)]).is_ok() {
