@@ -1,5 +1,12 @@
 //! Atomic file replacement, and output sets that appear together or not at all.
 //!
+//! Data is written into **unnamed** files first (Linux `O_TMPFILE` in the target's folder): a
+//! run killed while it writes leaves nothing behind, because an unnamed file vanishes with its
+//! last descriptor. Only when the data is complete and fsynced is a name linked to it
+//! (`linkat` through `/proc/self/fd`, which fails rather than follow or replace anything at
+//! the new name). Where the file system or the platform has no `O_TMPFILE`, the files are
+//! created under their temporary names from the start, as described below.
+//!
 //! One file ([`write_atomic`]): the bytes go to a temporary name `.<NAME>.tmp-<pid>-<n>` in the
 //! target's folder, created exclusively (`O_CREAT | O_EXCL`, so a symbolic link or any file
 //! already there is never opened or followed: the next `n` is tried), are flushed and fsynced,
@@ -17,15 +24,18 @@
 //! A failure before the marker (full disk, read-only folder) removes the staging folder and
 //! leaves the output folder as it was (exit 1 in the CLI).
 //!
-//! A run killed (SIGKILL) before its marker leaves the previous set untouched and only its
-//! hidden staging folder; a run killed during its renames leaves the marker. Whoever next
+//! With unnamed files, the staging folder is created, and the files linked into it, only under
+//! the commit lock, just before the marker: a run killed (SIGKILL) at any point before its
+//! commit leaves the folder exactly as it was, with no temporary name. Without them, such a
+//! run leaves the previous set untouched and only its hidden staging folder. A run killed
+//! during its commit (microseconds: links, the marker and renames) leaves the marker. Whoever next
 //! writes a set into the folder first repairs it under the lock ([`recover_folder`]): a
 //! staging folder of a dead process with a marker is rolled forward (its remaining files
 //! renamed into place, completing that run's set), one without a marker is deleted.
 //!
-//! Testing hook: `STSCAM_TEST_COMMIT_DELAY_MS=N` makes the commit sleep N ms before each
-//! rename (and before taking the lock), to widen the windows the concurrency and SIGKILL tests
-//! aim at. It changes no output.
+//! Testing hook: `STSCAM_TEST_COMMIT_DELAY_MS=N` makes a set's writer sleep N ms once its data
+//! are written (before it takes the lock) and before each rename, to widen the windows the
+//! concurrency and SIGKILL tests aim at. It changes no output.
 //!
 //! Assumptions: one local file system (rename within a folder is atomic); Linux-style `/proc`
 //! to tell a dead lock owner (elsewhere a stale lock must be removed by hand, as the error says).
@@ -57,6 +67,18 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
+/// A fresh temporary name `.<NAME>.tmp-<pid>-<n>` for `file_name`.
+fn temp_name(file_name: &std::ffi::OsStr) -> std::ffi::OsString {
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(file_name);
+    tmp_name.push(format!(
+        ".tmp-{}-{}",
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed)
+    ));
+    tmp_name
+}
+
 /// Creates a fresh temporary file next to `path` with `O_EXCL` (never through a link) and
 /// returns it with its name.
 fn create_temp(path: &Path) -> Result<(File, PathBuf), IoError> {
@@ -65,20 +87,65 @@ fn create_temp(path: &Path) -> Result<(File, PathBuf), IoError> {
         .ok_or_else(|| IoError::format(path, "path has no file name"))?;
     let dir = parent_dir(path);
     loop {
-        let mut tmp_name = std::ffi::OsString::from(".");
-        tmp_name.push(file_name);
-        tmp_name.push(format!(
-            ".tmp-{}-{}",
-            std::process::id(),
-            SEQ.fetch_add(1, Ordering::Relaxed)
-        ));
-        let tmp = dir.join(tmp_name);
+        let tmp = dir.join(temp_name(file_name));
         match OpenOptions::new().write(true).create_new(true).open(&tmp) {
             Ok(f) => return Ok((f, tmp)),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             Err(e) => return Err(IoError::io(path, e)),
         }
     }
+}
+
+/// An unnamed file in `dir` (Linux `O_TMPFILE`), or `None` where the platform or the file
+/// system has none (the caller then writes under a temporary name instead).
+#[cfg(target_os = "linux")]
+fn anonymous_in(dir: &Path) -> std::io::Result<Option<File>> {
+    use rustix::fs::{CWD, Mode, OFlags, openat};
+    use rustix::io::Errno;
+    if !Path::new("/proc/self/fd").is_dir() {
+        // `link_anonymous` names the file through /proc.
+        return Ok(None);
+    }
+    let flags = OFlags::WRONLY | OFlags::TMPFILE | OFlags::CLOEXEC;
+    // 0o666 less the umask, as for files created by name.
+    match openat(CWD, dir, flags, Mode::from_raw_mode(0o666)) {
+        Ok(fd) => Ok(Some(File::from(fd))),
+        // Kernel or file system without O_TMPFILE (EISDIR: kernels older than 3.11).
+        Err(Errno::OPNOTSUPP | Errno::ISDIR | Errno::INVAL) => Ok(None),
+        Err(e) => Err(e.into()),
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn anonymous_in(_dir: &Path) -> std::io::Result<Option<File>> {
+    Ok(None)
+}
+
+/// Gives the unnamed `file` the name `path`. Fails with `AlreadyExists` if anything (a file
+/// or a link) is there: `linkat` neither follows nor replaces the new name.
+#[cfg(target_os = "linux")]
+fn link_anonymous(file: &File, path: &Path) -> std::io::Result<()> {
+    use rustix::fs::{AtFlags, CWD, linkat};
+    use std::os::unix::io::AsRawFd;
+    let from = format!("/proc/self/fd/{}", file.as_raw_fd());
+    linkat(CWD, from.as_str(), CWD, path, AtFlags::SYMLINK_FOLLOW).map_err(Into::into)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn link_anonymous(_file: &File, _path: &Path) -> std::io::Result<()> {
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+/// Writes and fsyncs `bytes` into an unnamed file in `dir`; `None` where there are none.
+fn anonymous_with(dir: &Path, bytes: &[u8], sync: bool) -> std::io::Result<Option<File>> {
+    let Some(mut file) = anonymous_in(dir)? else {
+        return Ok(None);
+    };
+    file.write_all(bytes)?;
+    if sync {
+        file.sync_all()?;
+    }
+    Ok(Some(file))
 }
 
 /// Writes `bytes` to `path` atomically.
@@ -105,6 +172,26 @@ pub fn write_atomic_unsynced(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 }
 
 fn write_via_temp(path: &Path, bytes: &[u8], sync: bool) -> Result<(), IoError> {
+    let dir = parent_dir(path);
+    if let Some(file) = anonymous_with(&dir, bytes, sync).map_err(|e| IoError::io(path, e))? {
+        // Only the link and the rename can leave a temporary name behind.
+        let file_name = path
+            .file_name()
+            .ok_or_else(|| IoError::format(path, "path has no file name"))?;
+        loop {
+            let tmp = dir.join(temp_name(file_name));
+            match link_anonymous(&file, &tmp) {
+                Ok(()) => {
+                    return fs::rename(&tmp, path).map_err(|e| {
+                        let _ = fs::remove_file(&tmp);
+                        IoError::io(path, e)
+                    });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(IoError::io(path, e)),
+            }
+        }
+    }
     let (mut file, tmp) = create_temp(path)?;
     let result = file
         .write_all(bytes)
@@ -140,67 +227,107 @@ pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoErr
             let _ = fs::remove_dir(dir);
         }
     };
-    let stage = match create_stage(dir) {
-        Ok(s) => s,
-        Err(e) => {
-            remove_created();
-            return Err(e);
+    let fail = |stage: Option<&Path>, e: IoError| {
+        if let Some(stage) = stage {
+            let _ = remove_tree(stage);
         }
-    };
-    let fail = |e: IoError| {
-        let _ = remove_tree(&stage);
         remove_created();
         Err(e)
     };
+    if let Some((name, _)) = files.iter().find(|(name, _)| {
+        Path::new(name).components().count() != 1
+            || name.starts_with(STAGE_PREFIX)
+            || *name == COMMIT_LOCK
+    }) {
+        // A name with folders cannot be staged; report it as the old writer did.
+        let e = std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "output names must be plain file names",
+        );
+        return fail(None, IoError::io(&dir.join(name), e));
+    }
+    // The data, written and synced before the lock is taken: into unnamed files where the file
+    // system has them (nothing named exists until the commit), else into a staging folder.
+    let mut unnamed = Vec::with_capacity(files.len());
     for (name, bytes) in files {
-        let target = dir.join(name);
-        let plain = Path::new(name).components().count() == 1
-            && !name.starts_with(STAGE_PREFIX)
-            && *name != COMMIT_LOCK;
-        if !plain {
-            // A name with folders cannot be staged; report it as the old writer did.
-            let e = std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                "output names must be plain file names",
-            );
-            return fail(IoError::io(&target, e));
-        }
-        if let Err(e) = write_new_synced(&stage.join(name), bytes) {
-            return fail(IoError::io(&target, e));
+        match anonymous_with(dir, bytes, true) {
+            Ok(Some(file)) => unnamed.push(file),
+            Ok(None) => break,
+            Err(e) => return fail(None, IoError::io(&dir.join(name), e)),
         }
     }
+    let staged_early = if unnamed.len() == files.len() {
+        None
+    } else {
+        unnamed.clear();
+        let stage = match create_stage(dir) {
+            Ok(s) => s,
+            Err(e) => return fail(None, e),
+        };
+        for (name, bytes) in files {
+            if let Err(e) = write_new_synced(&stage.join(name), bytes) {
+                return fail(Some(&stage), IoError::io(&dir.join(name), e));
+            }
+        }
+        Some(stage)
+    };
     // A target that exists but is not a regular file would make its rename fail after others
     // succeeded: refuse before renaming anything.
     if let Some((name, _)) = files.iter().find(|(n, _)| {
         let p = dir.join(n);
         p.exists() && !p.is_file()
     }) {
-        return fail(IoError::format(
-            &dir.join(name),
-            "exists and is not a regular file",
-        ));
+        return fail(
+            staged_early.as_deref(),
+            IoError::format(&dir.join(name), "exists and is not a regular file"),
+        );
     }
-    if let Err(e) = File::open(&stage).and_then(|d| d.sync_all()) {
-        return fail(IoError::io(&stage, e));
+    let delay = commit_delay();
+    if let Some(d) = delay {
+        std::thread::sleep(d);
     }
     let lock = match CommitLock::acquire(dir) {
         Ok(l) => l,
-        Err(e) => return fail(e),
+        Err(e) => return fail(staged_early.as_deref(), e),
     };
     if let Err(e) = recover_locked(dir) {
         drop(lock);
-        return fail(e);
+        return fail(staged_early.as_deref(), e);
     }
-    if let Err(e) = write_new_synced(&stage.join(COMMIT_MARKER), b"")
+    let stage = match staged_early {
+        Some(stage) => stage,
+        None => match stage_unnamed(dir, files, &unnamed) {
+            Ok(stage) => stage,
+            Err(e) => {
+                drop(lock);
+                return fail(None, e);
+            }
+        },
+    };
+    if let Err(e) = File::open(&stage)
+        .and_then(|d| d.sync_all())
+        .and_then(|()| write_new_synced(&stage.join(COMMIT_MARKER), b""))
         .and_then(|()| File::open(&stage).and_then(|d| d.sync_all()))
     {
         drop(lock);
-        return fail(IoError::io(&stage, e));
+        return fail(Some(&stage), IoError::io(&stage, e));
     }
-    let delay = commit_delay();
     let result = roll_forward(&stage, dir, delay);
     drop(lock);
     result
+}
+
+/// Under the commit lock: a staging folder holding `files`' names linked to their unnamed
+/// files. On failure the folder is removed.
+fn stage_unnamed(dir: &Path, files: &[(&str, &[u8])], unnamed: &[File]) -> Result<PathBuf, IoError> {
+    let stage = create_stage(dir)?;
+    for ((name, _), file) in files.iter().zip(unnamed) {
+        if let Err(e) = link_anonymous(file, &stage.join(name)) {
+            let _ = remove_tree(&stage);
+            return Err(IoError::io(&dir.join(name), e));
+        }
+    }
+    Ok(stage)
 }
 
 /// Creates this run's staging folder inside `dir` exclusively.

@@ -2,8 +2,9 @@
 //! or not at all, whatever else writes to the folder. Two concurrent renders into one folder
 //! leave the complete set of one of them; a SIGKILL before the commit leaves the previous set
 //! (and, once the folder is next written or recovered, nothing else); a SIGKILL during the
-//! renames is completed by the recovery; links planted at the output names or the lock are not
-//! followed. `STSCAM_TEST_COMMIT_DELAY_MS` (sim/io/atomic.rs) slows the commit to hit its
+//! renames is completed by the recovery; a SIGKILL after the data are written but before the
+//! commit leaves the previous set and nothing else (the data sit in unnamed files); links
+//! planted at the output names or the lock are not followed. `STSCAM_TEST_COMMIT_DELAY_MS` (sim/io/atomic.rs) slows the commit to hit its
 //! windows.
 //!
 //! Every fixture is written into a temporary folder by the test itself.
@@ -185,6 +186,45 @@ fn sigkill_leaves_a_complete_set_after_recovery() {
         1,
         "the killed run's set was not completed"
     );
+}
+
+/// SIGKILL while the run's data are written but not yet committed (the writer is held by the
+/// test hook before it takes the lock, with its files open): the folder holds exactly the
+/// previous set, with no temporary or staging name, without any recovery. A writer that named
+/// its files before the commit (the fallback for file systems without unnamed files) fails
+/// this test.
+#[cfg(target_os = "linux")]
+#[test]
+fn sigkill_before_the_commit_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("s.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let refs = references(d, &scene);
+    let out = d.join("out");
+    stscam_ok(&args(scene.to_str().unwrap(), out.to_str().unwrap(), "1"));
+    let mut c = spawn(&scene, &out, "2", 3000);
+    let fds = PathBuf::from(format!("/proc/{}/fd", c.id()));
+    let start = Instant::now();
+    // Wait until the writer holds every one of its files open, unnamed, in `out`.
+    loop {
+        let unnamed = std::fs::read_dir(&fds)
+            .map(|it| {
+                it.filter_map(|e| e.ok())
+                    .filter_map(|e| std::fs::read_link(e.path()).ok())
+                    .filter(|t| t.starts_with(&out) && t.to_string_lossy().ends_with("(deleted)"))
+                    .count()
+            })
+            .unwrap_or(0);
+        if unnamed == refs[0].len() {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "the writer never held its files");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    c.kill().unwrap();
+    let _ = c.wait();
+    assert_eq!(which_set(&out, &refs), 0, "the previous set was not kept");
 }
 
 /// Which reference a folder's visible files match (capture.json by seed); 2 if none.
