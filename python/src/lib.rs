@@ -188,6 +188,12 @@ fn load(scene: &SceneArg) -> Result<System, String> {
     Ok(sys)
 }
 
+/// [`load`] as a job: the GIL released and Ctrl-C honoured (building a design's RCWA tables
+/// can take tens of seconds).
+fn load_job(py: Python<'_>, scene: &SceneArg) -> PyResult<System> {
+    run_job(py, None, || load(scene))?.map_err(value_error)
+}
+
 fn check_spp(spp: u32) -> PyResult<()> {
     if spp == 0 {
         return Err(value_error("--spp: must be at least 1"));
@@ -224,8 +230,8 @@ fn json<T: serde::Serialize>(v: &T) -> PyResult<String> {
 /// The scene after overrides as JSON (raises ValueError on a bad scene or override).
 #[pyfunction]
 #[pyo3(signature = (scene))]
-fn scene_json(scene: SceneArg) -> PyResult<String> {
-    let sys = load(&scene).map_err(value_error)?;
+fn scene_json(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
+    let sys = load_job(py, &scene)?;
     json(&sys.scene)
 }
 
@@ -440,24 +446,24 @@ fn matrix_stack<'py>(
 /// The coverage warning of a scene (as `stscam matrix` prints it, without `warning: `), or None.
 #[pyfunction]
 #[pyo3(signature = (scene))]
-fn coverage(scene: SceneArg) -> PyResult<Option<String>> {
-    let sys = load(&scene).map_err(value_error)?;
+fn coverage(py: Python<'_>, scene: SceneArg) -> PyResult<Option<String>> {
+    let sys = load_job(py, &scene)?;
     Ok(coverage_warning(&sys, ""))
 }
 
 /// `stscam info --json`.
 #[pyfunction]
 #[pyo3(signature = (scene))]
-fn info(scene: SceneArg) -> PyResult<String> {
-    let sys = load(&scene).map_err(value_error)?;
+fn info(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
+    let sys = load_job(py, &scene)?;
     json(&stscam::analysis::info(&sys))
 }
 
 /// `stscam probe --pixel COL,ROW --json`.
 #[pyfunction]
 #[pyo3(signature = (scene, col, row))]
-fn probe(scene: SceneArg, col: usize, row: usize) -> PyResult<String> {
-    let sys = load(&scene).map_err(value_error)?;
+fn probe(py: Python<'_>, scene: SceneArg, col: usize, row: usize) -> PyResult<String> {
+    let sys = load_job(py, &scene)?;
     let p = stscam::analysis::probe(&sys, col, row)
         .map_err(|m| value_error(format!("--pixel {col},{row}: {m}")))?;
     json(&p)
@@ -1097,7 +1103,7 @@ fn sensor_noise<'py>(
             "clean: value {i} is not a finite number"
         )));
     }
-    let sys = load(&scene).map_err(value_error)?;
+    let sys = load_job(py, &scene)?;
     let noise = stscam::noise::SensorNoise::new(&sys.scene.noise, white_peak);
     let out = run_job(py, None, || {
         stscam::noise::measure_capture(&noise, &clean, seed)

@@ -90,6 +90,9 @@ impl Problem {
         assert_eq!(width * height, h.cols, "object shape does not match H");
         let ht = h.transpose();
         let n = h.cols;
+        // A cancelled job (Ctrl-C in Python, `crate::cancel`) skips the remaining rows; its
+        // meaningless result is discarded by the front end.
+        let cancel = crate::cancel::current();
         // Row a of G: Σ_m H[m,a]·H[m,:], accumulated in a fixed order (m increasing).
         let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..n)
             .into_par_iter()
@@ -97,6 +100,9 @@ impl Problem {
             .map_init(
                 || (vec![0.0f64; n], vec![false; n], Vec::<u32>::new()),
                 |(acc, seen, touched), a| {
+                    if cancel.is_cancelled() {
+                        return (Vec::new(), Vec::new());
+                    }
                     for e in ht.row_range(a) {
                         let m = ht.indices[e] as usize;
                         let va = f64::from(ht.data[e]);

@@ -360,6 +360,39 @@ def test_ctrl_c_stops_a_long_reconstruction(small_h):
     assert elapsed < 0.5 + 0.5 + 2 * per_iter, (elapsed, per_iter)
 
 
+def test_ctrl_c_stops_a_long_set_up():
+    # The set-up of a reconstruction (Hᵀ and the Gram matrix HᵀH) checks the cancellation
+    # token per row of HᵀH (before: it ran to the end, up to ~40 s on large H). A random H whose
+    # Gram costs Σ_m nnz_m² ≈ 7e8 multiply-adds; its time is estimated from an eighth of its rows.
+    rng = np.random.default_rng(7)
+    rows, cols, per_row = 8192, 2048, 300
+    starts = rng.integers(0, cols, rows)
+    indices = np.sort((starts[:, None] + np.arange(per_row)) % cols, axis=1)
+    indptr = np.arange(rows + 1) * per_row
+    data = rng.random(rows * per_row).astype(np.float32)
+    h = scipy.sparse.csr_matrix((data, indices.ravel(), indptr), shape=(rows, cols))
+    t0 = time.monotonic()
+    stscam.Operator(h[: rows // 8], None, object_shape=(32, 64)).reconstruct(
+        np.zeros(rows // 8), method="cg", iters=1
+    )
+    full = 8 * (time.monotonic() - t0)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.3, _thread.interrupt_main)
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            stscam.Operator(h, None, object_shape=(32, 64)).reconstruct(
+                np.zeros(rows), method="cg", iters=10**9
+            )
+        elapsed = time.monotonic() - t0
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert full > 1.0, f"the set-up is too quick ({full:.2f} s) to show the interrupt"
+    assert elapsed < 0.3 + 0.5, (elapsed, full)
+
+
 def check_ctrl_c_stops_a_long_render():
     big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
     t0 = time.monotonic()

@@ -288,10 +288,15 @@ impl RcwaCouplings {
     fn fill(mut self, probes: usize) -> Result<RcwaCouplings, RcwaError> {
         let c = &mut self;
         let nodes = c.grid.nodes();
+        // A cancelled job (Ctrl-C in Python) stops at the next node; nothing is cached.
+        let cancel = crate::cancel::current();
         for j in 0..c.set.len() {
             let rows: Result<Vec<[f64; PER_NODE]>, RcwaError> = (0..nodes)
                 .into_par_iter()
                 .map(|node| {
+                    if cancel.is_cancelled() {
+                        return Err(RcwaError::Cancelled);
+                    }
                     let Some((lam, u)) = c.node_point(j, node) else {
                         return Ok([f64::NAN; PER_NODE]);
                     };

@@ -152,6 +152,9 @@ pub struct Solution {
 /// Why an RCWA computation was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RcwaError {
+    /// The job was cancelled (`crate::cancel`) while the tables were being built.
+    #[error("cancelled while building the RCWA tables")]
+    Cancelled,
     /// A grating's tangential K is not parallel to the others'.
     #[error(
         "grating {0}: its in-plane grating vector is not parallel to grating 1's (1-D gratings only)"
