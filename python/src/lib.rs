@@ -32,6 +32,19 @@ fn run_job<T: Send>(
     threads: Option<usize>,
     job: impl FnOnce() -> T + Send,
 ) -> PyResult<T> {
+    run_job_with(py, threads, None, job)
+}
+
+/// [`run_job`] reporting progress: every 100 ms, when the count of the job's outermost
+/// progress (`stscam::progress::Observer`) has changed, `progress(done, total, unit)` is
+/// called on this thread (and once more at the end). An exception from it cancels the job and
+/// is raised.
+fn run_job_with<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    progress: Option<&Bound<'_, PyAny>>,
+    job: impl FnOnce() -> T + Send,
+) -> PyResult<T> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
         stscam::limits::check_threads(t).map_err(value_error)?;
@@ -41,6 +54,7 @@ fn run_job<T: Send>(
         .build()
         .map_err(|e| PyRuntimeError::new_err(format!("cannot start worker threads: {e}")))?;
     let flag = Arc::new(AtomicBool::new(false));
+    let observer = Arc::new(stscam::progress::Observer::default());
     let (tx, rx) = std::sync::mpsc::channel();
     // Borrowed by the GIL-free closures below, which must be Send.
     let rx = std::sync::Mutex::new(rx);
@@ -51,18 +65,38 @@ fn run_job<T: Send>(
             None => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
         }
     };
+    let mut last: Option<(u64, u64, String)> = None;
+    let mut report = || -> PyResult<()> {
+        let (Some(cb), Some((done, total, unit))) = (progress, observer.get()) else {
+            return Ok(());
+        };
+        let now = Some((done, total, unit.clone()));
+        if last != now {
+            last = now;
+            cb.call1((done.min(total), total, unit))?;
+        }
+        Ok(())
+    };
     std::thread::scope(|s| {
         let worker_flag = flag.clone();
+        let worker_observer = observer.clone();
         let pool = &pool;
         s.spawn(move || {
-            let r = pool.install(|| stscam::cancel::with_flag(worker_flag, job));
+            let r = pool.install(|| {
+                stscam::progress::with_observer(worker_observer, || {
+                    stscam::cancel::with_flag(worker_flag, job)
+                })
+            });
             let _ = tx.send(r);
         });
         loop {
             match py.allow_threads(|| wait(Some(Duration::from_millis(100)))) {
-                Ok(r) => return Ok(r),
+                Ok(r) => {
+                    report()?;
+                    return Ok(r);
+                }
                 Err(RecvTimeoutError::Timeout) => {
-                    if let Err(e) = py.check_signals() {
+                    if let Err(e) = py.check_signals().and_then(|()| report()) {
                         flag.store(true, Ordering::Relaxed);
                         py.allow_threads(|| {
                             let _ = wait(None);
@@ -237,7 +271,7 @@ fn scene_json(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -251,6 +285,7 @@ fn render<'py>(
     user_side: &str,
     batch: Vec<ImageArg>,
     frontal_space: &str,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     let frontal_space =
@@ -293,7 +328,7 @@ fn render<'py>(
         .map(image_values)
         .collect::<Result<Vec<_>, _>>()
         .map_err(value_error)?;
-    let (cap, frontal, render_s, more) = run_job(py, threads, || {
+    let (cap, frontal, render_s, more) = run_job_with(py, threads, progress.as_ref(), || {
         let mut sys = load(&scene)?;
         let settings = RenderSettings {
             spp,
@@ -366,7 +401,7 @@ fn render<'py>(
 
 /// H and the offset (as `stscam matrix`).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, depth_mm, threads))]
+#[pyo3(signature = (scene, spp, seed, depth_mm, threads, progress=None))]
 fn matrix<'py>(
     py: Python<'py>,
     scene: SceneArg,
@@ -374,12 +409,13 @@ fn matrix<'py>(
     seed: u64,
     depth_mm: Option<f64>,
     threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     if let Some(d) = depth_mm {
         stscam::matrix::check_depth(d).map_err(value_error)?;
     }
-    let m = run_job(py, threads, || {
+    let m = run_job_with(py, threads, progress.as_ref(), || {
         let mut sys = load(&scene)?;
         if let Some(d) = depth_mm {
             stscam::matrix::place_object(&mut sys, d);
@@ -404,7 +440,7 @@ fn matrix<'py>(
 /// Every depth's H and offset of a depth stack, in one pass (as `stscam matrix --depth-mm
 /// SPEC` with a list or range): one dict per depth, sorted by depth.
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, depth_spec, threads))]
+#[pyo3(signature = (scene, spp, seed, depth_spec, threads, progress=None))]
 fn matrix_stack<'py>(
     py: Python<'py>,
     scene: SceneArg,
@@ -412,13 +448,14 @@ fn matrix_stack<'py>(
     seed: u64,
     depth_spec: &str,
     threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
     check_spp(spp)?;
     let depths = stscam::stack::parse_depths(depth_spec)
         .map_err(|m| value_error(format!("--depth-mm {depth_spec}: {m}")))?;
     // The CLI's bound on a stack's peak memory, estimated before the pass and kept during it.
     let budget = stscam::limits::MAX_JOB_BYTES;
-    let stack = run_job(py, threads, || {
+    let stack = run_job_with(py, threads, progress.as_ref(), || {
         let sys = load(&scene)?;
         stscam::render::check_limits(&sys, &RenderSettings::lattice(spp, seed, false), 1, "--spp")
             .map_err(|e| e.to_string())?;
@@ -912,7 +949,7 @@ fn solve_options(
 
 /// The simulated Hadamard calibration (as `stscam calibrate`): H_est and the report.
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, matrix, object, noise, dark_frame, render, threshold_sigma, threads))]
+#[pyo3(signature = (scene, spp, seed, matrix, object, noise, dark_frame, render, threshold_sigma, threads, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -926,6 +963,7 @@ fn calibrate<'py>(
     render: bool,
     threshold_sigma: f64,
     threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     use stscam::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
     check_spp(spp)?;
@@ -948,7 +986,7 @@ fn calibrate<'py>(
         threshold_sigma,
         progress: false,
     };
-    let run = run_job(py, threads, || {
+    let run = run_job_with(py, threads, progress.as_ref(), || {
         let sys = load(&scene)?;
         calibrate_scene(&sys, &job)
     })?
@@ -961,7 +999,7 @@ fn calibrate<'py>(
 
 /// A design sweep (as `stscam sweep --json`): the rows as JSON.
 #[pyfunction]
-#[pyo3(signature = (scene, vary, fov_fraction, psnr, psnr_spp, threads))]
+#[pyo3(signature = (scene, vary, fov_fraction, psnr, psnr_spp, threads, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep(
     py: Python<'_>,
@@ -971,6 +1009,7 @@ fn sweep(
     psnr: Option<String>,
     psnr_spp: u32,
     threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
     if scene.2.is_some() || scene.3.is_some() {
@@ -999,7 +1038,7 @@ fn sweep(
         progress: false,
         ..SweepSettings::default()
     };
-    let res = run_job(py, threads, || {
+    let res = run_job_with(py, threads, progress.as_ref(), || {
         run_sweep(scene.0.as_deref().map(Path::new), &scene.1, &axes, &set)
     })?
     .map_err(value_error)?;
@@ -1009,7 +1048,7 @@ fn sweep(
 /// Builds a dataset from a recipe into `out` (as `stscam dataset RECIPE --out OUT`), one
 /// shard `I/N` of it if given; returns the run summary as JSON.
 #[pyfunction]
-#[pyo3(signature = (recipe, out, shard, resume, threads))]
+#[pyo3(signature = (recipe, out, shard, resume, threads, progress=None))]
 fn build_dataset(
     py: Python<'_>,
     recipe: PathBuf,
@@ -1017,12 +1056,13 @@ fn build_dataset(
     shard: Option<String>,
     resume: bool,
     threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<(String, Vec<String>)> {
     use stscam::dataset::{RunOptions, Shard, generate, plan};
     let shard = shard
         .map(|s| Shard::parse(&s).map_err(|m| value_error(format!("--shard: {m}"))))
         .transpose()?;
-    let (s, warnings) = run_job(py, threads, || {
+    let (s, warnings) = run_job_with(py, threads, progress.as_ref(), || {
         let p = plan(&recipe)?;
         let s = generate(
             &p,

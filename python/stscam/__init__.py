@@ -14,7 +14,7 @@ import operator
 import os
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 import scipy.sparse
@@ -62,6 +62,17 @@ def _uint(v: Any, flag: str, hi: int, lo: int = 0) -> int:
     if not lo <= i <= hi:
         raise ValueError(f"invalid value '{v}' for '{flag}': {i} is not in {lo}..={hi}")
     return i
+
+
+def _progress(progress: Optional[Callable[[int, int, str], Any]]) -> Optional[Callable[[int, int, str], Any]]:
+    """A ``progress`` argument: None or a callable ``progress(done, total, unit)``, called on
+    the calling thread about every 0.1 s while the count of the job's units changes, and once
+    at the end. ``unit`` names them ("samples", "rows", "calibration frames", ...); a job of
+    several phases (a depth dataset: its matrix stack, then its samples) reports each phase
+    from 0 to its own total. An exception from the callback stops the job and is raised."""
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress: expected a callable progress(done, total, unit) or None, got {type(progress).__name__}")
+    return progress
 
 
 def _threads(threads: Any) -> Optional[int]:
@@ -334,7 +345,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
            frontal_px: Any = None, user_side: str = "auto", target: Any = None,
            encoding: Optional[str] = None, noise: Optional[str] = None,
-           white_peak: Optional[float] = None, frontal_space: str = "sensor") -> Render:
+           white_peak: Optional[float] = None, frontal_space: str = "sensor",
+           progress: Optional[Callable[[int, int, str], Any]] = None) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
@@ -358,7 +370,7 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
         s = s.with_image(target, encoding)
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                        _threads(threads), sampler, bool(spectral), _frontal_px(frontal_px),
-                       user_side, [], str(frontal_space))
+                       user_side, [], str(frontal_space), _progress(progress))
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
     out = Render(
@@ -387,7 +399,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
 def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
                  spp: int = 64, seed: int = 1, threads: Optional[int] = None,
                  sampler: str = "lattice", user_side: str = "auto",
-                 noise: Optional[str] = None, white_peak: Optional[float] = None) -> np.ndarray:
+                 noise: Optional[str] = None, white_peak: Optional[float] = None,
+                 progress: Optional[Callable[[int, int, str], Any]] = None) -> np.ndarray:
     """Renders each of ``targets`` (an array (n, h, w) or (n, h, w, 3), or a sequence of
     (h, w) arrays) on the scene's display in one call, the scene built once: float32
     (n, h, w) or (n, c, h, w), image i equal to ``render(scene, target=targets[i], ...).image``
@@ -398,7 +411,8 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
     if not args:
         raise ValueError("targets: no targets")
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
-                       _threads(threads), sampler, False, None, user_side, args, "sensor")
+                       _threads(threads), sampler, False, None, user_side, args, "sensor",
+                       _progress(progress))
     w, h, names = d["width"], d["height"], d["channels"]
     imgs = [_image(d["image"], len(names), h, w)] + [_image(b, len(names), h, w) for b in d["batch_rest"]]
     out = np.stack(imgs)
@@ -433,20 +447,23 @@ def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
 
 def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            depth_mm: Optional[float] = None,
-           threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+           threads: Optional[int] = None,
+           progress: Optional[Callable[[int, int, str], Any]] = None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
     """The system matrix H (rows: crop pixels, channel-major; columns: object pixels) and the
     offset (capture of an all-black object), equal to ``stscam matrix``'s ``H.npz`` and
     ``offset.npy``. ``depth_mm`` moves the object plane, keeping the focus."""
     s = _scene(scene)
     d = _native.matrix(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
-                       None if depth_mm is None else float(depth_mm), _threads(threads))
+                       None if depth_mm is None else float(depth_mm), _threads(threads),
+                       _progress(progress))
     _warn_coverage(d["warning"])
     h = _csr(d)
     return h, np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)
 
 
 def matrix_stack(scene: Optional[Scene] = None, depth_mm="300:650:8", spp: int = 64,
-                 seed: int = 1, threads: Optional[int] = None
+                 seed: int = 1, threads: Optional[int] = None,
+                 progress: Optional[Callable[[int, int, str], Any]] = None
                  ) -> list[tuple[float, scipy.sparse.csr_matrix, np.ndarray]]:
     """A depth stack in one pass, as ``stscam matrix --depth-mm SPEC``: ``[(depth_mm, H,
     offset), ...]`` sorted by depth, each H and offset equal to that run's ``H_<D>mm.npz``
@@ -463,7 +480,8 @@ def matrix_stack(scene: Optional[Scene] = None, depth_mm="300:650:8", spp: int =
             raise ValueError(f"--depth-mm {depth_mm!r}: expected depths in mm or START:STOP:STEPS") from None
     out = []
     for d in _native.matrix_stack(s._arg, _uint(spp, "--spp <SPP>", _U32),
-                                  _uint(seed, "--seed <SEED>", _U64), spec, _threads(threads)):
+                                  _uint(seed, "--seed <SEED>", _U64), spec, _threads(threads),
+                                  _progress(progress)):
         out.append((float(d["depth_mm"]), _csr(d), np.frombuffer(d["offset"], dtype="<f4").astype(np.float32)))
     return out
 
@@ -569,7 +587,8 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
               matrix: Optional[str | os.PathLike] = None,
               object_shape: Optional[tuple[int, int]] = None, noise: str = "sensor",
               dark_frame: bool = False, render: bool = False, threshold_sigma: float = 5.0,
-              threads: Optional[int] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
+              threads: Optional[int] = None,
+              progress: Optional[Callable[[int, int, str], Any]] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
     """The paper's Hadamard calibration, simulated (``stscam calibrate``): returns H_est (as
     ``H_est.npz``) and the report (``calibration.json``'s ``report``). ``matrix`` is an
     ``H.npz`` path (default: H computed from the scene) and ``object_shape`` its object (h, w)
@@ -581,31 +600,34 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
                           None if matrix is None else os.fspath(matrix),
                           None if object_shape is None else (int(object_shape[1]), int(object_shape[0])),
                           noise == "sensor", bool(dark_frame), bool(render),
-                          float(threshold_sigma), _threads(threads))
+                          float(threshold_sigma), _threads(threads), _progress(progress))
     return _csr(d), json.loads(d["report"])
 
 
 def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tuple] = (),
           fov_fraction: float = 0.1, psnr: Optional[str] = None, psnr_spp: int = 64,
-          threads: Optional[int] = None) -> list[dict]:
+          threads: Optional[int] = None,
+          progress: Optional[Callable[[int, int, str], Any]] = None) -> list[dict]:
     """A design sweep, equal to ``stscam sweep --json``: ``vary`` is a list of
     ``KEY=START:STOP:STEPS`` or a dict ``{KEY: (start, stop, steps)}``; one dict per grid point."""
     if isinstance(vary, Mapping):
         vary = [f"{k}={a}:{b}:{n}" for k, (a, b, n) in vary.items()]
     s = _scene(scene)
     return json.loads(_native.sweep(s._arg, list(vary), float(fov_fraction), psnr,
-                                    _uint(psnr_spp, "--psnr-spp <PSNR_SPP>", _U32), _threads(threads)))
+                                    _uint(psnr_spp, "--psnr-spp <PSNR_SPP>", _U32), _threads(threads),
+                                    _progress(progress)))
 
 
 def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
                   shard: Optional[str | tuple[int, int]] = None, resume: bool = False,
-                  threads: Optional[int] = None) -> dict:
+                  threads: Optional[int] = None,
+                  progress: Optional[Callable[[int, int, str], Any]] = None) -> dict:
     """Builds a dataset (``stscam dataset RECIPE --out OUT [--shard I/N] [--resume]``); the
     files are byte-identical to the CLI's. Returns the run summary."""
     if isinstance(shard, tuple):
         shard = f"{shard[0]}/{shard[1]}"
     summary, warns = _native.build_dataset(os.fspath(recipe), os.fspath(out), shard,
-                                           bool(resume), _threads(threads))
+                                           bool(resume), _threads(threads), _progress(progress))
     for w in warns:
         _warn_coverage(w)
     return json.loads(summary)

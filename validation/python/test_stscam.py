@@ -711,3 +711,45 @@ def test_stscam_command_is_the_cli(tmp_path):
         assert r.returncode == 0 and json.loads(r.stdout) == json.loads(want), r.stderr
         bad = subprocess.run([*run, "render", "--spp", "0", "--out", str(tmp_path)], capture_output=True, text=True)
         assert bad.returncode == 2 and bad.stderr.strip() == "error: --spp: must be at least 1"
+
+
+# --- Progress callbacks (issue 25, item 5) ---
+
+def test_progress_callback_follows_a_dataset_and_a_render(tmp_path):
+    calls = []
+    recipe = ROOT / "validation" / "python" / "depth-tiny.toml"
+    stscam.build_dataset(recipe, tmp_path / "d", progress=lambda *a: calls.append(a))
+    n_samples = sum(len((tmp_path / "d" / f / "metadata.jsonl").read_text().splitlines())
+                    for f in ("train", "val", "test") if (tmp_path / "d" / f / "metadata.jsonl").exists())
+    assert calls, "the callback was never called"
+    # Phases in order (the depth dataset's matrix stack, then its samples); within each phase
+    # the count never goes back and the total stays; every phase ends complete.
+    phases = []
+    for done, total, unit in calls:
+        if not phases or phases[-1][0] != (unit, total):
+            phases.append(((unit, total), []))
+        phases[-1][1].append(done)
+    for (unit, total), dones in phases:
+        assert dones == sorted(dones) and dones[-1] == total > 0, (unit, total, dones)
+    assert phases[-1][0] == ("samples", n_samples), phases
+    # A render reports its own units, complete at the end.
+    calls.clear()
+    scene = stscam.Scene(overrides={"sensor.crop_px": [48, 40]})
+    stscam.render(scene, spp=2, progress=lambda *a: calls.append(a))
+    assert calls and calls[-1][0] == calls[-1][1] > 0, calls
+
+
+def test_an_exception_in_the_progress_callback_stops_the_job(tmp_path):
+    class Stop(Exception):
+        pass
+
+    def stop(done, total, unit):
+        raise Stop()
+
+    big = stscam.Scene(overrides={"sensor.crop_px": [440, 440]})
+    t0 = time.monotonic()
+    with pytest.raises(Stop):
+        stscam.render(big, spp=400, progress=stop)  # ~400x a one-sample render if not stopped
+    assert time.monotonic() - t0 < 10.0
+    with pytest.raises(ValueError, match="progress"):
+        stscam.render(big, spp=1, progress="yes")
