@@ -864,6 +864,27 @@ pub fn load_scene(path: Option<&Path>, overrides: &[String]) -> Result<LoadedSce
     }
 }
 
+/// Where a scene comes from, for jobs that load it more than once (a sweep loads it per grid
+/// point): a file (or, with `None`, the embedded paper scene alone), or TOML text in memory
+/// (the Python module's scenes built from dicts).
+#[derive(Clone, Copy, Debug)]
+pub enum SceneSource<'a> {
+    /// [`load_scene`]'s file.
+    File(Option<&'a Path>),
+    /// [`load_scene_text`]'s (text, name to blame in messages, directory of relative paths).
+    Text(&'a str, &'a str, &'a Path),
+}
+
+impl SceneSource<'_> {
+    /// Loads the scene with `overrides` applied, as [`load_scene`] or [`load_scene_text`].
+    pub fn load(&self, overrides: &[String]) -> Result<LoadedScene, SceneError> {
+        match *self {
+            SceneSource::File(path) => load_scene(path, overrides),
+            SceneSource::Text(text, name, dir) => load_scene_text(Some((text, name, dir)), overrides),
+        }
+    }
+}
+
 /// As [`load_scene`], for a scene held in memory: `user` is (TOML text, the name to blame in
 /// messages, the directory its relative asset paths resolve against), merged over the paper
 /// scene; `None` is the paper scene alone.

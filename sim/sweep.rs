@@ -90,7 +90,7 @@ use serde::Serialize;
 
 use crate::analysis::{self, Fov, FovEdge, crop_field_range_deg, field_blocker, field_direction};
 use crate::plot::{LinePlot, Series};
-use crate::scene::{SceneError, load_scene};
+use crate::scene::{SceneError, SceneSource};
 use crate::system::System;
 use crate::trace::{BranchKind, trace_camera_path};
 
@@ -1057,6 +1057,16 @@ pub fn run_sweep(
     axes: &[VaryAxis],
     set: &SweepSettings,
 ) -> Result<SweepOutput, SweepError> {
+    run_sweep_from(SceneSource::File(scene), base_overrides, axes, set)
+}
+
+/// [`run_sweep`] of a scene from any [`SceneSource`] (e.g. TOML text in memory).
+pub fn run_sweep_from(
+    scene: SceneSource<'_>,
+    base_overrides: &[String],
+    axes: &[VaryAxis],
+    set: &SweepSettings,
+) -> Result<SweepOutput, SweepError> {
     if axes.is_empty() {
         return Err(SweepError::Settings(
             "nothing to sweep: give at least one --vary KEY=START:STOP:STEPS".into(),
@@ -1090,14 +1100,14 @@ pub fn run_sweep(
             SweepError::Settings(format!("the sweep has more than {MAX_POINTS} grid points"))
         })?;
     // The base scene on its own (an error here is not the grid's).
-    load_scene(scene, base_overrides)?;
+    scene.load(base_overrides)?;
     let points = grid_points(axes);
     debug_assert_eq!(points.len(), total);
     let label = |p: &[f64]| point_overrides(axes, p).join(", ");
     let build = |p: &[f64]| -> Result<System, SweepError> {
         let mut ov = base_overrides.to_vec();
         ov.extend(point_overrides(axes, p));
-        load_scene(scene, &ov)
+        scene.load(&ov)
             .and_then(|ls| System::build(&ls))
             .map_err(|source| SweepError::GridPoint {
                 point: label(p),
@@ -1129,7 +1139,7 @@ pub fn run_sweep(
     // The base scene's H for the stale-calibration PSNR (module header).
     let nominal = match &set.psnr {
         Some(ps) => {
-            let base = load_scene(scene, base_overrides).and_then(|ls| System::build(&ls))?;
+            let base = scene.load(base_overrides).and_then(|ls| System::build(&ls))?;
             Some(psnr_problem(&base, ps, false))
         }
         None => None,
@@ -1552,7 +1562,7 @@ fn quantity_plot(axes: &[VaryAxis], rows: &[SweepRow], q: &Quantity) -> LinePlot
 }
 
 fn encode_outputs(
-    scene: Option<&Path>,
+    scene: SceneSource<'_>,
     base_overrides: &[String],
     axes: &[VaryAxis],
     set: &SweepSettings,
@@ -1563,7 +1573,10 @@ fn encode_outputs(
     let json = serde_json::json!({
         "stscam_version": crate::VERSION,
         "command": "sweep",
-        "scene": scene.map_or_else(|| crate::scene::EMBEDDED_NAME.to_string(), |p| p.display().to_string()),
+        "scene": match scene {
+            SceneSource::File(p) => p.map_or_else(|| crate::scene::EMBEDDED_NAME.to_string(), |p| p.display().to_string()),
+            SceneSource::Text(_, name, _) => name.to_string(),
+        },
         "base_overrides": base_overrides,
         "axes": axes.iter().map(|a| serde_json::json!({
             "key": a.key, "start": a.start, "stop": a.stop, "steps": a.steps, "values": a.values(),
@@ -1601,6 +1614,7 @@ fn encode_outputs(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::load_scene;
 
     #[test]
     fn grid_is_cartesian_first_axis_slowest() {

@@ -206,14 +206,18 @@ fn coverage_warning(sys: &System, what: &str) -> Option<String> {
         .map(|w| format!("{what}{}", w.trim_start_matches("warning: ")))
 }
 
-fn load(scene: &SceneArg) -> Result<System, String> {
-    let ls = match &scene.3 {
-        Some((text, name, dir)) => {
-            stscam::scene::load_scene_text(Some((text, name, Path::new(dir))), &scene.1)
-        }
-        None => stscam::scene::load_scene(scene.0.as_deref().map(Path::new), &scene.1),
+/// Where a [`SceneArg`]'s scene comes from: its TOML text, else its file (or the paper scene).
+fn scene_source(scene: &SceneArg) -> stscam::scene::SceneSource<'_> {
+    match &scene.3 {
+        Some((text, name, dir)) => stscam::scene::SceneSource::Text(text, name, Path::new(dir)),
+        None => stscam::scene::SceneSource::File(scene.0.as_deref().map(Path::new)),
     }
-    .map_err(|e| e.to_string())?;
+}
+
+fn load(scene: &SceneArg) -> Result<System, String> {
+    let ls = scene_source(scene)
+        .load(&scene.1)
+        .map_err(|e| e.to_string())?;
     let mut sys = System::build(&ls).map_err(|e| e.to_string())?;
     if let Some(img) = &scene.2 {
         let v = image_values(img)?;
@@ -1011,10 +1015,10 @@ fn sweep(
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
-    use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep};
-    if scene.2.is_some() || scene.3.is_some() {
+    use stscam::sweep::{PsnrSettings, SweepSettings, VaryAxis, run_sweep_from};
+    if scene.2.is_some() {
         return Err(value_error(
-            "sweep: takes a scene file and overrides; a scene from a dict or with an array target cannot be swept (write it to a TOML file)",
+            "sweep: a scene with an array target cannot be swept (the sweep's PSNR uses a built-in target: --psnr)",
         ));
     }
     let axes = vary
@@ -1039,7 +1043,7 @@ fn sweep(
         ..SweepSettings::default()
     };
     let res = run_job_with(py, threads, progress.as_ref(), || {
-        run_sweep(scene.0.as_deref().map(Path::new), &scene.1, &axes, &set)
+        run_sweep_from(scene_source(&scene), &scene.1, &axes, &set)
     })?
     .map_err(value_error)?;
     json(&res.rows)

@@ -249,6 +249,13 @@ def test_sweep_equals_cli_json(scene, tmp_path):
                           *set_args(SETS)).stdout)
     assert rows == want
     assert stscam.sweep(scene, vary={"bottom_hoe.height_mm": (10, 30, 2)}) == want
+    # A scene built from a dict sweeps like the same scene from a file (it was refused).
+    from_dict = stscam.Scene.from_dict(scene.to_dict())
+    assert stscam.sweep(from_dict, vary=vary) == want
+    # A changed dict changes the rows (the dict is what is swept, not the paper scene).
+    d = scene.to_dict()
+    d["plate"]["thickness_mm"] = 2.5
+    assert stscam.sweep(stscam.Scene.from_dict(d), vary=vary) != want
 
 
 def test_build_dataset_equals_cli_and_loads(tmp_path):
