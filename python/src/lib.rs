@@ -1052,7 +1052,7 @@ fn sweep(
 /// Builds a dataset from a recipe into `out` (as `stscam dataset RECIPE --out OUT`), one
 /// shard `I/N` of it if given; returns the run summary as JSON.
 #[pyfunction]
-#[pyo3(signature = (recipe, out, shard, resume, threads, progress=None))]
+#[pyo3(signature = (recipe, out, shard, resume, threads, progress=None, objects=None))]
 fn build_dataset(
     py: Python<'_>,
     recipe: PathBuf,
@@ -1061,13 +1061,21 @@ fn build_dataset(
     resume: bool,
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
+    objects: Option<(usize, usize, Vec<u8>, bool)>,
 ) -> PyResult<(String, Vec<String>)> {
-    use stscam::dataset::{RunOptions, Shard, generate, plan};
+    use stscam::dataset::{ObjectArrays, RunOptions, Shard, generate, plan_with_objects};
     let shard = shard
         .map(|s| Shard::parse(&s).map_err(|m| value_error(format!("--shard: {m}"))))
         .transpose()?;
+    // Objects as arrays: (count, side, float32 little-endian values, linear).
+    let arrays = objects
+        .map(|(n, size, bytes, linear)| {
+            let v = decode(&bytes, "objects", f32::from_le_bytes)?;
+            ObjectArrays::new(v, n, size, linear).map_err(value_error)
+        })
+        .transpose()?;
     let (s, warnings) = run_job_with(py, threads, progress.as_ref(), || {
-        let p = plan(&recipe)?;
+        let p = plan_with_objects(&recipe, arrays)?;
         let s = generate(
             &p,
             &RunOptions {

@@ -621,13 +621,32 @@ def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tupl
 def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
                   shard: Optional[str | tuple[int, int]] = None, resume: bool = False,
                   threads: Optional[int] = None,
-                  progress: Optional[Callable[[int, int, str], Any]] = None) -> dict:
+                  progress: Optional[Callable[[int, int, str], Any]] = None,
+                  objects: Any = None, encoding: Optional[str] = None) -> dict:
     """Builds a dataset (``stscam dataset RECIPE --out OUT [--shard I/N] [--resume]``); the
-    files are byte-identical to the CLI's. Returns the run summary."""
+    files are byte-identical to the CLI's. Returns the run summary.
+
+    ``objects`` (an array (n, h, w), or a sequence of (h, w) arrays, with ``encoding="linear"``
+    or ``"display"`` as for :func:`render`'s ``target``) replaces the recipe's object sources:
+    sample i's object is ``objects[i]`` and the recipe's ``samples`` becomes n; h = w must be
+    the recipe's ``objects.size_px``. Shards, ``resume`` and merging work as for any recipe
+    (the arrays are part of the recipe hash, so shards of different arrays are not merged)."""
     if isinstance(shard, tuple):
         shard = f"{shard[0]}/{shard[1]}"
+    arrays = None
+    if objects is not None:
+        parts = [_image_arg(o, encoding, f"objects[{i}]") for i, o in enumerate(objects)]
+        if not parts:
+            raise ValueError("objects: no objects")
+        w, h = parts[0][0], parts[0][1]
+        for i, (wi, hi, c, _, _) in enumerate(parts):
+            if c != 1 or (wi, hi) != (w, h) or w != h:
+                raise ValueError(f"objects[{i}]: expected square (h, w) monochrome arrays of one size, "
+                                 f"got {hi}x{wi}x{c} (first: {h}x{w})")
+        arrays = (len(parts), w, b"".join(p[3] for p in parts), encoding == "linear")
     summary, warns = _native.build_dataset(os.fspath(recipe), os.fspath(out), shard,
-                                           bool(resume), _threads(threads), _progress(progress))
+                                           bool(resume), _threads(threads), _progress(progress),
+                                           arrays)
     for w in warns:
         _warn_coverage(w)
     return json.loads(summary)

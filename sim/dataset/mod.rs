@@ -52,7 +52,7 @@ use crate::scene::{LoadedScene, load_scene};
 use crate::sparse::CsrMatrix;
 use crate::system::System;
 
-use objects::{ObjectDraw, draw, list_images};
+use objects::{ObjectDraw, ObjectSpec, draw, list_images};
 use recipe::{
     CaptureMode, DEPTH_KEY, NoiseModel, Recipe, Resize, SPLITS, Source, fmt_value, parse_recipe,
 };
@@ -158,6 +158,55 @@ pub struct Plan {
     pub counts: [usize; 3],
     /// Digits in sample ids.
     pub id_width: usize,
+    /// Objects given as arrays (sample i's object is array i), instead of the recipe's sources.
+    arrays: Option<ObjectArrays>,
+}
+
+/// Objects given in memory (the Python module's `build_dataset(objects=...)`): `n` images of
+/// the recipe's `objects.size_px`², as linear intensities or display code values.
+#[derive(Clone, Debug)]
+pub struct ObjectArrays {
+    values: Vec<f32>,
+    n: usize,
+    size: usize,
+    linear: bool,
+}
+
+impl ObjectArrays {
+    /// `n` objects of `size`² values each (row-major, object-major); `linear` false means
+    /// display code values in [0, 1] (the display gamma is applied, as for generated objects),
+    /// true linear intensity. Refuses a wrong length and values outside [0, 1] or not finite.
+    pub fn new(values: Vec<f32>, n: usize, size: usize, linear: bool) -> Result<Self, String> {
+        if n == 0 || size == 0 || n.checked_mul(size * size) != Some(values.len()) {
+            return Err(format!(
+                "objects: {} values are not {n} objects of {size}x{size} pixels",
+                values.len()
+            ));
+        }
+        if let Some(i) = values.iter().position(|v| !(0.0..=1.0).contains(v)) {
+            return Err(format!(
+                "objects: value {i} ({}) is outside [0, 1] (object {}, pixel {})",
+                values[i],
+                i / (size * size),
+                i % (size * size)
+            ));
+        }
+        Ok(ObjectArrays {
+            values,
+            n,
+            size,
+            linear,
+        })
+    }
+
+    /// SHA-256 of the values and their encoding: part of the recipe hash, so that shards,
+    /// resume and merge refuse to mix datasets of different arrays.
+    fn sha256(&self) -> String {
+        let mut bytes: Vec<u8> = Vec::with_capacity(self.values.len() * 4 + 32);
+        bytes.extend(format!("{}x{}x{} linear={};", self.n, self.size, self.size, self.linear).bytes());
+        self.values.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+        sha256_hex(&bytes)
+    }
 }
 
 /// Everything about one sample that follows from the recipe and its id, without pixels.
@@ -299,15 +348,55 @@ fn folder_files(
 /// Reads and checks a recipe and everything it names (scene file, overrides, every distinct
 /// scene, image folders), without writing anything.
 pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
+    plan_with_objects(recipe_path, None)
+}
+
+/// [`plan`] with the objects given as arrays: sample i's object is array i, the recipe's
+/// `samples` becomes the number of arrays and its object sources are not drawn from. The
+/// arrays must be `objects.size_px` square; 2-D recipes only (not `meshes`).
+pub fn plan_with_objects(
+    recipe_path: &Path,
+    arrays: Option<ObjectArrays>,
+) -> Result<Plan, DatasetError> {
     let text = crate::io::read_text(recipe_path)?;
-    let recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
+    let mut recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
+    if let Some(a) = &arrays {
+        if recipe.is_meshes() {
+            return Err(recipe_err(
+                recipe_path,
+                "objects.sources",
+                "objects given as arrays replace 2-D sources; a `meshes` recipe has 3-D objects",
+            ));
+        }
+        if a.size != recipe.objects.size_px {
+            return Err(recipe_err(
+                recipe_path,
+                "objects.size_px",
+                format!(
+                    "the recipe's objects are {0}x{0} pixels but the arrays are {1}x{1}",
+                    recipe.objects.size_px, a.size
+                ),
+            ));
+        }
+        if a.n > recipe::MAX_SAMPLES {
+            return Err(recipe_err(
+                recipe_path,
+                "samples",
+                format!("{} arrays: at most {} samples", a.n, recipe::MAX_SAMPLES),
+            ));
+        }
+        recipe.samples = a.n;
+    }
     let base = recipe_path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let canonical =
         serde_json::to_vec(&recipe).map_err(|e| recipe_err(recipe_path, "", e.to_string()))?;
-    let recipe_sha256 = sha256_hex(&canonical);
+    let recipe_sha256 = match &arrays {
+        None => sha256_hex(&canonical),
+        Some(a) => sha256_hex(format!("{}+arrays:{}", sha256_hex(&canonical), a.sha256()).as_bytes()),
+    };
     let scene_file = recipe.scene.file.as_ref().map(|f| base.join(f));
     let mut base_overrides = recipe.scene.set.clone();
     base_overrides.push(format!("display.image=black@{}", recipe.objects.size_px));
@@ -416,6 +505,7 @@ pub fn plan(recipe_path: &Path) -> Result<Plan, DatasetError> {
         has_matrix,
         counts,
         id_width,
+        arrays,
     })
 }
 
@@ -456,7 +546,14 @@ impl Plan {
             id,
             split,
             seed,
-            object: draw(&self.recipe.objects, &self.images, seed),
+            object: match &self.arrays {
+                Some(_) => ObjectDraw {
+                    source: 0,
+                    spec: ObjectSpec::Array { index: id },
+                    levels: None,
+                },
+                None => draw(&self.recipe.objects, &self.images, seed),
+            },
             scene,
             params,
         }
@@ -506,6 +603,26 @@ impl Plan {
         match &self.recipe.objects.sources[s.object.source] {
             Source::Meshes(m) => Some((m, &self.images[s.object.source])),
             _ => None,
+        }
+    }
+
+    /// Sample `s`'s object as linear intensities (`objects.size_px`², row-major), with the
+    /// display `gamma` for code values.
+    fn object_of(&self, s: &SampleSpec, gamma: f64) -> Result<Vec<f64>, DatasetError> {
+        match (&s.object.spec, &self.arrays) {
+            (ObjectSpec::Array { index }, Some(a)) => {
+                let px = a.size * a.size;
+                let v = &a.values[index * px..(index + 1) * px];
+                Ok(crate::display::Display::intensity_of(v, 1, a.linear, gamma))
+            }
+            _ => s
+                .object
+                .intensity(
+                    self.recipe.objects.size_px,
+                    gamma,
+                    self.resize_of(s.object.source),
+                )
+                .map_err(|m| recipe_err(&self.recipe_path, source_key(s), m)),
         }
     }
 
@@ -1042,14 +1159,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let counter = AtomicUsize::new(0);
     let one = |s: &SampleSpec, sys: &System| -> Result<(), DatasetError> {
         let gamma = sys.scene.display.gamma;
-        let f = s
-            .object
-            .intensity(
-                recipe.objects.size_px,
-                gamma,
-                plan.resize_of(s.object.source),
-            )
-            .map_err(|m| recipe_err(&plan.recipe_path, source_key(s), m))?;
+        let f = plan.object_of(s, gamma)?;
         let clean: Vec<f64> = match recipe.mode {
             CaptureMode::Matrix => {
                 let m = &matrices[&s.scene];
@@ -1325,7 +1435,10 @@ fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
     m.insert("seed".into(), s.seed.into());
     m.insert(
         "source".into(),
-        plan.recipe.objects.sources[s.object.source].name().into(),
+        match s.object.spec {
+            ObjectSpec::Array { .. } => "array".into(),
+            _ => plan.recipe.objects.sources[s.object.source].name().into(),
+        },
     );
     m.insert("object_draw".into(), s.object.describe().into());
     m.insert("scene".into(), plan.scenes[s.scene].id.clone().into());

@@ -84,6 +84,11 @@ pub enum ObjectSpec {
     },
     /// A 3-D scene (`meshes`): drawn by `meshes.rs`, it has no 2-D object.
     Mesh,
+    /// Object `index` of the arrays given to [`super::plan_with_objects`] (sample `index`).
+    Array {
+        /// Its index, equal to the sample id.
+        index: usize,
+    },
 }
 
 /// A draw with the index of its source and its levels.
@@ -240,6 +245,7 @@ impl ObjectDraw {
             ObjectSpec::Smooth { seed } => format!("smooth seed={seed}"),
             ObjectSpec::Image { name, flip, .. } => format!("images file={name} flip={flip}"),
             ObjectSpec::Mesh => "meshes".to_string(),
+            ObjectSpec::Array { index } => format!("array index={index}"),
         };
         if let Some([d, b]) = self.levels {
             s.push_str(&format!(" levels=({d:.4},{b:.4})"));
@@ -306,6 +312,9 @@ impl ObjectDraw {
                 return load_resized(path, size, gamma, resize, *flip);
             }
             ObjectSpec::Mesh => return Err("a 3-D scene has no 2-D object".to_string()),
+            ObjectSpec::Array { .. } => {
+                return Err("an array object is held by the plan (Plan::object_of)".to_string());
+            }
         };
         let code: Vec<f32> = match self.levels {
             Some([d, b]) => code
