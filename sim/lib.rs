@@ -22,6 +22,7 @@ pub mod limits;
 pub mod matrix;
 pub mod noise;
 pub mod numfmt;
+pub mod options;
 pub mod optics;
 pub mod output;
 pub mod plot;

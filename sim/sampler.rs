@@ -35,17 +35,19 @@
 /// Number of dimensions a camera sample uses.
 pub const DIMS: usize = 5;
 
-/// Which sequence to use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+/// Which sequence to use (`render --sampler`, Python's `sampler=`: one definition for clap,
+/// serde and the Python module, see [`crate::options`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum SamplerKind {
-    /// Cranley–Patterson-rotated rank-1 lattice (Korobov for the spp where good, else R_5).
+    /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
     Lattice,
-    /// The Cranley–Patterson-rotated R_5 lattice sequence, whatever the sample count.
+    /// The R_5 lattice sequence at every spp (the lattice's fallback; once the default at every
+    /// spp but 4 and 64: CHANGELOG.md).
     R5,
-    /// Independent hashed uniforms.
+    /// Independent hashed random numbers.
     Independent,
-    /// Owen-scrambled 5-D Sobol' points (see [`sobol`]).
+    /// Owen-scrambled 5-D Sobol' points (`sampler::sobol`).
     Sobol,
 }
 

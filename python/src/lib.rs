@@ -298,28 +298,9 @@ fn render<'py>(
                 "frontal_space {frontal_space:?}: expected \"sensor\", \"xyz\" or \"linear-srgb\""
             ))
         })?;
-    let user_side = match user_side {
-        "auto" => stscam::render::UserSideSampler::Auto,
-        "resampled" => stscam::render::UserSideSampler::Resampled,
-        "padded" => stscam::render::UserSideSampler::Padded,
-        "hashed" => stscam::render::UserSideSampler::Hashed,
-        other => {
-            return Err(value_error(format!(
-                "user_side {other:?}: expected \"auto\", \"resampled\", \"padded\" or \"hashed\""
-            )));
-        }
-    };
-    let sampler = match sampler {
-        "lattice" => SamplerKind::Lattice,
-        "r5" => SamplerKind::R5,
-        "independent" => SamplerKind::Independent,
-        "sobol" => SamplerKind::Sobol,
-        other => {
-            return Err(value_error(format!(
-                "sampler {other:?}: expected \"lattice\", \"r5\", \"independent\" or \"sobol\""
-            )));
-        }
-    };
+    let user_side: stscam::render::UserSideSampler =
+        stscam::options::parse("user_side", user_side).map_err(value_error)?;
+    let sampler: SamplerKind = stscam::options::parse("sampler", sampler).map_err(value_error)?;
     if let Some((w, h)) = frontal_px
         && !((1..=8192).contains(&w) && (1..=8192).contains(&h))
     {

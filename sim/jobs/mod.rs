@@ -121,20 +121,6 @@ impl RunArgs {
     }
 }
 
-/// Sample sequence of `render --sampler`.
-#[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum SamplerArg {
-    /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
-    Lattice,
-    /// The R_5 lattice sequence at every spp (the lattice's fallback; once the default at every
-    /// spp but 4 and 64: CHANGELOG.md).
-    R5,
-    /// Independent hashed random numbers.
-    Independent,
-    /// Owen-scrambled 5-D Sobol' points (`sampler::sobol`).
-    Sobol,
-}
-
 /// Most timed runs of a benchmark figure (`bench recon --runs`).
 pub(crate) const MAX_RUNS: usize = 1000;
 

@@ -26,7 +26,7 @@ pub struct RenderOptions {
     pub spectral: bool,
     /// Sample sequence.
     #[arg(long, value_enum, default_value = "lattice")]
-    pub sampler: SamplerArg,
+    pub sampler: SamplerKind,
     /// 3-D scenes: which branches get user-side paths and how their first vertex draws its light and BSDF numbers.
     #[arg(long, value_enum, default_value = "auto")]
     pub user_side: UserSideSampler,
@@ -47,7 +47,7 @@ fn cmd_render(
     out: &std::path::Path,
     run: &RunArgs,
     spectral: bool,
-    sampler: SamplerArg,
+    sampler: SamplerKind,
     user_side: UserSideSampler,
     frontal_px: Option<&str>,
     frontal_space: crate::world::colour::FrontalSpace,
@@ -68,12 +68,7 @@ fn cmd_render(
     let settings = RenderSettings {
         spp,
         seed,
-        sampler: match sampler {
-            SamplerArg::Lattice => SamplerKind::Lattice,
-            SamplerArg::R5 => SamplerKind::R5,
-            SamplerArg::Independent => SamplerKind::Independent,
-            SamplerArg::Sobol => SamplerKind::Sobol,
-        },
+        sampler,
         user_side,
         spectral_bins: bins,
         progress: true,

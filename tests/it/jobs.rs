@@ -3,7 +3,8 @@
 
 use std::path::PathBuf;
 
-use stscam::jobs::{self, Console, RunArgs, SamplerArg, SceneArgs};
+use stscam::jobs::{self, Console, RunArgs, SceneArgs};
+use stscam::sampler::SamplerKind;
 
 use crate::common::{stscam, stscam_json, stscam_ok};
 
@@ -32,7 +33,7 @@ fn render_job_returns_what_the_cli_writes() {
             threads: Some(2),
         },
         spectral: false,
-        sampler: SamplerArg::Lattice,
+        sampler: SamplerKind::Lattice,
         user_side: Default::default(),
         frontal_px: None,
         frontal_space: Default::default(),
