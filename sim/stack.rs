@@ -91,6 +91,15 @@ pub fn parse_depths(spec: &str) -> Result<Vec<f64>, String> {
     Ok(depths)
 }
 
+/// Checks a `--depth-mm` value: the object plane must be a positive distance in front of the
+/// plate.
+pub fn check_depth(depth_mm: f64) -> Result<(), String> {
+    let spec = depth_label(depth_mm);
+    parse_depths(&spec)
+        .map(|_| ())
+        .map_err(|m| format!("--depth-mm {spec}: {m}"))
+}
+
 /// A depth as it appears in file names: the shortest decimal that reads back exactly
 /// (`550`, `412.5`).
 pub fn depth_label(depth_mm: f64) -> String {
@@ -208,7 +217,7 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
         .get("object_px")
         .and_then(|o| Some((o.get(0)?.as_u64()? as usize, o.get(1)?.as_u64()? as usize)))
         .ok_or_else(|| bad("object_px", "missing or not [width, height]"))?;
-    let h = crate::matrix::read_checked_csr(path)?;
+    let h = crate::io::hfile::read_checked_csr(path)?;
     let k = object.0.checked_mul(object.1).unwrap_or(0);
     if k == 0 || k.checked_mul(depths_mm.len()) != Some(h.cols) {
         return Err(IoError::format(
@@ -228,7 +237,7 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
         .ok_or_else(|| IoError::format(path, "cannot split the columns into depth blocks"))?;
     let read_offset = |p: &Path| -> Result<Vec<f32>, IoError> {
         let (_, v) = crate::io::npz::read_npy_f32(p)?;
-        // As the 2-D path (`matrix::load_matrix`): a NaN or infinite offset is refused.
+        // As the 2-D path (`io::hfile::load_matrix`): a NaN or infinite offset is refused.
         crate::io::check_finite(p, "value", &v)?;
         if v.len() != h.rows {
             return Err(IoError::format(
@@ -266,6 +275,20 @@ pub fn load_stack(path: &Path, offset: Option<&Path>) -> Result<LoadedStack, IoE
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn check_depth_says_what_the_cli_says() {
+        assert_eq!(check_depth(412.5), Ok(()));
+        assert_eq!(
+            check_depth(-5.0).unwrap_err(),
+            "--depth-mm -5: depth -5 mm: must be a distance in [0.001, 10000000] mm"
+        );
+        assert!(check_depth(1e300).is_err());
+        assert!(check_depth(5e-324).is_err());
+        assert_eq!(check_depth(1e7), Ok(()));
+        assert!(check_depth(f64::NAN).is_err());
+        assert!(check_depth(0.0).is_err());
+    }
 
     #[test]
     fn depth_lists_and_ranges() {

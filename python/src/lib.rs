@@ -398,7 +398,7 @@ fn matrix<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     if let Some(d) = depth_mm {
-        stscam::matrix::check_depth(d).map_err(value_error)?;
+        stscam::stack::check_depth(d).map_err(value_error)?;
     }
     let m = run_job_with(py, threads, progress.as_ref(), || {
         let mut sys = load(&scene)?;

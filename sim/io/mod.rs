@@ -6,6 +6,7 @@
 
 pub mod atomic;
 pub mod exr;
+pub mod hfile;
 pub mod image_load;
 pub mod input;
 pub mod lock;
