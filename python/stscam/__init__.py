@@ -423,6 +423,14 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
     return out
 
 
+def _white_peak(s: Scene) -> float:
+    """The default exposure of :func:`sensor_noise`: the brightest value of a 16-spp render
+    of the scene with a white target of its object size."""
+    cols, rows = info(s)["object_coverage"]["object_px"]
+    white = np.ones((int(rows), int(cols)), dtype=np.float32)
+    return float(render(s.with_image(white, "linear"), spp=16, seed=1).image.max())
+
+
 def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
                  white_peak: Optional[float] = None) -> np.ndarray:
     """The scene's sensor model (``[noise]``: shot, read and dark noise, bit depth,
@@ -436,10 +444,7 @@ def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
     s = _scene(scene)
     a = np.asarray(clean, dtype=np.float64)
     if white_peak is None:
-        cols, rows = info(s)["object_coverage"]["object_px"]
-        white = np.ones((int(rows), int(cols)), dtype=np.float32)
-        ws = s.with_image(white, "linear")
-        white_peak = float(render(ws, spp=16, seed=1).image.max())
+        white_peak = _white_peak(s)
     b = _native.sensor_noise(s._arg, np.ascontiguousarray(a, dtype="<f8").tobytes(),
                              _uint(seed, "--seed <SEED>", _U64), float(white_peak))
     return np.frombuffer(b, dtype="<f4").reshape(a.shape).astype(np.float32)

@@ -148,12 +148,23 @@ class Operator:
         import torch
         return _torch_operator(self, torch)
 
-    def deepinv(self, noise_model: Any = None) -> Any:
+    def deepinv(self, noise_model: Any = None, sensor: Any = None, seed: int = 1,
+                white_peak: Optional[float] = None) -> Any:
         """A ``deepinv.physics.LinearPhysics`` with A = H (the offset subtracted from
-        measurements first) and A_adjoint = Hᵀ, on tensors (B, 1, h, w) → (B, 1, rows)."""
+        measurements first) and A_adjoint = Hᵀ, on tensors (B, 1, h, w) → (B, 1, rows).
+
+        ``sensor=scene`` gives it the scene's sensor noise (shot, read, dark, bit depth,
+        saturation, exposure: :func:`stscam.sensor_noise`) as its noise model: a measurement
+        y = A x becomes sensor_noise(y + offset) − offset, image b of the i-th noisy call with
+        seed ``seed + i·B + b`` (or ``seed`` + b when deepinv passes one), so a run is
+        reproducible. ``noise_model`` takes any deepinv noise model instead."""
         import deepinv
         import torch
         A = _torch_operator(self, torch)
+        if sensor is not None:
+            if noise_model is not None:
+                raise ValueError("deepinv: pass noise_model or sensor, not both")
+            noise_model = _sensor_noise_model(self, sensor, int(seed), white_peak, deepinv, torch)
         kw = {} if noise_model is None else {"noise_model": noise_model}
         rows = self.shape[0]
         oh, ow = self.object_shape
@@ -164,6 +175,34 @@ class Operator:
 
     def __repr__(self) -> str:
         return f"Operator({self.shape[0]}x{self.shape[1]}, nnz={self.H.nnz}, object_shape={self.object_shape})"
+
+
+def _sensor_noise_model(op: Operator, scene: Any, seed: int, white_peak: Optional[float],
+                        deepinv: Any, torch: Any) -> Any:
+    """The deepinv noise model of :meth:`Operator.deepinv` (``sensor=``)."""
+    from . import _scene, _white_peak, sensor_noise
+
+    scene = _scene(scene)
+    if white_peak is None:
+        white_peak = _white_peak(scene)  # once, not per call
+
+    class SensorNoise(deepinv.physics.NoiseModel):  # type: ignore[misc, name-defined]
+        def __init__(self) -> None:
+            super().__init__()
+            self.calls = 0
+
+        def forward(self, x: Any, seed: Optional[int] = None, **kwargs: Any) -> Any:
+            flat = x.detach().to(torch.float64).cpu().numpy().reshape(x.shape[0], -1)
+            base = (seed_base + self.calls * x.shape[0]) if seed is None else int(seed)
+            self.calls += 1
+            off = op.offset.astype(np.float64)
+            noisy = np.stack([
+                sensor_noise(scene, g + off, seed=base + b, white_peak=white_peak).reshape(-1) - off
+                for b, g in enumerate(flat)])
+            return torch.from_numpy(noisy).to(dtype=x.dtype, device=x.device).reshape(x.shape)
+
+    seed_base = seed
+    return SensorNoise()
 
 
 def _torch_operator(op: Operator, torch: Any) -> Any:

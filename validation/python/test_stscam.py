@@ -714,6 +714,33 @@ def test_operator_torch_gradient_and_batch(small_h):
     assert torch.autograd.gradcheck(small.torch(), (torch.rand(1, 4, 4, dtype=torch.float64, requires_grad=True),))
 
 
+def test_operator_deepinv_physics_with_the_sensor_noise(scene, small_h):
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("deepinv")
+    h, off = small_h
+    op = stscam.Operator(h, off, object_shape=(32, 32))
+    x = torch.rand(3, 1, 32, 32, dtype=torch.float64)
+    clean = op.deepinv()
+    y = clean.A(x)
+    assert y.shape == (3, 1, 48 * 64)
+    assert np.array_equal(y.numpy().reshape(3, -1), op.forward(x.numpy().reshape(3, 32, 32)))
+    # Adjoint: <A x, w> = <x, Aᵀ w> to rounding.
+    w = torch.rand_like(y)
+    lhs, rhs = float((y * w).sum()), float((x * clean.A_adjoint(w)).sum())
+    assert abs(lhs - rhs) <= 1e-9 * abs(lhs)
+    # The sensor noise: measurement b of the first noisy call is the dataset's noise with
+    # seed 7 + b, offset added before and removed after.
+    noisy = op.deepinv(sensor=scene, seed=7, white_peak=0.05)
+    yn = noisy(x)
+    for b in range(3):
+        g = op.capture(x[b, 0].numpy())
+        want = stscam.sensor_noise(scene, g, seed=7 + b, white_peak=0.05).astype(np.float64) - off
+        assert np.allclose(yn[b, 0].numpy(), want, rtol=0, atol=1e-12), b
+    assert not torch.equal(noisy(x), yn)  # the next call draws new noise
+    with pytest.raises(ValueError):
+        op.deepinv(noise_model=object(), sensor=scene)
+
+
 # --- Scenes in Python ---
 
 def test_scene_from_dict_round_trips_with_objects_and_lights(tmp_path):
