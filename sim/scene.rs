@@ -1226,7 +1226,8 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
         "sampling.max_depth",
         || format!("must be in [1, 64], got {}", sm.max_depth),
     )?;
-    crate::world::desc::validate_world(ls)?;
+    crate::world::desc::validate_world(&ls.scene.object, &ls.scene.light)
+        .map_err(|p| ls.key_error(&p.key, p.message))?;
     Ok(())
 }
 

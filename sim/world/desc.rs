@@ -11,7 +11,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::scene::{LoadedScene, SceneError};
 
 /// A number or three numbers (per-axis scale).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -182,11 +181,20 @@ fn finite_all(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 
+/// A problem with a scene's `[[object]]` or `[[light]]` values: the key (`object.0.mesh`) and
+/// what is wrong; `scene::validate` turns it into a `SceneError` naming the source.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorldProblem {
+    /// The key, e.g. `light.1.scale`.
+    pub key: String,
+    /// What is wrong with its value.
+    pub message: String,
+}
+
 /// Checks the objects and lights of a scene; every failure names its key.
-pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
-    let s = &ls.scene;
-    let err = |key: String, msg: String| Err(ls.key_error(&key, msg));
-    for (i, o) in s.object.iter().enumerate() {
+pub fn validate_world(objects: &[ObjectDesc], lights: &[LightDesc]) -> Result<(), WorldProblem> {
+    let err = |key: String, message: String| Err(WorldProblem { key, message });
+    for (i, o) in objects.iter().enumerate() {
         let k = |name: &str| format!("object.{i}.{name}");
         if o.mesh.trim().is_empty() {
             return err(
@@ -198,7 +206,10 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
             return err(k("position_mm"), "must be finite".into());
         }
         crate::limits::check_coords(&k("position_mm"), &o.position_mm)
-            .map_err(|e| ls.key_error(&e.setting, e.message))?;
+            .map_err(|e| WorldProblem {
+                key: e.setting,
+                message: e.message,
+            })?;
         if !finite_all(&o.rotation_deg) {
             return err(k("rotation_deg"), "must be finite".into());
         }
@@ -282,7 +293,7 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
             }
         }
     }
-    for (i, l) in s.light.iter().enumerate() {
+    for (i, l) in lights.iter().enumerate() {
         let k = |name: &str| format!("light.{i}.{name}");
         if !LIGHT_KINDS.contains(&l.kind.as_str()) {
             return err(
@@ -297,7 +308,10 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         match l.position_mm {
             Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
             Some(p) => crate::limits::check_coords(&k("position_mm"), &p)
-                .map_err(|e| ls.key_error(&e.setting, e.message))?,
+                .map_err(|e| WorldProblem {
+                key: e.setting,
+                message: e.message,
+            })?,
             None if needs_pos => {
                 return err(
                     k("position_mm"),
@@ -311,11 +325,11 @@ pub fn validate_world(ls: &LoadedScene) -> Result<(), SceneError> {
         {
             return err(k("scale"), format!("must be finite and >= 0, got {s}"));
         }
-        let unit_vec = |v: Option<[f64; 3]>, name: &str| -> Result<(), SceneError> {
+        let unit_vec = |v: Option<[f64; 3]>, name: &str| -> Result<(), WorldProblem> {
             if let Some(v) = v
                 && !(finite_all(&v) && v.iter().map(|x| x * x).sum::<f64>() > 1e-24)
             {
-                return Err(ls.key_error(&k(name), "must be a finite nonzero vector"));
+                return err(k(name), "must be a finite nonzero vector".into());
             }
             Ok(())
         };
