@@ -272,6 +272,22 @@ impl Accel {
         tmax: f64,
         skip: Option<u32>,
     ) -> Option<TriHit> {
+        self.intersect_where(origin, dir, tmin, tmax, skip, |_| true)
+    }
+
+    /// As [`Accel::intersect`], counting only the hits `accepts` keeps (an any-hit filter:
+    /// alpha cut-outs, single-sided faces, `super::coverage`). A rejected candidate does not
+    /// shorten the ray, so the nearest kept hit is found in the one traversal; `accepts` must
+    /// depend only on the hit (not on the order of the calls).
+    pub fn intersect_where(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+        skip: Option<u32>,
+        mut accepts: impl FnMut(&TriHit) -> bool,
+    ) -> Option<TriHit> {
         if self.tris.is_empty() {
             return None;
         }
@@ -286,12 +302,16 @@ impl Accel {
                 }
                 match self.test(&wr, slot, tmin, best_t) {
                     Some((t, bary)) => {
-                        best_t = t;
-                        best = Some(TriHit {
+                        let h = TriHit {
                             t,
                             triangle: self.order[slot],
                             bary,
-                        });
+                        };
+                        if !accepts(&h) {
+                            return f32::INFINITY;
+                        }
+                        best_t = t;
+                        best = Some(h);
                         // Conservative in f32: never cull a box the f64 hit could lie before.
                         (t as f32) * 1.000_01 + 1e-3
                     }
@@ -311,6 +331,21 @@ impl Accel {
         tmax: f64,
         skip: Option<u32>,
     ) -> bool {
+        self.unoccluded_where(origin, dir, tmin, tmax, skip, |_| true)
+    }
+
+    /// As [`Accel::unoccluded`], counting only the hits `accepts` keeps (see
+    /// [`Accel::intersect_where`]).
+    #[inline]
+    pub fn unoccluded_where(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+        skip: Option<u32>,
+        mut accepts: impl FnMut(&TriHit) -> bool,
+    ) -> bool {
         if self.tris.is_empty() {
             return true;
         }
@@ -321,7 +356,18 @@ impl Accel {
                     return f32::INFINITY;
                 }
                 match self.test(&wr, slot, tmin, tmax) {
-                    Some(_) => 0.5 * tmax.min(1e30) as f32,
+                    Some((t, bary)) => {
+                        let h = TriHit {
+                            t,
+                            triangle: self.order[slot],
+                            bary,
+                        };
+                        if accepts(&h) {
+                            0.5 * tmax.min(1e30) as f32
+                        } else {
+                            f32::INFINITY
+                        }
+                    }
                     None => f32::INFINITY,
                 }
             })

@@ -13,15 +13,14 @@
 //!   `mat3(cos, −sin, 0, sin, cos, 0)` read column-major);
 //! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
 //!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
-//! - morph targets at weight 0 (the base shape).
+//! - morph targets at weight 0 (the base shape);
+//! - `alphaMode` `MASK`/`BLEND` and `doubleSided` (read by the loader, rendered by
+//!   [`super::coverage`]); `alphaCutoff` and the base colour alpha must lie in [0, 1].
 //!
 //! Refused, with one short line naming the feature first (a model is loaded faithfully or
 //! not at all): a required extension the loader does not read (e.g.
-//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); alpha
-//! modes `MASK` and `BLEND` (cut-outs would render opaque); normal maps (`normalTexture`);
+//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); normal maps (`normalTexture`);
 //! morph targets with a non-zero default weight; skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
-//! `doubleSided: false` is accepted and rendered two-sided (documented deviation: stscam's
-//! surfaces are seen from both sides).
 
 use glam::{DVec2, DVec3};
 
@@ -73,14 +72,18 @@ pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
             || format!("material {}", mat.index().unwrap_or(0)),
             |n| format!("material {n:?}"),
         );
-        match mat.alpha_mode() {
-            gltf::material::AlphaMode::Opaque => {}
-            mode => {
-                return Err(format!(
-                    "alphaMode {mode:?} ({name}): alpha cut-outs and blending are not \
-                     supported (set the material opaque or remove the transparent parts)"
-                ));
-            }
+        if let Some(c) = mat.alpha_cutoff()
+            && !(0.0..=1.0).contains(&c)
+        {
+            return Err(format!(
+                "alphaCutoff ({name}): {c} is not a number in [0, 1]"
+            ));
+        }
+        let a = mat.pbr_metallic_roughness().base_color_factor()[3];
+        if !(0.0..=1.0).contains(&a) {
+            return Err(format!(
+                "baseColorFactor ({name}): alpha {a} is not a number in [0, 1]"
+            ));
         }
         if mat.normal_texture().is_some() {
             return Err(format!(
@@ -182,15 +185,16 @@ pub fn uv_plan(mat: &gltf::Material) -> Result<UvPlan, String> {
     }
 }
 
-/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB (empty without
-/// them). Errors (one line) if the accessor has another count or cannot be read.
+/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB and their
+/// alpha (both empty without them; the alpha also empty for RGB colours or when it is 1
+/// everywhere). Errors (one line) if the accessor has another count or cannot be read.
 pub fn vertex_colors(
     buffers: &[Vec<u8>],
     prim: &gltf::Primitive,
     n: usize,
-) -> Result<Vec<DVec3>, String> {
+) -> Result<(Vec<DVec3>, Vec<f64>), String> {
     let Some(acc) = prim.get(&gltf::Semantic::Colors(0)) else {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), Vec::new()));
     };
     if acc.count() != n {
         return Err(format!(
@@ -202,19 +206,22 @@ pub fn vertex_colors(
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
         reader.read_colors(0).map(|c| {
-            c.into_rgb_f32()
-                .map(|p| {
-                    let f = |v: f32| {
-                        let v = f64::from(v);
-                        if v.is_finite() { v.max(0.0) } else { 0.0 }
-                    };
-                    DVec3::new(f(p[0]), f(p[1]), f(p[2]))
-                })
-                .collect::<Vec<_>>()
+            let f = |v: f32| {
+                let v = f64::from(v);
+                if v.is_finite() { v.max(0.0) } else { 0.0 }
+            };
+            c.into_rgba_f32()
+                .map(|p| (DVec3::new(f(p[0]), f(p[1]), f(p[2])), f(p[3]).min(1.0)))
+                .unzip::<_, _, Vec<_>, Vec<_>>()
         })
     }));
     match read {
-        Ok(Some(c)) if c.len() == n => Ok(c),
+        Ok(Some((c, mut a))) if c.len() == n => {
+            if a.iter().all(|v| *v >= 1.0) {
+                a = Vec::new();
+            }
+            Ok((c, a))
+        }
         _ => Err(format!(
             "COLOR_0 (accessor {}): unreadable data (type or range)",
             acc.index()

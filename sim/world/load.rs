@@ -12,7 +12,8 @@
 //! the texture coordinate set the material's textures use is read, with its
 //! `KHR_texture_transform` applied (module [`super::gltf_features`], which also refuses the
 //! features not rendered, naming them first). Materials: metallic-roughness base
-//! colour factor (alpha ignored) and texture, metallic and roughness factors, emissive factor
+//! colour factor and texture (their alpha, `alphaMode`, `alphaCutoff` and `doubleSided` for
+//! [`super::coverage`]), metallic and roughness factors, emissive factor
 //! and texture, `KHR_materials_emissive_strength` (1 if absent); a primitive without a material
 //! gets the glTF default material (base colour 1, metallic 1, roughness 1). Images are decoded
 //! here (PNG, JPEG, EXR) from files next to the .gltf, data URIs or buffer views; colour
@@ -45,6 +46,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DMat4, DQuat, DVec2, DVec3};
 
+use super::coverage::AlphaMode;
 use super::mesh::{Asset, AssetMaterial, Mesh, SurfaceModel};
 use super::texture::{Texture, Wrap};
 use crate::io::IoError;
@@ -197,6 +199,7 @@ pub fn texture_from_encoded_bytes(
 
 fn texture_from_image(img: LoadedImage) -> Texture {
     Texture::from_pixels(img.width, img.height, img.channels, &img.values, img.linear)
+        .with_alpha(img.alpha)
 }
 
 /// The file must exist, be a regular file and be at most [`MAX_FILE_BYTES`] long.
@@ -709,14 +712,16 @@ fn read_primitive(
         return Ok(None);
     }
     let material = material_id(ctx, &prim.material())?;
+    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
+        .map_err(|m| LoadError::new(ctx.path, m))?;
     let mut mesh = Mesh {
         positions_mm: positions,
         normals,
         uvs,
         material_ids: vec![material; triangles.len()],
         triangles,
-        colors: super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
-            .map_err(|m| LoadError::new(ctx.path, m))?,
+        colors,
+        alphas,
     };
     transform_mesh(&mut mesh, to_mm);
     if !has_normals {
@@ -779,6 +784,15 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
         emissive_strength: mat.emissive_strength().map_or(1.0, f),
         roughness: f(pbr.roughness_factor()),
         metallic: f(pbr.metallic_factor()),
+        alpha_mode: match mat.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask {
+                cutoff: mat.alpha_cutoff().map_or(0.5, f),
+            },
+            gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+        },
+        alpha: f(bc[3]),
+        double_sided: mat.double_sided(),
     };
     let id = ctx.materials.len() as u32;
     ctx.materials.push(m);
@@ -1086,6 +1100,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             material_ids: vec![mat_id; triangles.len()],
             triangles,
             colors: super::obj_features::vertex_colours(m),
+            alphas: Vec::new(),
         };
         if part.normals.is_empty() {
             part.compute_normals();

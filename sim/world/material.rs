@@ -72,6 +72,8 @@ pub struct Material {
     pub nearest: bool,
     /// The linear RGB behind `Reflectance::Rgb` (for vertex colours), if it is one.
     pub base_rgb: Option<[f64; 3]>,
+    /// Which hits count (alpha mode, single-sided).
+    pub coverage: super::coverage::Coverage,
 }
 
 fn lookup(t: &Texture, uv: DVec2, nearest: bool) -> [f64; 3] {

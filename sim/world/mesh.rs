@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DVec2, DVec3};
 
+use super::coverage::AlphaMode;
 use super::texture::Texture;
 
 /// How a material scatters light.
@@ -45,6 +46,12 @@ pub struct AssetMaterial {
     pub roughness: f64,
     /// Metalness in [0, 1].
     pub metallic: f64,
+    /// glTF `alphaMode` (opaque for OBJ and built-in shapes).
+    pub alpha_mode: AlphaMode,
+    /// Base colour factor alpha (glTF `baseColorFactor[3]`), in [0, 1].
+    pub alpha: f64,
+    /// Seen from both sides (glTF `doubleSided`; always for OBJ and built-in shapes).
+    pub double_sided: bool,
 }
 
 impl Default for AssetMaterial {
@@ -59,6 +66,9 @@ impl Default for AssetMaterial {
             emissive_strength: 1.0,
             roughness: 1.0,
             metallic: 0.0,
+            alpha_mode: AlphaMode::Opaque,
+            alpha: 1.0,
+            double_sided: true,
         }
     }
 }
@@ -79,6 +89,9 @@ pub struct Mesh {
     /// Linear RGB vertex colours multiplying the base colour (glTF `COLOR_0`, OBJ
     /// `v x y z r g b`): same length as `positions_mm`, or empty (white).
     pub colors: Vec<DVec3>,
+    /// Vertex alpha (glTF `COLOR_0`'s fourth component) multiplying the material's alpha:
+    /// same length as `positions_mm`, or empty (1).
+    pub alphas: Vec<f64>,
 }
 
 /// A loaded mesh file or built-in shape.
@@ -115,6 +128,15 @@ impl Mesh {
                 self.colors.resize(self.positions_mm.len(), DVec3::ONE);
             } else {
                 self.colors.extend_from_slice(&other.colors);
+            }
+        }
+        if !self.alphas.is_empty() || !other.alphas.is_empty() {
+            // Vertices without alpha are opaque.
+            self.alphas.resize(base as usize, 1.0);
+            if other.alphas.is_empty() {
+                self.alphas.resize(self.positions_mm.len(), 1.0);
+            } else {
+                self.alphas.extend_from_slice(&other.alphas);
             }
         }
         self.triangles

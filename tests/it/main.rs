@@ -12,6 +12,7 @@ mod dataset3d;
 mod depth;
 mod estimators;
 mod frontal_colour;
+mod gltf_coverage;
 mod grating_command;
 mod hardening3d;
 mod hostile;
