@@ -14,12 +14,14 @@
 //! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
 //!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
 //! - morph targets at weight 0 (the base shape);
+//! - normal maps (`normalTexture` with a finite `scale`, on the same coordinates as the other
+//!   textures; rendered by [`super::normal_map`]);
 //! - `alphaMode` `MASK`/`BLEND` and `doubleSided` (read by the loader, rendered by
 //!   [`super::coverage`]); `alphaCutoff` and the base colour alpha must lie in [0, 1].
 //!
 //! Refused, with one short line naming the feature first (a model is loaded faithfully or
 //! not at all): a required extension the loader does not read (e.g.
-//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); normal maps (`normalTexture`);
+//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`);
 //! morph targets with a non-zero default weight; skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
 
 use glam::{DVec2, DVec3};
@@ -66,7 +68,7 @@ pub fn check_required_extensions(bytes: &[u8]) -> Result<(), String> {
 
 /// Refuses the features this loader does not render (module documentation), naming the
 /// feature first.
-pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
+pub fn check_document(doc: &gltf::Document, normals: &NormalPlans) -> Result<(), String> {
     for mat in doc.materials() {
         let name = mat.name().map_or_else(
             || format!("material {}", mat.index().unwrap_or(0)),
@@ -85,13 +87,15 @@ pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
                 "baseColorFactor ({name}): alpha {a} is not a number in [0, 1]"
             ));
         }
-        if mat.normal_texture().is_some() {
+        if let Some(nt) = mat.normal_texture()
+            && !nt.scale().is_finite()
+        {
             return Err(format!(
-                "normalTexture ({name}): normal maps are not supported (bake them into the \
-                 geometry or remove the map)"
+                "normalTexture.scale ({name}): {} is not a finite number",
+                nt.scale()
             ));
         }
-        uv_plan(&mat).map_err(|e| format!("{e} ({name})"))?;
+        uv_plan(&mat, normals).map_err(|e| format!("{e} ({name})"))?;
     }
     for mesh in doc.meshes() {
         if mesh.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
@@ -166,23 +170,78 @@ fn info_plan(info: &gltf::texture::Info) -> UvPlan {
     UvPlan { set, transform }
 }
 
-/// The texture coordinates a material's base colour and emissive textures read (set 0 and no
-/// transform without textures); an error if the two differ.
-pub fn uv_plan(mat: &gltf::Material) -> Result<UvPlan, String> {
-    let base = mat
-        .pbr_metallic_roughness()
-        .base_color_texture()
-        .map(|i| info_plan(&i));
-    let emissive = mat.emissive_texture().map(|i| info_plan(&i));
-    match (base, emissive) {
-        (Some(a), Some(b)) if a != b => Err(
-            "texCoord/KHR_texture_transform: the base colour and emissive textures use \
-             different texture coordinates, which is not supported"
-                .to_string(),
-        ),
-        (Some(a), _) | (None, Some(a)) => Ok(a),
-        (None, None) => Ok(UvPlan::default()),
+/// The texture coordinates of each material's normal texture, by material index: its
+/// `texCoord` and `KHR_texture_transform`, read from the glTF JSON (the `gltf` crate does not
+/// parse that extension on normal textures). Empty when the file has no normal texture.
+pub fn normal_plans(bytes: &[u8]) -> NormalPlans {
+    let key = b"normalTexture";
+    if !bytes.windows(key.len()).any(|w| w == key) {
+        return NormalPlans::default();
     }
+    let Some(doc) = document_json(bytes) else {
+        return NormalPlans::default();
+    };
+    let mut plans = NormalPlans::default();
+    let materials = doc.get("materials").and_then(|m| m.as_array());
+    for (i, m) in materials.into_iter().flatten().enumerate() {
+        let Some(nt) = m.get("normalTexture") else {
+            continue;
+        };
+        let num = |v: Option<&serde_json::Value>| v.and_then(serde_json::Value::as_f64);
+        let mut set = num(nt.get("texCoord")).unwrap_or(0.0) as u32;
+        let transform = nt
+            .get("extensions")
+            .and_then(|e| e.get("KHR_texture_transform"))
+            .map(|t| {
+                let pair = |k: &str, d: f64| -> [f64; 2] {
+                    let v = t.get(k);
+                    let at = |j: usize| num(v.and_then(|v| v.get(j)));
+                    [at(0).unwrap_or(d), at(1).unwrap_or(d)]
+                };
+                if let Some(s) = num(t.get("texCoord")) {
+                    set = s as u32;
+                }
+                let rotation = num(t.get("rotation")).unwrap_or(0.0);
+                texture_transform(pair("offset", 0.0), rotation, pair("scale", 1.0))
+            });
+        plans.0.insert(i, UvPlan { set, transform });
+    }
+    plans
+}
+
+/// The texture coordinates of the materials' normal textures ([`normal_plans`]).
+#[derive(Clone, Debug, Default)]
+pub struct NormalPlans(std::collections::HashMap<usize, UvPlan>);
+
+/// The texture coordinates a material's base colour, emissive and normal textures read (set 0
+/// and no transform without textures); an error if they differ (the mesh carries one set).
+pub fn uv_plan(mat: &gltf::Material, normals: &NormalPlans) -> Result<UvPlan, String> {
+    let plans = [
+        mat.pbr_metallic_roughness()
+            .base_color_texture()
+            .map(|i| info_plan(&i)),
+        mat.emissive_texture().map(|i| info_plan(&i)),
+        mat.normal_texture().map(|n| {
+            mat.index()
+                .and_then(|i| normals.0.get(&i).copied())
+                .unwrap_or(UvPlan {
+                    set: n.tex_coord(),
+                    transform: None,
+                })
+        }),
+    ];
+    let mut used = plans.into_iter().flatten();
+    let Some(first) = used.next() else {
+        return Ok(UvPlan::default());
+    };
+    if used.any(|p| p != first) {
+        return Err(
+            "texCoord/KHR_texture_transform: the base colour, emissive and normal textures \
+             use different texture coordinates, which is not supported"
+                .to_string(),
+        );
+    }
+    Ok(first)
 }
 
 /// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB and their

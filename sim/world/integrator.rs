@@ -398,6 +398,7 @@ impl World {
             }
             let front = d.dot(ng) < 0.0;
             let uv = self.uv_at(tri, bary);
+            let mut ns = self.mapped_normal(tri, bary, uv, ns);
             let mat = &self.materials[self.mesh.material_ids[tri as usize] as usize];
             if front && mat.emits() {
                 out.other += beta * mat.emitted(uv, lambda_nm);

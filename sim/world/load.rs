@@ -13,7 +13,8 @@
 //! `KHR_texture_transform` applied (module [`super::gltf_features`], which also refuses the
 //! features not rendered, naming them first). Materials: metallic-roughness base
 //! colour factor and texture (their alpha, `alphaMode`, `alphaCutoff` and `doubleSided` for
-//! [`super::coverage`]), metallic and roughness factors, emissive factor
+//! [`super::coverage`]), the normal texture (read linearly, with `TANGENT` where present, for
+//! [`super::normal_map`]), metallic and roughness factors, emissive factor
 //! and texture, `KHR_materials_emissive_strength` (1 if absent); a primitive without a material
 //! gets the glTF default material (base colour 1, metallic 1, roughness 1). Images are decoded
 //! here (PNG, JPEG, EXR) from files next to the .gltf, data URIs or buffer views; colour
@@ -44,7 +45,7 @@ use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use glam::{DAffine3, DMat4, DQuat, DVec2, DVec3};
+use glam::{DAffine3, DMat4, DQuat, DVec2, DVec3, DVec4};
 
 use super::coverage::AlphaMode;
 use super::mesh::{Asset, AssetMaterial, Mesh, SurfaceModel};
@@ -367,11 +368,13 @@ fn resolve_uri(gltf_path: &Path, uri: &str) -> Result<UriData, LoadError> {
 struct GltfCtx<'a> {
     path: &'a Path,
     buffers: Vec<Vec<u8>>,
-    textures: HashMap<usize, Arc<Texture>>,
+    /// Decoded textures by (glTF texture index, read linearly).
+    textures: HashMap<(usize, bool), Arc<Texture>>,
     materials: Vec<AssetMaterial>,
     material_ids: HashMap<Option<usize>, u32>,
     triangles: usize,
     vertices: usize,
+    normal_plans: super::gltf_features::NormalPlans,
 }
 
 fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
@@ -379,7 +382,9 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     super::gltf_features::check_required_extensions(&bytes).map_err(|m| LoadError::new(path, m))?;
     let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| LoadError::new(path, format!("not a readable glTF file ({e})")))?;
-    super::gltf_features::check_document(&document).map_err(|m| LoadError::new(path, m))?;
+    let normal_plans = super::gltf_features::normal_plans(&bytes);
+    super::gltf_features::check_document(&document, &normal_plans)
+        .map_err(|m| LoadError::new(path, m))?;
     drop(bytes);
     // Every buffer's byteLength is summed before any is read.
     let declared_total = document
@@ -441,6 +446,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         material_ids: HashMap::new(),
         triangles: 0,
         vertices: 0,
+        normal_plans,
     };
     let roots: Vec<gltf::Node> = match document
         .default_scene()
@@ -609,7 +615,14 @@ fn read_primitive(
     if let Some(a) = &normals_acc {
         check_accessor(ctx, a, "NORMAL", D::Vec3, &[T::F32])?;
     }
-    let uv_plan = super::gltf_features::uv_plan(&prim.material()).unwrap_or_default();
+    let tangents_acc = prim
+        .get(&gltf::Semantic::Tangents)
+        .filter(|a| a.count() == n && prim.material().normal_texture().is_some());
+    if let Some(a) = &tangents_acc {
+        check_accessor(ctx, a, "TANGENT", D::Vec4, &[T::F32])?;
+    }
+    let uv_plan =
+        super::gltf_features::uv_plan(&prim.material(), &ctx.normal_plans).unwrap_or_default();
     let uv_acc = prim
         .get(&gltf::Semantic::TexCoords(uv_plan.set))
         .filter(|a| a.count() == n);
@@ -638,6 +651,7 @@ fn read_primitive(
     let buffers = &ctx.buffers;
     let has_normals = normals_acc.is_some();
     let has_uv = uv_acc.is_some();
+    let has_tangents = tangents_acc.is_some();
     // The checks above keep the reader within its buffers; a panic on a malformed sparse
     // accessor is still turned into an error rather than aborting the run.
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -667,9 +681,25 @@ fn read_primitive(
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
         };
-        Some((positions, normals, uvs, indices))
+        let tangents: Vec<DVec4> = if has_tangents {
+            reader
+                .read_tangents()?
+                .map(|t| {
+                    let v = DVec4::from_array(t.map(f64::from));
+                    let w = if v.w < 0.0 { -1.0 } else { 1.0 };
+                    if v.is_finite() {
+                        v.truncate().extend(w)
+                    } else {
+                        DVec4::ZERO
+                    }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Some((positions, normals, uvs, indices, tangents))
     }));
-    let Ok(Some((positions, normals, uvs, indices))) = read else {
+    let Ok(Some((positions, normals, uvs, indices, tangents))) = read else {
         return Err(LoadError::new(
             ctx.path,
             format!(
@@ -722,6 +752,7 @@ fn read_primitive(
         triangles,
         colors,
         alphas,
+        tangents,
     };
     transform_mesh(&mut mesh, to_mm);
     if !has_normals {
@@ -746,6 +777,7 @@ fn transform_mesh(mesh: &mut Mesh, m: &DAffine3) {
             DVec3::ZERO
         };
     }
+    mesh.transform_tangents(m);
     if m.matrix3.determinant() < 0.0 {
         for t in &mut mesh.triangles {
             t.swap(1, 2);
@@ -766,6 +798,10 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
     };
     let emissive_texture = match mat.emissive_texture() {
         Some(info) => Some(gltf_texture(ctx, &info.texture())?),
+        None => None,
+    };
+    let normal_texture = match mat.normal_texture() {
+        Some(n) => Some(gltf_texture_linear(ctx, &n.texture())?),
         None => None,
     };
     let name = match (mat.name(), mat.index()) {
@@ -793,6 +829,8 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
         },
         alpha: f(bc[3]),
         double_sided: mat.double_sided(),
+        normal_scale: mat.normal_texture().map_or(1.0, |n| f(n.scale())),
+        normal_texture,
     };
     let id = ctx.materials.len() as u32;
     ctx.materials.push(m);
@@ -800,9 +838,22 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
     Ok(id)
 }
 
-/// Decodes (once) the image of a glTF texture, with its sampler's wrap modes.
+/// Decodes (once) the image of a glTF colour texture (sRGB), with its sampler's wrap modes.
 fn gltf_texture(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, LoadError> {
-    if let Some(t) = ctx.textures.get(&tex.index()) {
+    gltf_texture_as(ctx, tex, false)
+}
+
+/// As [`gltf_texture`] for a texture of linear data (a normal map: no sRGB decoding).
+fn gltf_texture_linear(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, LoadError> {
+    gltf_texture_as(ctx, tex, true)
+}
+
+fn gltf_texture_as(
+    ctx: &mut GltfCtx,
+    tex: &gltf::Texture,
+    linear: bool,
+) -> Result<Arc<Texture>, LoadError> {
+    if let Some(t) = ctx.textures.get(&(tex.index(), linear)) {
         return Ok(t.clone());
     }
     let image = tex.source();
@@ -865,13 +916,18 @@ fn gltf_texture(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, 
             })
         })
         .unwrap_or("png");
-    let mut texture = texture_from_encoded_bytes(bytes, ext, &name)
-        .map_err(|e| LoadError::texture(e, ctx.path))?;
+    let mut texture = if linear {
+        decode_image_bytes(&name, ext, bytes, crate::limits::MAX_TEXTURE_PIXELS)
+            .map(|img| Texture::from_pixels(img.width, img.height, img.channels, &img.values, true))
+    } else {
+        texture_from_encoded_bytes(bytes, ext, &name)
+    }
+    .map_err(|e| LoadError::texture(e, ctx.path))?;
     let sampler = tex.sampler();
     texture.wrap_s = Wrap::from_gltf(sampler.wrap_s().as_gl_enum());
     texture.wrap_t = Wrap::from_gltf(sampler.wrap_t().as_gl_enum());
     let t = Arc::new(texture);
-    ctx.textures.insert(tex.index(), t.clone());
+    ctx.textures.insert((tex.index(), linear), t.clone());
     Ok(t)
 }
 
@@ -1101,6 +1157,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             triangles,
             colors: super::obj_features::vertex_colours(m),
             alphas: Vec::new(),
+            tangents: Vec::new(),
         };
         if part.normals.is_empty() {
             part.compute_normals();

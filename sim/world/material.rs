@@ -74,6 +74,8 @@ pub struct Material {
     pub base_rgb: Option<[f64; 3]>,
     /// Which hits count (alpha mode, single-sided).
     pub coverage: super::coverage::Coverage,
+    /// Tangent-space normal map and its scale ([`super::normal_map`]).
+    pub normal_map: Option<(Arc<Texture>, f64)>,
 }
 
 fn lookup(t: &Texture, uv: DVec2, nearest: bool) -> [f64; 3] {

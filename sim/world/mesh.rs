@@ -11,7 +11,7 @@
 
 use std::sync::Arc;
 
-use glam::{DAffine3, DVec2, DVec3};
+use glam::{DAffine3, DVec2, DVec3, DVec4};
 
 use super::coverage::AlphaMode;
 use super::texture::Texture;
@@ -52,6 +52,10 @@ pub struct AssetMaterial {
     pub alpha: f64,
     /// Seen from both sides (glTF `doubleSided`; always for OBJ and built-in shapes).
     pub double_sided: bool,
+    /// Tangent-space normal map (linear RGB), if any (glTF `normalTexture`).
+    pub normal_texture: Option<Arc<Texture>>,
+    /// `normalTexture.scale` (finite).
+    pub normal_scale: f64,
 }
 
 impl Default for AssetMaterial {
@@ -69,6 +73,8 @@ impl Default for AssetMaterial {
             alpha_mode: AlphaMode::Opaque,
             alpha: 1.0,
             double_sided: true,
+            normal_texture: None,
+            normal_scale: 1.0,
         }
     }
 }
@@ -92,6 +98,9 @@ pub struct Mesh {
     /// Vertex alpha (glTF `COLOR_0`'s fourth component) multiplying the material's alpha:
     /// same length as `positions_mm`, or empty (1).
     pub alphas: Vec<f64>,
+    /// Vertex tangents (xyz, handedness w = ±1; glTF `TANGENT`): same length as
+    /// `positions_mm`, or empty (tangents from the texture coordinates, `normal_map`).
+    pub tangents: Vec<DVec4>,
 }
 
 /// A loaded mesh file or built-in shape.
@@ -139,6 +148,15 @@ impl Mesh {
                 self.alphas.extend_from_slice(&other.alphas);
             }
         }
+        if !self.tangents.is_empty() || !other.tangents.is_empty() {
+            // Vertices without tangents get zero ones (computed from the UVs when shaded).
+            self.tangents.resize(base as usize, DVec4::ZERO);
+            if other.tangents.is_empty() {
+                self.tangents.resize(self.positions_mm.len(), DVec4::ZERO);
+            } else {
+                self.tangents.extend_from_slice(&other.tangents);
+            }
+        }
         self.triangles
             .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
         self.material_ids
@@ -155,11 +173,22 @@ impl Mesh {
         for n in &mut self.normals {
             *n = (nm * *n).normalize_or_zero();
         }
+        self.transform_tangents(m);
         if flip {
             // A mirroring transform reverses the winding; keep front faces counter-clockwise.
             for t in &mut self.triangles {
                 t.swap(1, 2);
             }
+        }
+    }
+
+    /// Applies `m` to the tangents: surface directions follow the matrix itself; a mirroring
+    /// `m` flips the handedness.
+    pub fn transform_tangents(&mut self, m: &DAffine3) {
+        let flip = m.matrix3.determinant() < 0.0;
+        for t in &mut self.tangents {
+            let d = (m.matrix3 * t.truncate()).normalize_or_zero();
+            *t = d.extend(if flip { -t.w } else { t.w });
         }
     }
 

@@ -24,6 +24,7 @@ pub mod light;
 pub mod load;
 pub mod material;
 pub mod mesh;
+pub mod normal_map;
 pub mod obj_features;
 pub mod polygon;
 pub mod shading;
@@ -295,6 +296,7 @@ fn build_material(
     };
     Ok(Material {
         coverage,
+        normal_map: a.normal_texture.clone().map(|t| (t, a.normal_scale)),
         name: a.name.clone(),
         model,
         reflectance,
