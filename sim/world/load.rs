@@ -491,8 +491,9 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         let world = parent * local_matrix(&node);
         if let Some(m) = node.mesh() {
             let to_mm = DAffine3::from_scale(DVec3::splat(1000.0)) * DAffine3::from_mat4(world);
+            let weights = super::gltf_shape::morph_weights(&node, &m);
             for prim in m.primitives() {
-                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm)? {
+                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights)? {
                     mesh.append(&part, 0);
                 }
             }
@@ -594,6 +595,7 @@ fn read_primitive(
     ctx: &mut GltfCtx,
     prim: &gltf::Primitive,
     to_mm: &DAffine3,
+    morph_weights: &[f64],
 ) -> Result<Option<Mesh>, LoadError> {
     use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::mesh::Mode;
@@ -652,6 +654,33 @@ fn read_primitive(
     let has_normals = normals_acc.is_some();
     let has_uv = uv_acc.is_some();
     let has_tangents = tangents_acc.is_some();
+    // Morph targets with a non-zero weight: their displacement accessors, checked.
+    let morphing = morph_weights.iter().any(|w| *w != 0.0);
+    if morphing {
+        for (k, t) in prim.morph_targets().enumerate() {
+            if morph_weights.get(k).is_none_or(|w| *w == 0.0) {
+                continue;
+            }
+            let targets = [(t.positions(), "POSITION"), (t.normals(), "NORMAL")];
+            for (acc, what) in targets
+                .iter()
+                .filter_map(|(a, w)| a.as_ref().map(|a| (a, w)))
+            {
+                let what = format!("morph target {k} {what}");
+                if acc.count() != n {
+                    return Err(LoadError::new(
+                        ctx.path,
+                        format!(
+                            "{what} (accessor {}): {} elements for {n} vertices",
+                            acc.index(),
+                            acc.count()
+                        ),
+                    ));
+                }
+                check_accessor(ctx, acc, &what, D::Vec3, &[T::F32])?;
+            }
+        }
+    }
     // The checks above keep the reader within its buffers; a panic on a malformed sparse
     // accessor is still turned into an error rather than aborting the run.
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -681,6 +710,28 @@ fn read_primitive(
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
         };
+        let mut positions = positions;
+        let mut normals = normals;
+        if morphing {
+            // One target at a time: memory stays that of one attribute.
+            let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
+            for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
+                let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
+                    continue;
+                };
+                for (values, delta) in [
+                    (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
+                    (&mut normals, q.map(|i| i.map(vec3).collect())),
+                ] {
+                    if let Some(d) = delta {
+                        if d.len() != values.len() && !values.is_empty() {
+                            return None;
+                        }
+                        super::gltf_shape::apply_morph(values, w, &d);
+                    }
+                }
+            }
+        }
         let tangents: Vec<DVec4> = if has_tangents {
             reader
                 .read_tangents()?

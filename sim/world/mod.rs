@@ -19,6 +19,7 @@ pub mod coverage;
 pub mod desc;
 pub mod frontal;
 pub mod gltf_features;
+pub mod gltf_shape;
 pub mod integrator;
 pub mod light;
 pub mod load;

@@ -174,8 +174,8 @@ fn unsupported_features_are_refused_naming_the_feature() {
     ));
     let mut morph = quad_gltf(plain.clone(), None);
     morph["meshes"][0]["primitives"][0]["targets"] = serde_json::json!([{"POSITION": 0}]);
-    morph["meshes"][0]["weights"] = serde_json::json!([0.5]);
-    cases.push(("morph target weights", morph.clone()));
+    morph["meshes"][0]["weights"] = serde_json::json!([0.5, 0.5]);
+    cases.push(("weights", morph.clone()));
     let mut skin = quad_gltf(plain.clone(), None);
     skin["nodes"] = serde_json::json!([{"mesh": 0, "skin": 0}, {"name": "bone"}]);
     skin["skins"] = serde_json::json!([{"joints": [1]}]);

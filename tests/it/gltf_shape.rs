@@ -101,3 +101,90 @@ fn normal_map_tilts_the_shading_normal_like_tilted_geometry() {
     let e = load(d, "bad.gltf", &bad).unwrap_err();
     assert!(e.message.starts_with("normalTexture.scale"), "{e}");
 }
+
+/// The quad of `quad_gltf` with one morph target moving vertex 2 by (0, 0, 0.25) m (a second,
+/// data-URI buffer), `mesh_weights` and `node_weights` if given.
+fn morph_quad(
+    mesh_weights: Option<serde_json::Value>,
+    node_weights: Option<serde_json::Value>,
+) -> serde_json::Value {
+    let mut doc = quad_gltf(serde_json::json!({}), None);
+    let mut bin = Vec::new();
+    for k in 0..4 {
+        let z = if k == 2 { 0.25f32 } else { 0.0 };
+        for v in [0.0f32, 0.0, z] {
+            bin.extend(v.to_le_bytes());
+        }
+    }
+    doc["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({"byteLength": 48,
+        "uri": format!("data:application/octet-stream;base64,{}", b64(&bin))}));
+    doc["bufferViews"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({"buffer": 1, "byteLength": 48}));
+    doc["accessors"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({"bufferView": 5,
+        "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [0, 0, 0.25]}));
+    doc["meshes"][0]["primitives"][0]["targets"] = serde_json::json!([{"POSITION": 5}]);
+    if let Some(w) = mesh_weights {
+        doc["meshes"][0]["weights"] = w;
+    }
+    if let Some(w) = node_weights {
+        doc["nodes"][0]["weights"] = w;
+    }
+    doc
+}
+
+/// A morph target at its default weight moves its vertex: mesh weight 1 puts vertex 2 (the
+/// corner (1, 1, 0) m) at z = 250 mm, a node weight of 0.5 overrides it (125 mm), no weights
+/// leave the base shape; the other vertices stay at z = 0. Ignoring the weights (the base
+/// shape) fails the first two. Weights of another count than the targets, and a target
+/// accessor with another count than the vertices, are refused naming the key.
+#[test]
+fn morph_target_default_weights_move_the_vertex() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let z_of = |doc: &serde_json::Value, name: &str| -> Vec<f64> {
+        let a = load(d, name, doc).unwrap();
+        a.mesh.positions_mm.iter().map(|p| p.z).collect()
+    };
+    let cases = [
+        (Some(serde_json::json!([1.0])), None, 250.0),
+        (
+            Some(serde_json::json!([1.0])),
+            Some(serde_json::json!([0.5])),
+            125.0,
+        ),
+        (None, None, 0.0),
+    ];
+    for (k, (mw, nw, z2)) in cases.into_iter().enumerate() {
+        let z = z_of(&morph_quad(mw, nw), &format!("m{k}.gltf"));
+        assert_eq!(z.len(), 4);
+        for (i, zi) in z.iter().enumerate() {
+            let want = if i == 2 { z2 } else { 0.0 };
+            assert!(
+                (zi - want).abs() < 1e-9,
+                "case {k}, vertex {i}: {zi} vs {want}"
+            );
+            if i == 2 && z2 != 0.0 {
+                assert!(zi.abs() > 100.0, "weights ignored");
+            }
+        }
+    }
+    let e = load(
+        d,
+        "w2.gltf",
+        &morph_quad(Some(serde_json::json!([1.0, 0.0])), None),
+    )
+    .unwrap_err();
+    assert!(e.message.starts_with("weights"), "{e}");
+    let mut short = morph_quad(Some(serde_json::json!([1.0])), None);
+    short["accessors"][5]["count"] = 3.into();
+    let e = load(d, "short.gltf", &short).unwrap_err();
+    assert!(e.message.starts_with("morph target 0 POSITION"), "{e}");
+}
