@@ -13,7 +13,8 @@
 //!   `mat3(cos, −sin, 0, sin, cos, 0)` read column-major);
 //! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
 //!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
-//! - morph targets at their default weights (read and applied by [`super::gltf_shape`]);
+//! - morph targets at their default weights and skins at the default pose (read and applied
+//!   by [`super::gltf_shape`]);
 //! - normal maps (`normalTexture` with a finite `scale`, on the same coordinates as the other
 //!   textures; rendered by [`super::normal_map`]);
 //! - `alphaMode` `MASK`/`BLEND` and `doubleSided` (read by the loader, rendered by
@@ -22,7 +23,7 @@
 //! Refused, with one short line naming the feature first (a model is loaded faithfully or
 //! not at all): a required extension the loader does not read (e.g.
 //! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`);
-//! skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
+//! more than four joint influences (`JOINTS_1`); base colour and emissive textures on different coordinate sets or transforms.
 
 use glam::{DVec2, DVec3};
 
@@ -98,13 +99,15 @@ pub fn check_document(doc: &gltf::Document, normals: &NormalPlans) -> Result<(),
         uv_plan(&mat, normals).map_err(|e| format!("{e} ({name})"))?;
     }
     super::gltf_shape::check_weights(doc)?;
-    for node in doc.nodes() {
-        if node.skin().is_some() && node.mesh().is_some() {
-            return Err(format!(
-                "skin (node {}): skinned meshes are not supported yet (apply the armature \
-                 before export)",
-                node.index()
-            ));
+    for mesh in doc.meshes() {
+        for p in mesh.primitives() {
+            if p.get(&gltf::Semantic::Joints(1)).is_some() {
+                return Err(format!(
+                    "JOINTS_1 (mesh {}): more than four joint influences per vertex are not \
+                     supported",
+                    mesh.index()
+                ));
+            }
         }
     }
     Ok(())

@@ -465,6 +465,17 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             document.nodes().filter(|n| !is_child[n.index()]).collect()
         }
     };
+    // Skins: their joint matrices in the default pose.
+    let skin_poses = if document.skins().len() == 0 {
+        Vec::new()
+    } else {
+        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
+            .map_err(|m| LoadError::new(path, m))?;
+        document
+            .skins()
+            .map(|s| skin_pose(&ctx, &s, &globals))
+            .collect::<Result<Vec<_>, _>>()?
+    };
     let mut mesh = Mesh::default();
     let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots
         .into_iter()
@@ -490,10 +501,15 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         }
         let world = parent * local_matrix(&node);
         if let Some(m) = node.mesh() {
-            let to_mm = DAffine3::from_scale(DVec3::splat(1000.0)) * DAffine3::from_mat4(world);
+            // A skinned mesh's node transform is ignored (glTF §3.7.3): the joints place it.
+            let skin = node.skin().and_then(|s| skin_poses.get(s.index()));
+            let to_mm = match skin {
+                Some(_) => DAffine3::from_scale(DVec3::splat(1000.0)),
+                None => DAffine3::from_scale(DVec3::splat(1000.0)) * DAffine3::from_mat4(world),
+            };
             let weights = super::gltf_shape::morph_weights(&node, &m);
             for prim in m.primitives() {
-                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights)? {
+                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights, skin)? {
                     mesh.append(&part, 0);
                 }
             }
@@ -507,6 +523,43 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         mesh,
         materials: ctx.materials,
     })
+}
+
+/// The joint matrices of a skin in the default pose (`globals`: every node's global
+/// transform), its inverse bind matrices checked and read.
+fn skin_pose(
+    ctx: &GltfCtx,
+    skin: &gltf::Skin,
+    globals: &[DMat4],
+) -> Result<super::gltf_shape::SkinPose, LoadError> {
+    let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    let mut ibm = Vec::new();
+    if let Some(acc) = skin.inverse_bind_matrices() {
+        use gltf::accessor::{DataType as T, Dimensions as D};
+        check_accessor(ctx, &acc, "inverseBindMatrices", D::Mat4, &[T::F32])?;
+        let buffers = &ctx.buffers;
+        let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let reader = skin.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+            reader.read_inverse_bind_matrices().map(|it| {
+                it.map(|m| DMat4::from_cols_array_2d(&m.map(|c| c.map(f64::from))))
+                    .collect::<Vec<_>>()
+            })
+        }));
+        ibm = match read {
+            Ok(Some(m)) => m,
+            _ => {
+                return Err(LoadError::new(
+                    ctx.path,
+                    format!(
+                        "inverseBindMatrices (accessor {}): unreadable data",
+                        acc.index()
+                    ),
+                ));
+            }
+        };
+    }
+    super::gltf_shape::SkinPose::new(&joints, globals, &ibm)
+        .map_err(|m| LoadError::new(ctx.path, format!("{m} (skin {})", skin.index())))
 }
 
 /// A node's local transform in f64 (TRS composed as T · R · S, the quaternion normalised).
@@ -596,6 +649,7 @@ fn read_primitive(
     prim: &gltf::Primitive,
     to_mm: &DAffine3,
     morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
 ) -> Result<Option<Mesh>, LoadError> {
     use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::mesh::Mode;
@@ -654,6 +708,34 @@ fn read_primitive(
     let has_normals = normals_acc.is_some();
     let has_uv = uv_acc.is_some();
     let has_tangents = tangents_acc.is_some();
+    if skin.is_some() {
+        for (sem, what, types) in [
+            (gltf::Semantic::Joints(0), "JOINTS_0", &[T::U8, T::U16][..]),
+            (
+                gltf::Semantic::Weights(0),
+                "WEIGHTS_0",
+                &[T::F32, T::U8, T::U16][..],
+            ),
+        ] {
+            let Some(acc) = prim.get(&sem) else {
+                return Err(LoadError::new(
+                    ctx.path,
+                    format!("{what}: a skinned primitive needs JOINTS_0 and WEIGHTS_0"),
+                ));
+            };
+            if acc.count() != n {
+                return Err(LoadError::new(
+                    ctx.path,
+                    format!(
+                        "{what} (accessor {}): {} elements for {n} vertices",
+                        acc.index(),
+                        acc.count()
+                    ),
+                ));
+            }
+            check_accessor(ctx, &acc, what, D::Vec4, types)?;
+        }
+    }
     // Morph targets with a non-zero weight: their displacement accessors, checked.
     let morphing = morph_weights.iter().any(|w| *w != 0.0);
     if morphing {
@@ -748,9 +830,22 @@ fn read_primitive(
         } else {
             Vec::new()
         };
-        Some((positions, normals, uvs, indices, tangents))
+        let influences = match skin {
+            Some(_) => {
+                let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
+                let w: Vec<[f64; 4]> = reader
+                    .read_weights(0)?
+                    .into_f32()
+                    .map(|w| w.map(f64::from))
+                    .collect();
+                Some((j, w))
+            }
+            None => None,
+        };
+        Some((positions, normals, uvs, indices, tangents, influences))
     }));
-    let Ok(Some((positions, normals, uvs, indices, tangents))) = read else {
+    let Ok(Some((mut positions, mut normals, uvs, indices, mut tangents, influences))) = read
+    else {
         return Err(LoadError::new(
             ctx.path,
             format!(
@@ -759,6 +854,10 @@ fn read_primitive(
             ),
         ));
     };
+    if let (Some(pose), Some((j, w))) = (skin, &influences) {
+        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
+            .map_err(|m| LoadError::new(ctx.path, m))?;
+    }
     if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
         return Err(LoadError::new(
             ctx.path,

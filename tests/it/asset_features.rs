@@ -180,7 +180,7 @@ fn unsupported_features_are_refused_naming_the_feature() {
     skin["nodes"] = serde_json::json!([{"mesh": 0, "skin": 0}, {"name": "bone"}]);
     skin["skins"] = serde_json::json!([{"joints": [1]}]);
     skin["scenes"] = serde_json::json!([{"nodes": [0, 1]}]);
-    cases.push(("skin", skin));
+    cases.push(("JOINTS_0", skin));
     let mut draco = quad_gltf(plain.clone(), None);
     draco["extensionsUsed"] = serde_json::json!(["KHR_draco_mesh_compression"]);
     draco["extensionsRequired"] = serde_json::json!(["KHR_draco_mesh_compression"]);

@@ -188,3 +188,134 @@ fn morph_target_default_weights_move_the_vertex() {
     let e = load(d, "short.gltf", &short).unwrap_err();
     assert!(e.message.starts_with("morph target 0 POSITION"), "{e}");
 }
+
+/// A skinned limb: a strip 0.1 m wide and 1 m long (vertices at y = 0, 0.5, 1) on two joints,
+/// the root at the origin and a child 0.5 m up, turned 90° about z in the default pose; the
+/// bottom pair follows the root, the middle pair half and half, the top pair the child.
+/// `edit` changes the document (hostile variants).
+fn limb(edit: impl FnOnce(&mut serde_json::Value, &mut Vec<u8>)) -> serde_json::Value {
+    let pos: [[f32; 3]; 6] = [
+        [0., 0., 0.],
+        [0.1, 0., 0.],
+        [0., 0.5, 0.],
+        [0.1, 0.5, 0.],
+        [0., 1., 0.],
+        [0.1, 1., 0.],
+    ];
+    let joints: [[u16; 4]; 6] = [[0, 1, 0, 0]; 6];
+    let weights: [[f32; 4]; 6] = [
+        [1., 0., 0., 0.],
+        [1., 0., 0., 0.],
+        [0.5, 0.5, 0., 0.],
+        [0.5, 0.5, 0., 0.],
+        [0., 1., 0., 0.],
+        [0., 1., 0., 0.],
+    ];
+    let ibm: [[f32; 16]; 2] = [
+        [
+            1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,
+        ],
+        [
+            1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., -0.5, 0., 1.,
+        ],
+    ];
+    let mut bin = Vec::new();
+    pos.iter()
+        .flatten()
+        .for_each(|v| bin.extend(v.to_le_bytes())); // 0..72
+    joints
+        .iter()
+        .flatten()
+        .for_each(|v| bin.extend(v.to_le_bytes())); // 72..120
+    weights
+        .iter()
+        .flatten()
+        .for_each(|v| bin.extend(v.to_le_bytes())); // 120..216
+    ibm.iter()
+        .flatten()
+        .for_each(|v| bin.extend(v.to_le_bytes())); // 216..344
+    for i in [0u16, 1, 3, 0, 3, 2, 2, 3, 5, 2, 5, 4] {
+        bin.extend(i.to_le_bytes()); // 344..368
+    }
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let mut doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 72},
+            {"buffer": 0, "byteOffset": 72, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 120, "byteLength": 96},
+            {"buffer": 0, "byteOffset": 216, "byteLength": 128},
+            {"buffer": 0, "byteOffset": 344, "byteLength": 24}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3",
+             "min": [0, 0, 0], "max": [0.1, 1, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "VEC4"},
+            {"bufferView": 2, "componentType": 5126, "count": 6, "type": "VEC4"},
+            {"bufferView": 3, "componentType": 5126, "count": 2, "type": "MAT4"},
+            {"bufferView": 4, "componentType": 5123, "count": 12, "type": "SCALAR"}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 1,
+                                                   "WEIGHTS_0": 2}, "indices": 4}]}],
+        // The skinned mesh node's own translation must be ignored.
+        "nodes": [
+            {"mesh": 0, "skin": 0, "translation": [5.0, 5.0, 5.0]},
+            {"children": [2]},
+            {"translation": [0.0, 0.5, 0.0], "rotation": [0.0, 0.0, h, h]}
+        ],
+        "skins": [{"joints": [1, 2], "inverseBindMatrices": 3}],
+        "scenes": [{"nodes": [0, 1]}],
+        "scene": 0
+    });
+    edit(&mut doc, &mut bin);
+    doc["buffers"] = serde_json::json!([{"byteLength": bin.len(),
+        "uri": format!("data:application/octet-stream;base64,{}", b64(&bin))}]);
+    doc
+}
+
+/// The skinned limb loads at its default pose, vertex by vertex as computed by hand from
+/// J_j = G_j·IBM_j (mm, tolerance 1e-3: f32 inputs): bottom (0, 0) and (100, 0); middle
+/// halfway between rest and the child's turn, (0, 500) and (50, 550); top turned to
+/// (−500, 500) and (−500, 600); bounds x ∈ [−500, 100], y ∈ [0, 600]. The bind pose (skin
+/// ignored: y up to 1000), the mesh node's transform applied (+5000 mm) and a joint index out
+/// of range, weights not summing to 1 and too few inverse bind matrices (refused naming the
+/// key) all fail.
+#[test]
+fn skinned_limb_takes_the_default_pose() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let a = load(d, "limb.gltf", &limb(|_, _| {})).unwrap();
+    let want = [
+        [0.0, 0.0],
+        [100.0, 0.0],
+        [0.0, 500.0],
+        [50.0, 550.0],
+        [-500.0, 500.0],
+        [-500.0, 600.0],
+    ];
+    assert_eq!(a.mesh.positions_mm.len(), 6);
+    for (p, w) in a.mesh.positions_mm.iter().zip(want) {
+        assert!(
+            (p.x - w[0]).abs() < 1e-3 && (p.y - w[1]).abs() < 1e-3 && p.z.abs() < 1e-3,
+            "{p} vs {w:?}"
+        );
+    }
+    let [lo, hi] = stscam::world::bounds_mm(&a.mesh);
+    assert!((lo[0] + 500.0).abs() < 1e-3 && (hi[0] - 100.0).abs() < 1e-3);
+    assert!(
+        lo[1].abs() < 1e-3 && (hi[1] - 600.0).abs() < 1e-3,
+        "{lo:?} {hi:?}"
+    );
+    // Wrong handlings: the bind pose reaches y = 1000 mm; the node transform adds 5000 mm.
+    assert!(hi[1] < 1000.0 - 100.0 && hi[1] < 5000.0);
+    // Hostile input.
+    let bad_joint = limb(|_, bin| bin[72] = 7); // vertex 0's first joint: 7 of 2
+    let e = load(d, "j.gltf", &bad_joint).unwrap_err();
+    assert!(e.message.starts_with("JOINTS_0"), "{e}");
+    let bad_weight = limb(|_, bin| bin[120..124].copy_from_slice(&0.7f32.to_le_bytes()));
+    let e = load(d, "w.gltf", &bad_weight).unwrap_err();
+    assert!(e.message.starts_with("WEIGHTS_0"), "{e}");
+    let few = limb(|doc, _| doc["accessors"][3]["count"] = 1.into());
+    let e = load(d, "i.gltf", &few).unwrap_err();
+    assert!(e.message.starts_with("inverseBindMatrices"), "{e}");
+}
