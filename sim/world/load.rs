@@ -589,6 +589,21 @@ fn local_matrix(node: &gltf::Node) -> DMat4 {
     }
 }
 
+/// An accessor of a per-vertex attribute must have one element a vertex (`n`).
+fn check_count(ctx: &GltfCtx, acc: &gltf::Accessor, what: &str, n: usize) -> Result<(), LoadError> {
+    if acc.count() == n {
+        return Ok(());
+    }
+    Err(LoadError::new(
+        ctx.path,
+        format!(
+            "{what} (accessor {}): {} elements for {n} vertices",
+            acc.index(),
+            acc.count()
+        ),
+    ))
+}
+
 /// Checks an accessor before the `gltf` reader touches it: type, count and byte range.
 fn check_accessor(
     ctx: &GltfCtx,
@@ -723,16 +738,7 @@ fn read_primitive(
                     format!("{what}: a skinned primitive needs JOINTS_0 and WEIGHTS_0"),
                 ));
             };
-            if acc.count() != n {
-                return Err(LoadError::new(
-                    ctx.path,
-                    format!(
-                        "{what} (accessor {}): {} elements for {n} vertices",
-                        acc.index(),
-                        acc.count()
-                    ),
-                ));
-            }
+            check_count(ctx, &acc, what, n)?;
             check_accessor(ctx, &acc, what, D::Vec4, types)?;
         }
     }
@@ -749,16 +755,7 @@ fn read_primitive(
                 .filter_map(|(a, w)| a.as_ref().map(|a| (a, w)))
             {
                 let what = format!("morph target {k} {what}");
-                if acc.count() != n {
-                    return Err(LoadError::new(
-                        ctx.path,
-                        format!(
-                            "{what} (accessor {}): {} elements for {n} vertices",
-                            acc.index(),
-                            acc.count()
-                        ),
-                    ));
-                }
+                check_count(ctx, acc, &what, n)?;
                 check_accessor(ctx, acc, &what, D::Vec3, &[T::F32])?;
             }
         }

@@ -103,6 +103,21 @@ pub struct Mesh {
     pub tangents: Vec<DVec4>,
 }
 
+/// Appends the per-vertex attribute `src` of an appended mesh to `dst` (for `base` vertices
+/// before and `total` after): nothing if neither has it, else the vertices without it get
+/// `fill`.
+fn append_attribute<T: Copy>(dst: &mut Vec<T>, src: &[T], base: usize, total: usize, fill: T) {
+    if dst.is_empty() && src.is_empty() {
+        return;
+    }
+    dst.resize(base, fill);
+    if src.is_empty() {
+        dst.resize(total, fill);
+    } else {
+        dst.extend_from_slice(src);
+    }
+}
+
 /// A loaded mesh file or built-in shape.
 #[derive(Clone, Debug, Default)]
 pub struct Asset {
@@ -130,33 +145,24 @@ impl Mesh {
                 self.uvs.extend_from_slice(&other.uvs);
             }
         }
-        if !self.colors.is_empty() || !other.colors.is_empty() {
-            // Vertices without colours are white (neutral).
-            self.colors.resize(base as usize, DVec3::ONE);
-            if other.colors.is_empty() {
-                self.colors.resize(self.positions_mm.len(), DVec3::ONE);
-            } else {
-                self.colors.extend_from_slice(&other.colors);
-            }
-        }
-        if !self.alphas.is_empty() || !other.alphas.is_empty() {
-            // Vertices without alpha are opaque.
-            self.alphas.resize(base as usize, 1.0);
-            if other.alphas.is_empty() {
-                self.alphas.resize(self.positions_mm.len(), 1.0);
-            } else {
-                self.alphas.extend_from_slice(&other.alphas);
-            }
-        }
-        if !self.tangents.is_empty() || !other.tangents.is_empty() {
-            // Vertices without tangents get zero ones (computed from the UVs when shaded).
-            self.tangents.resize(base as usize, DVec4::ZERO);
-            if other.tangents.is_empty() {
-                self.tangents.resize(self.positions_mm.len(), DVec4::ZERO);
-            } else {
-                self.tangents.extend_from_slice(&other.tangents);
-            }
-        }
+        // Vertices without colours are white (neutral), without alpha opaque, without tangents
+        // zero (computed from the UVs when shaded).
+        let total = self.positions_mm.len();
+        append_attribute(
+            &mut self.colors,
+            &other.colors,
+            base as usize,
+            total,
+            DVec3::ONE,
+        );
+        append_attribute(&mut self.alphas, &other.alphas, base as usize, total, 1.0);
+        append_attribute(
+            &mut self.tangents,
+            &other.tangents,
+            base as usize,
+            total,
+            DVec4::ZERO,
+        );
         self.triangles
             .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
         self.material_ids
