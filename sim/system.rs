@@ -163,6 +163,7 @@ fn load_target(ls: &LoadedScene) -> Result<LoadedImage, SceneError> {
             channels,
             values,
             linear: false,
+            alpha: Vec::new(),
         })
     }
 }
@@ -176,6 +177,7 @@ pub fn build_display(ls: &LoadedScene) -> Result<Display, SceneError> {
         channels,
         values,
         linear,
+        ..
     } = load_target(ls)?;
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
         return Err(ls.key_error(

@@ -37,7 +37,7 @@ use crate::system::System;
 use crate::world::desc::{
     BendSpec, LightDesc, MaterialDesc, ObjectDesc, PoseDesc, RgbOr, ScaleSpec,
 };
-use crate::world::frontal::{Frontal, render_frontal};
+use crate::world::frontal::{Frontal, render_frontal_in};
 
 use super::recipe::MeshSource;
 
@@ -292,8 +292,15 @@ pub fn sample_system(
     Ok(s)
 }
 
-/// The capture (channel-major, f64) and the frontal ground truth (`size`²) of a sample.
-pub fn render_sample(sys: &System, size: usize, spp: u32, seed: u64) -> (Vec<f64>, Frontal) {
+/// The capture (channel-major, f64) and the frontal ground truth (`size`², in `space`) of a
+/// sample.
+pub fn render_sample(
+    sys: &System,
+    size: usize,
+    spp: u32,
+    seed: u64,
+    space: crate::world::colour::FrontalSpace,
+) -> (Vec<f64>, Frontal) {
     let settings = crate::render::RenderSettings::lattice(spp, seed, false);
     let cap = crate::render::render(sys, &settings);
     let capture = cap
@@ -303,7 +310,7 @@ pub fn render_sample(sys: &System, size: usize, spp: u32, seed: u64) -> (Vec<f64
         .map(|&v| f64::from(v))
         .collect();
     // A world is always attached by `sample_system`; an empty frontal otherwise.
-    let frontal = render_frontal(sys, size, size, spp, seed).unwrap_or_else(|| Frontal {
+    let frontal = render_frontal_in(sys, size, size, spp, seed, space).unwrap_or_else(|| Frontal {
         width: size,
         height: size,
         channel_names: sys.response.names.clone(),
@@ -319,10 +326,22 @@ pub fn render_sample(sys: &System, size: usize, spp: u32, seed: u64) -> (Vec<f64
 /// What `metadata.jsonl` holds for a 3-D sample (the card's `loading.metadata_3d`).
 pub const METADATA_3D: &str = "3-D samples (meshes): file_name (capture PNG), frontal_file_name (frontal PNG), mask_file_name (mask PNG), capture_npy, frontal_npy, depth_npy, id, split, seed, source, scene, the varied keys and the draw: mesh, position_mm, rotation_deg, scale, bend_deg and spread_deg (applied to the hand only), base_color, roughness, metallic, key_light {position_mm, normal, scale, kelvin}, screen_glow, environment, bounds_mm (the placed mesh's world bounds [min, max]) and mask_value (its value in the mask)";
 
-/// Units and encodings of the 3-D sample files (the card's `units`).
-pub fn units() -> Vec<(&'static str, String)> {
+/// The `metadata.jsonl` column added when `objects.frontal_space` is not `sensor`.
+pub const METADATA_FRONTAL_SPACE: &str = "frontal_space: the colour space of frontal_npy and frontal_file_name (objects.frontal_space: xyz = CIE 1931 XYZ, channels X, Y, Z; linear-srgb = linear sRGB / Rec. 709, D65, channels R, G, B), as render --frontal-space writes frontal.exr";
+
+/// Units and encodings of the 3-D sample files (the card's `units`), the frontal image in
+/// `space`.
+pub fn units(space: crate::world::colour::FrontalSpace) -> Vec<(&'static str, String)> {
+    let frontal = match space {
+        crate::world::colour::FrontalSpace::Sensor => crate::output::FRONTAL_UNITS.to_string(),
+        s => format!(
+            "{} (channels {})",
+            crate::output::frontal_units(s),
+            s.channel_names().unwrap_or_default().join(", ")
+        ),
+    };
     vec![
-        ("frontal_npy", format!("float32 [h, w] (or [channels, h, w]), objects.size_px square: {}", crate::output::FRONTAL_UNITS)),
+        ("frontal_npy", format!("float32 [h, w] (or [channels, h, w]), objects.size_px square: {frontal}")),
         ("frontal_png", format!("16-bit: round(65535 * clamp(frontal / {FRONTAL_PNG_FULL_SCALE}, 0, 1)), linear")),
         ("depth_npy", "float32 [h, w]: distance from the plate's front face along -z in mm of the first surface on each frontal pixel's centre ray; +inf where nothing is hit".to_string()),
         ("mask_png", "16-bit grey, same pixels as depth_npy: object index + 1 (metadata mask_value for the drawn mesh), 65535 the display, 0 nothing or a light".to_string()),

@@ -1202,8 +1202,27 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
                 let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
                     .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
+                let space = recipe.objects.frontal_space();
+                let band = &sys.scene.sampling;
+                if space != crate::world::colour::FrontalSpace::Sensor
+                    && crate::world::colour::ColourWeights::new(
+                        space,
+                        band.lambda_min_nm,
+                        band.lambda_max_nm,
+                    )
+                    .is_none()
+                {
+                    return Err(recipe_err(
+                        &plan.recipe_path,
+                        "objects.frontal_space",
+                        format!(
+                            "{}: the CIE luminance function is 0 over the sampling band",
+                            space.name()
+                        ),
+                    ));
+                }
                 let (clean, frontal) =
-                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed);
+                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
                 let capture = exposure.measure(&clean, s.seed);
                 write_mesh_sample(plan, root, s, &capture, &frontal, crop, exposure.full_scale)?;
                 counter.fetch_add(1, Ordering::Relaxed);
@@ -1384,7 +1403,16 @@ fn write_mesh_sample(
     split_dir(root, s)?;
     let nch = frontal.channels.len();
     let size = (frontal.width, frontal.height);
-    put_image(root, [&files[0], &files[1]], capture, crop, nch, full_scale)?;
+    // The capture has the sensor's channels; the frontal image those of its colour space.
+    let capture_channels = capture.len() / (crop.0 * crop.1).max(1);
+    put_image(
+        root,
+        [&files[0], &files[1]],
+        capture,
+        crop,
+        capture_channels,
+        full_scale,
+    )?;
     let fv: Vec<f32> = frontal.channels.concat();
     put_image(
         root,
@@ -1456,6 +1484,10 @@ fn metadata_line(plan: &Plan, s: &SampleSpec) -> Result<String, DatasetError> {
         let (d, bounds) = plan.mesh_draw(s, src, files, &ls)?;
         let mut drawn =
             serde_json::to_value(&d).map_err(|e| out_err(&plan.recipe_path, e.to_string()))?;
+        let space = plan.recipe.objects.frontal_space();
+        if space != crate::world::colour::FrontalSpace::Sensor {
+            m.insert("frontal_space".into(), space.name().into());
+        }
         if let Some(o) = drawn.as_object_mut() {
             o.insert("bounds_mm".into(), serde_json::json!(bounds));
             o.insert(
@@ -1569,8 +1601,15 @@ fn build_card(
         units.remove("object_npy");
         units.remove("object_png");
         units.remove("matrix");
-        units.extend(meshes::units().into_iter().map(|(k, v)| (k.to_string(), v)));
+        units.extend(
+            meshes::units(r.objects.frontal_space())
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v)),
+        );
         loading_3d.push(("metadata_3d", meshes::METADATA_3D));
+        if r.objects.frontal_space() != crate::world::colour::FrontalSpace::Sensor {
+            loading_3d.push(("metadata_3d_frontal_space", meshes::METADATA_FRONTAL_SPACE));
+        }
     }
     let loading: BTreeMap<String, String> = [
         ("numpy", "np.load('train/000000_capture.npy'); H = scipy.sparse.load_npz('scene_000/H.npz'); offset = np.load('scene_000/offset.npy'); capture ≈ (H @ object.ravel() + offset).reshape(capture.shape)"),

@@ -540,6 +540,7 @@ mod tests {
     fn draws_are_reproducible_and_follow_the_weights() {
         let objects = Objects {
             size_px: 32,
+            frontal_space: None,
             random_levels: true,
             sources: vec![
                 Source::Shapes { weight: 3.0 },

@@ -20,6 +20,7 @@
 //! [objects]
 //! size_px = 64                  # objects are size_px × size_px display pixels
 //! random_levels = false         # binary patterns: random dark/bright levels instead of 0 and 1
+//! frontal_space = "sensor"      # 3-D only: frontal ground truth in "sensor" RGB, "xyz" or "linear-srgb"
 //! [[objects.sources]]
 //! generator = "glyphs"          # see `Source`
 //! weight = 2.0
@@ -432,6 +433,21 @@ pub struct Objects {
     pub random_levels: bool,
     /// Where objects come from.
     pub sources: Vec<Source>,
+    /// 3-D recipes: the colour space of the frontal ground truth (`sensor`, `xyz`,
+    /// `linear-srgb`; absent: `sensor`), as `render --frontal-space`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frontal_space: Option<String>,
+}
+
+impl Objects {
+    /// The frontal ground truth's colour space (sensor unless `frontal_space` says otherwise;
+    /// the recipe check refuses other spellings).
+    pub fn frontal_space(&self) -> crate::world::colour::FrontalSpace {
+        self.frontal_space
+            .as_deref()
+            .and_then(crate::world::colour::FrontalSpace::parse)
+            .unwrap_or_default()
+    }
 }
 
 /// `[[vary]]`: one scene key varied per sample.
@@ -578,6 +594,22 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             "objects.size_px",
             format!("must be in 2..={MAX_OBJECT_PX}, got {}", o.size_px),
         );
+    }
+    if let Some(space) = &o.frontal_space {
+        if crate::world::colour::FrontalSpace::parse(space).is_none() {
+            return err(
+                "objects.frontal_space",
+                format!("must be \"sensor\", \"xyz\" or \"linear-srgb\", got {space:?}"),
+            );
+        }
+        if !r.is_meshes() && space != "sensor" {
+            return err(
+                "objects.frontal_space",
+                "applies to 3-D (generator = \"meshes\") recipes only, which have a frontal \
+                 ground truth"
+                    .to_string(),
+            );
+        }
     }
     if o.sources.is_empty() {
         return err(

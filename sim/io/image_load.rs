@@ -26,11 +26,14 @@ pub struct LoadedImage {
     /// `true` for linear values (EXR); `false` for display code values in
     /// `[0, 1]` (PNG) to which the caller applies a display gamma.
     pub linear: bool,
+    /// Alpha (coverage) per pixel in [0, 1], linear, row-major: a PNG's alpha channel or an
+    /// EXR's `A` channel; empty if the image has none (opaque).
+    pub alpha: Vec<f32>,
 }
 
 /// Loads a `.png`, `.jpg`/`.jpeg` or `.exr` file (extension matched case-insensitively).
 ///
-/// PNG (any bit depth, gray/gray+alpha/RGB/RGBA/palette; alpha is ignored):
+/// PNG (any bit depth, gray/gray+alpha/RGB/RGBA/palette; alpha is returned apart, in `alpha`):
 /// values are code value / maximum code, one channel for grey and three for
 /// colour (the caller linearises each with its display gamma before forming
 /// luminance), and `linear` is `false`. EXR: channel `Y` if present, else the
@@ -157,12 +160,21 @@ fn decode_png(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedIm
         return Err(IoError::format(path, "PNG row size mismatch"));
     }
     let out_channels = if channels >= 3 { 3 } else { 1 };
+    // Grey+alpha and RGBA carry alpha as their last sample (kept apart, linear).
+    let has_alpha = channels == 2 || channels == 4;
     let mut values = Vec::with_capacity(width * height * out_channels);
+    let mut alpha = Vec::new();
+    if has_alpha {
+        alpha.reserve_exact(width * height);
+    }
     for row in buf.chunks_exact(info.line_size).take(height) {
         for x in 0..width {
             let base = x * channels;
             for c in 0..out_channels {
                 values.push((sample(row, base + c) / max) as f32);
+            }
+            if has_alpha {
+                alpha.push((sample(row, base + channels - 1) / max) as f32);
             }
         }
     }
@@ -172,6 +184,7 @@ fn decode_png(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedIm
         channels: out_channels,
         values,
         linear: false,
+        alpha,
     })
 }
 
@@ -278,6 +291,7 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedI
             .map(|&v| (f64::from(v) / 255.0) as f32)
             .collect(),
         linear: false,
+        alpha: Vec::new(),
     })
 }
 
@@ -294,6 +308,10 @@ fn exr_to_rgb(path: &Path, bytes: Vec<u8>, max_pixels: usize) -> Result<LoadedIm
             channels: 3,
             values,
             linear: true,
+            alpha: find("A")
+                .filter(|a| a.data.len() == width * height)
+                .map(|a| a.data.clone())
+                .unwrap_or_default(),
         });
     }
     gray_from_channels(path, width, height, channels)
@@ -341,6 +359,7 @@ fn gray_from_channels(
         channels: 1,
         values,
         linear: true,
+        alpha: Vec::new(),
     })
 }
 

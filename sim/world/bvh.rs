@@ -263,6 +263,24 @@ impl Accel {
         )
     }
 
+    /// The hit of the triangle in BVH slot `slot` for t in (tmin, tmax), unless it is `skip`.
+    #[inline]
+    fn candidate(
+        &self,
+        wr: &WatertightRay,
+        slot: usize,
+        tmin: f64,
+        tmax: f64,
+        skip: Option<u32>,
+    ) -> Option<TriHit> {
+        let triangle = self.order[slot];
+        if skip == Some(triangle) {
+            return None;
+        }
+        let (t, bary) = self.test(wr, slot, tmin, tmax)?;
+        Some(TriHit { t, triangle, bary })
+    }
+
     /// Nearest hit with t in (tmin, tmax), skipping triangle `skip` (the one a ray leaves).
     pub fn intersect(
         &self,
@@ -271,6 +289,22 @@ impl Accel {
         tmin: f64,
         tmax: f64,
         skip: Option<u32>,
+    ) -> Option<TriHit> {
+        self.intersect_where(origin, dir, tmin, tmax, skip, |_| true)
+    }
+
+    /// As [`Accel::intersect`], counting only the hits `accepts` keeps (an any-hit filter:
+    /// alpha cut-outs, single-sided faces, `super::coverage`). A rejected candidate does not
+    /// shorten the ray, so the nearest kept hit is found in the one traversal; `accepts` must
+    /// depend only on the hit (not on the order of the calls).
+    pub fn intersect_where(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+        skip: Option<u32>,
+        mut accepts: impl FnMut(&TriHit) -> bool,
     ) -> Option<TriHit> {
         if self.tris.is_empty() {
             return None;
@@ -281,21 +315,14 @@ impl Accel {
         let mut hit = RayHit::none();
         self.bvh
             .ray_traverse(Self::f32_ray(origin, dir, tmax), &mut hit, |_, slot| {
-                if skip == Some(self.order[slot]) {
-                    return f32::INFINITY;
-                }
-                match self.test(&wr, slot, tmin, best_t) {
-                    Some((t, bary)) => {
-                        best_t = t;
-                        best = Some(TriHit {
-                            t,
-                            triangle: self.order[slot],
-                            bary,
-                        });
+                match self.candidate(&wr, slot, tmin, best_t, skip) {
+                    Some(h) if accepts(&h) => {
+                        best_t = h.t;
+                        best = Some(h);
                         // Conservative in f32: never cull a box the f64 hit could lie before.
-                        (t as f32) * 1.000_01 + 1e-3
+                        (h.t as f32) * 1.000_01 + 1e-3
                     }
-                    None => f32::INFINITY,
+                    _ => f32::INFINITY,
                 }
             });
         best
@@ -311,18 +338,30 @@ impl Accel {
         tmax: f64,
         skip: Option<u32>,
     ) -> bool {
+        self.unoccluded_where(origin, dir, tmin, tmax, skip, |_| true)
+    }
+
+    /// As [`Accel::unoccluded`], counting only the hits `accepts` keeps (see
+    /// [`Accel::intersect_where`]).
+    #[inline]
+    pub fn unoccluded_where(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        tmin: f64,
+        tmax: f64,
+        skip: Option<u32>,
+        mut accepts: impl FnMut(&TriHit) -> bool,
+    ) -> bool {
         if self.tris.is_empty() {
             return true;
         }
         let wr = WatertightRay::new(origin, dir);
         self.bvh
             .ray_traverse_miss(Self::f32_ray(origin, dir, tmax), |_, slot| {
-                if skip == Some(self.order[slot]) {
-                    return f32::INFINITY;
-                }
-                match self.test(&wr, slot, tmin, tmax) {
-                    Some(_) => 0.5 * tmax.min(1e30) as f32,
-                    None => f32::INFINITY,
+                match self.candidate(&wr, slot, tmin, tmax, skip) {
+                    Some(h) if accepts(&h) => 0.5 * tmax.min(1e30) as f32,
+                    _ => f32::INFINITY,
                 }
             })
     }

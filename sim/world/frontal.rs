@@ -216,7 +216,8 @@ pub fn render_frontal_in(
                     vals[c * nch + k] *= inv;
                 }
                 let d = direction(sys, width, height, c as f64 + 0.5, r as f64 + 0.5);
-                if let Some((t, m)) = world.first_hit(disp, origin, d) {
+                let depth_key = crate::sampler::hash(&[seed, pixel, 0xDE97]);
+                if let Some((t, m)) = world.first_hit(disp, origin, d, depth_key) {
                     depth[c] = (-(origin.z + d.z * t)) as f32;
                     mask[c] = m;
                 }
@@ -252,17 +253,18 @@ pub fn render_frontal_in(
 
 impl super::World {
     /// First surface a ray meets for the depth and mask: (t, mask value), where mask is the
-    /// object index + 1, [`MASK_DISPLAY`] for the LCD, 0 for a light shape.
+    /// object index + 1, [`MASK_DISPLAY`] for the LCD, 0 for a light shape. Cut-outs and
+    /// single-sided back faces are passed through; a blended surface counts as
+    /// [`super::coverage`] decides for the ray key `ray_key`.
     pub fn first_hit(
         &self,
         disp: &crate::display::Display,
         o: DVec3,
         d: DVec3,
+        ray_key: u64,
     ) -> Option<(f64, u16)> {
         let mut best: Option<(f64, u16)> = None;
-        if let Some(acc) = &self.accel
-            && let Some(h) = acc.intersect(o, d, 0.0, f64::INFINITY, None)
-        {
+        if let Some(h) = self.mesh_hit(o, d, f64::INFINITY, None, ray_key) {
             best = Some((
                 h.t,
                 self.objects[self.tri_object[h.triangle as usize] as usize].mask_value,

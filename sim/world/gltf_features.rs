@@ -13,15 +13,17 @@
 //!   `mat3(cos, −sin, 0, sin, cos, 0)` read column-major);
 //! - vertex colours `COLOR_0` (RGB or RGBA, float or normalised integers; alpha ignored),
 //!   linear RGB multiplying the base colour factor and texture (glTF §3.7.2.1, §3.9.2);
-//! - morph targets at weight 0 (the base shape).
+//! - morph targets at their default weights and skins at the default pose (read and applied
+//!   by [`super::gltf_shape`]);
+//! - normal maps (`normalTexture` with a finite `scale`, on the same coordinates as the other
+//!   textures; rendered by [`super::normal_map`]);
+//! - `alphaMode` `MASK`/`BLEND` and `doubleSided` (read by the loader, rendered by
+//!   [`super::coverage`]); `alphaCutoff` and the base colour alpha must lie in [0, 1].
 //!
 //! Refused, with one short line naming the feature first (a model is loaded faithfully or
 //! not at all): a required extension the loader does not read (e.g.
-//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`); alpha
-//! modes `MASK` and `BLEND` (cut-outs would render opaque); normal maps (`normalTexture`);
-//! morph targets with a non-zero default weight; skinned meshes; base colour and emissive textures on different coordinate sets or transforms.
-//! `doubleSided: false` is accepted and rendered two-sided (documented deviation: stscam's
-//! surfaces are seen from both sides).
+//! `KHR_draco_mesh_compression`, `KHR_texture_basisu`, `EXT_meshopt_compression`);
+//! more than four joint influences (`JOINTS_1`); base colour and emissive textures on different coordinate sets or transforms.
 
 use glam::{DVec2, DVec3};
 
@@ -67,52 +69,45 @@ pub fn check_required_extensions(bytes: &[u8]) -> Result<(), String> {
 
 /// Refuses the features this loader does not render (module documentation), naming the
 /// feature first.
-pub fn check_document(doc: &gltf::Document) -> Result<(), String> {
+pub fn check_document(doc: &gltf::Document, normals: &NormalPlans) -> Result<(), String> {
     for mat in doc.materials() {
         let name = mat.name().map_or_else(
             || format!("material {}", mat.index().unwrap_or(0)),
             |n| format!("material {n:?}"),
         );
-        match mat.alpha_mode() {
-            gltf::material::AlphaMode::Opaque => {}
-            mode => {
+        if let Some(c) = mat.alpha_cutoff()
+            && !(0.0..=1.0).contains(&c)
+        {
+            return Err(format!(
+                "alphaCutoff ({name}): {c} is not a number in [0, 1]"
+            ));
+        }
+        let a = mat.pbr_metallic_roughness().base_color_factor()[3];
+        if !(0.0..=1.0).contains(&a) {
+            return Err(format!(
+                "baseColorFactor ({name}): alpha {a} is not a number in [0, 1]"
+            ));
+        }
+        if let Some(nt) = mat.normal_texture()
+            && !nt.scale().is_finite()
+        {
+            return Err(format!(
+                "normalTexture.scale ({name}): {} is not a finite number",
+                nt.scale()
+            ));
+        }
+        uv_plan(&mat, normals).map_err(|e| format!("{e} ({name})"))?;
+    }
+    super::gltf_shape::check_weights(doc)?;
+    for mesh in doc.meshes() {
+        for p in mesh.primitives() {
+            if p.get(&gltf::Semantic::Joints(1)).is_some() {
                 return Err(format!(
-                    "alphaMode {mode:?} ({name}): alpha cut-outs and blending are not \
-                     supported (set the material opaque or remove the transparent parts)"
+                    "JOINTS_1 (mesh {}): more than four joint influences per vertex are not \
+                     supported",
+                    mesh.index()
                 ));
             }
-        }
-        if mat.normal_texture().is_some() {
-            return Err(format!(
-                "normalTexture ({name}): normal maps are not supported (bake them into the \
-                 geometry or remove the map)"
-            ));
-        }
-        uv_plan(&mat).map_err(|e| format!("{e} ({name})"))?;
-    }
-    for mesh in doc.meshes() {
-        if mesh.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
-            return Err(format!(
-                "morph target weights (mesh {}): a non-zero default weight is not supported \
-                 (apply the shape keys before export)",
-                mesh.index()
-            ));
-        }
-    }
-    for node in doc.nodes() {
-        if node.skin().is_some() && node.mesh().is_some() {
-            return Err(format!(
-                "skin (node {}): skinned meshes are not supported (apply the armature before \
-                 export)",
-                node.index()
-            ));
-        }
-        if node.weights().is_some_and(|w| w.iter().any(|x| *x != 0.0)) {
-            return Err(format!(
-                "morph target weights (node {}): a non-zero weight is not supported (apply \
-                 the shape keys before export)",
-                node.index()
-            ));
         }
     }
     Ok(())
@@ -163,34 +158,90 @@ fn info_plan(info: &gltf::texture::Info) -> UvPlan {
     UvPlan { set, transform }
 }
 
-/// The texture coordinates a material's base colour and emissive textures read (set 0 and no
-/// transform without textures); an error if the two differ.
-pub fn uv_plan(mat: &gltf::Material) -> Result<UvPlan, String> {
-    let base = mat
-        .pbr_metallic_roughness()
-        .base_color_texture()
-        .map(|i| info_plan(&i));
-    let emissive = mat.emissive_texture().map(|i| info_plan(&i));
-    match (base, emissive) {
-        (Some(a), Some(b)) if a != b => Err(
-            "texCoord/KHR_texture_transform: the base colour and emissive textures use \
-             different texture coordinates, which is not supported"
-                .to_string(),
-        ),
-        (Some(a), _) | (None, Some(a)) => Ok(a),
-        (None, None) => Ok(UvPlan::default()),
+/// The texture coordinates of each material's normal texture, by material index: its
+/// `texCoord` and `KHR_texture_transform`, read from the glTF JSON (the `gltf` crate does not
+/// parse that extension on normal textures). Empty when the file has no normal texture.
+pub fn normal_plans(bytes: &[u8]) -> NormalPlans {
+    let key = b"normalTexture";
+    if !bytes.windows(key.len()).any(|w| w == key) {
+        return NormalPlans::default();
     }
+    let Some(doc) = document_json(bytes) else {
+        return NormalPlans::default();
+    };
+    let mut plans = NormalPlans::default();
+    let materials = doc.get("materials").and_then(|m| m.as_array());
+    for (i, m) in materials.into_iter().flatten().enumerate() {
+        let Some(nt) = m.get("normalTexture") else {
+            continue;
+        };
+        let num = |v: Option<&serde_json::Value>| v.and_then(serde_json::Value::as_f64);
+        let mut set = num(nt.get("texCoord")).unwrap_or(0.0) as u32;
+        let transform = nt
+            .get("extensions")
+            .and_then(|e| e.get("KHR_texture_transform"))
+            .map(|t| {
+                let pair = |k: &str, d: f64| -> [f64; 2] {
+                    let v = t.get(k);
+                    let at = |j: usize| num(v.and_then(|v| v.get(j)));
+                    [at(0).unwrap_or(d), at(1).unwrap_or(d)]
+                };
+                if let Some(s) = num(t.get("texCoord")) {
+                    set = s as u32;
+                }
+                let rotation = num(t.get("rotation")).unwrap_or(0.0);
+                texture_transform(pair("offset", 0.0), rotation, pair("scale", 1.0))
+            });
+        plans.0.insert(i, UvPlan { set, transform });
+    }
+    plans
 }
 
-/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB (empty without
-/// them). Errors (one line) if the accessor has another count or cannot be read.
+/// The texture coordinates of the materials' normal textures ([`normal_plans`]).
+#[derive(Clone, Debug, Default)]
+pub struct NormalPlans(std::collections::HashMap<usize, UvPlan>);
+
+/// The texture coordinates a material's base colour, emissive and normal textures read (set 0
+/// and no transform without textures); an error if they differ (the mesh carries one set).
+pub fn uv_plan(mat: &gltf::Material, normals: &NormalPlans) -> Result<UvPlan, String> {
+    let plans = [
+        mat.pbr_metallic_roughness()
+            .base_color_texture()
+            .map(|i| info_plan(&i)),
+        mat.emissive_texture().map(|i| info_plan(&i)),
+        mat.normal_texture().map(|n| {
+            mat.index()
+                .and_then(|i| normals.0.get(&i).copied())
+                .unwrap_or(UvPlan {
+                    set: n.tex_coord(),
+                    transform: None,
+                })
+        }),
+    ];
+    let mut used = plans.into_iter().flatten();
+    let Some(first) = used.next() else {
+        return Ok(UvPlan::default());
+    };
+    if used.any(|p| p != first) {
+        return Err(
+            "texCoord/KHR_texture_transform: the base colour, emissive and normal textures \
+             use different texture coordinates, which is not supported"
+                .to_string(),
+        );
+    }
+    Ok(first)
+}
+
+/// The `COLOR_0` vertex colours of a primitive with `n` vertices as linear RGB and their
+/// alpha (both empty without them; the alpha also empty for RGB colours or when it is 1
+/// everywhere). Errors (one line) if the accessor has another count or cannot be read.
 pub fn vertex_colors(
     buffers: &[Vec<u8>],
     prim: &gltf::Primitive,
     n: usize,
-) -> Result<Vec<DVec3>, String> {
+) -> Result<(Vec<DVec3>, Vec<f64>), String> {
     let Some(acc) = prim.get(&gltf::Semantic::Colors(0)) else {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), Vec::new()));
     };
     if acc.count() != n {
         return Err(format!(
@@ -202,19 +253,22 @@ pub fn vertex_colors(
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
         reader.read_colors(0).map(|c| {
-            c.into_rgb_f32()
-                .map(|p| {
-                    let f = |v: f32| {
-                        let v = f64::from(v);
-                        if v.is_finite() { v.max(0.0) } else { 0.0 }
-                    };
-                    DVec3::new(f(p[0]), f(p[1]), f(p[2]))
-                })
-                .collect::<Vec<_>>()
+            let f = |v: f32| {
+                let v = f64::from(v);
+                if v.is_finite() { v.max(0.0) } else { 0.0 }
+            };
+            c.into_rgba_f32()
+                .map(|p| (DVec3::new(f(p[0]), f(p[1]), f(p[2])), f(p[3]).min(1.0)))
+                .unzip::<_, _, Vec<_>, Vec<_>>()
         })
     }));
     match read {
-        Ok(Some(c)) if c.len() == n => Ok(c),
+        Ok(Some((c, mut a))) if c.len() == n => {
+            if a.iter().all(|v| *v >= 1.0) {
+                a = Vec::new();
+            }
+            Ok((c, a))
+        }
         _ => Err(format!(
             "COLOR_0 (accessor {}): unreadable data (type or range)",
             acc.index()

@@ -15,7 +15,9 @@
 //! the fourth interaction on, with survival probability max(throughput) (unbiased). One wavelength per path, scalar spectra.
 //! Emissive mesh triangles are found only by BSDF sampling (weight 1; they are not
 //! next-event-estimation targets). Surfaces are two-sided (the side the ray arrives on is the
-//! front); emission is one-sided (the side the triangle's winding faces).
+//! front) unless single-sided, and alpha cut-outs and blended surfaces are passed through
+//! inside the scene queries ([`super::coverage`]; the ray's key comes from
+//! [`PathRng::ray_key`]); emission is one-sided (the side the triangle's winding faces).
 //!
 //! Polarisation: the display's light is polarised as the display model says; light scattered
 //! by a surface or coming from the other emitters is taken as unpolarised. The result
@@ -107,6 +109,14 @@ impl PathRng {
         self.padded = None;
     }
 
+    /// The key of the ray the path traces next (for stochastic alpha, `super::coverage`):
+    /// a hash of the stream's state that does not advance it, so scenes without blended
+    /// materials draw exactly the numbers they drew before.
+    #[inline]
+    pub fn ray_key(&self) -> u64 {
+        mix64(self.key ^ mix64(self.n ^ 0xA1FA_0000_0000_0000))
+    }
+
     /// The next uniform number in [0, 1).
     #[inline]
     pub fn uniform(&mut self) -> f64 {
@@ -163,12 +173,11 @@ impl World {
         d: DVec3,
         skip: Option<u32>,
         lambda_nm: f64,
+        ray_key: u64,
     ) -> Hit {
         let mut best = Hit::Escape;
         let mut tmax = f64::INFINITY;
-        if let Some(acc) = &self.accel
-            && let Some(h) = acc.intersect(o, d, 0.0, tmax, skip)
-        {
+        if let Some(h) = self.mesh_hit(o, d, tmax, skip, ray_key) {
             tmax = h.t;
             best = Hit::Surface {
                 t: h.t,
@@ -200,7 +209,8 @@ impl World {
     }
 
     /// True if nothing blocks the segment from `o` along unit `d` up to `dist` (the target
-    /// emitter itself excluded).
+    /// emitter itself excluded), for a shadow ray of key `ray_key`.
+    #[allow(clippy::too_many_arguments)]
     fn visible(
         &self,
         disp: &Display,
@@ -209,6 +219,7 @@ impl World {
         dist: f64,
         skip: Option<u32>,
         target: Emitter,
+        ray_key: u64,
     ) -> bool {
         let tmax = dist * (1.0 - 1e-9);
         for (i, l) in self.lights.iter().enumerate() {
@@ -222,10 +233,7 @@ impl World {
                 return false;
             }
         }
-        match &self.accel {
-            Some(acc) => acc.unoccluded(o, d, 0.0, tmax, skip),
-            None => true,
-        }
+        self.mesh_unoccluded(o, d, tmax, skip, ray_key)
     }
 
     /// Solid-angle density with which next-event estimation from `p` picks direction `d`
@@ -344,7 +352,7 @@ impl World {
         let mut depth = 0u32;
         loop {
             counts.rays += 1;
-            let hit = self.closest(disp, o, d, skip, lambda_nm);
+            let hit = self.closest(disp, o, d, skip, lambda_nm, rng.ray_key());
             let mis = |e: Emitter, t: f64| match prev_pdf {
                 None => 1.0,
                 Some(pb) => {
@@ -390,6 +398,7 @@ impl World {
             }
             let front = d.dot(ng) < 0.0;
             let uv = self.uv_at(tri, bary);
+            let mut ns = self.mapped_normal(tri, bary, uv, ns);
             let mat = &self.materials[self.mesh.material_ids[tri as usize] as usize];
             if front && mat.emits() {
                 out.other += beta * mat.emitted(uv, lambda_nm);
@@ -439,7 +448,7 @@ impl World {
                 let f = bsdf.eval(wo_l, wi_l);
                 if f > 0.0 {
                     counts.rays += 1;
-                    if self.visible(disp, origin, wi, dist, Some(tri), e) {
+                    if self.visible(disp, origin, wi, dist, Some(tri), e, rng.ray_key()) {
                         let w = match pdf_l {
                             Some(pl) => {
                                 let pb = bsdf.pdf(wo_l, wi_l);

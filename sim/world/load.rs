@@ -12,7 +12,9 @@
 //! the texture coordinate set the material's textures use is read, with its
 //! `KHR_texture_transform` applied (module [`super::gltf_features`], which also refuses the
 //! features not rendered, naming them first). Materials: metallic-roughness base
-//! colour factor (alpha ignored) and texture, metallic and roughness factors, emissive factor
+//! colour factor and texture (their alpha, `alphaMode`, `alphaCutoff` and `doubleSided` for
+//! [`super::coverage`]), the normal texture (read linearly, with `TANGENT` where present, for
+//! [`super::normal_map`]), metallic and roughness factors, emissive factor
 //! and texture, `KHR_materials_emissive_strength` (1 if absent); a primitive without a material
 //! gets the glTF default material (base colour 1, metallic 1, roughness 1). Images are decoded
 //! here (PNG, JPEG, EXR) from files next to the .gltf, data URIs or buffer views; colour
@@ -43,8 +45,9 @@ use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use glam::{DAffine3, DMat4, DQuat, DVec2, DVec3};
+use glam::{DAffine3, DMat4, DQuat, DVec2, DVec3, DVec4};
 
+use super::coverage::AlphaMode;
 use super::mesh::{Asset, AssetMaterial, Mesh, SurfaceModel};
 use super::texture::{Texture, Wrap};
 use crate::io::IoError;
@@ -197,6 +200,7 @@ pub fn texture_from_encoded_bytes(
 
 fn texture_from_image(img: LoadedImage) -> Texture {
     Texture::from_pixels(img.width, img.height, img.channels, &img.values, img.linear)
+        .with_alpha(img.alpha)
 }
 
 /// The file must exist, be a regular file and be at most [`MAX_FILE_BYTES`] long.
@@ -364,11 +368,13 @@ fn resolve_uri(gltf_path: &Path, uri: &str) -> Result<UriData, LoadError> {
 struct GltfCtx<'a> {
     path: &'a Path,
     buffers: Vec<Vec<u8>>,
-    textures: HashMap<usize, Arc<Texture>>,
+    /// Decoded textures by (glTF texture index, read linearly).
+    textures: HashMap<(usize, bool), Arc<Texture>>,
     materials: Vec<AssetMaterial>,
     material_ids: HashMap<Option<usize>, u32>,
     triangles: usize,
     vertices: usize,
+    normal_plans: super::gltf_features::NormalPlans,
 }
 
 fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
@@ -376,7 +382,9 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     super::gltf_features::check_required_extensions(&bytes).map_err(|m| LoadError::new(path, m))?;
     let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| LoadError::new(path, format!("not a readable glTF file ({e})")))?;
-    super::gltf_features::check_document(&document).map_err(|m| LoadError::new(path, m))?;
+    let normal_plans = super::gltf_features::normal_plans(&bytes);
+    super::gltf_features::check_document(&document, &normal_plans)
+        .map_err(|m| LoadError::new(path, m))?;
     drop(bytes);
     // Every buffer's byteLength is summed before any is read.
     let declared_total = document
@@ -438,6 +446,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         material_ids: HashMap::new(),
         triangles: 0,
         vertices: 0,
+        normal_plans,
     };
     let roots: Vec<gltf::Node> = match document
         .default_scene()
@@ -455,6 +464,17 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             }
             document.nodes().filter(|n| !is_child[n.index()]).collect()
         }
+    };
+    // Skins: their joint matrices in the default pose.
+    let skin_poses = if document.skins().len() == 0 {
+        Vec::new()
+    } else {
+        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
+            .map_err(|m| LoadError::new(path, m))?;
+        document
+            .skins()
+            .map(|s| skin_pose(&ctx, &s, &globals))
+            .collect::<Result<Vec<_>, _>>()?
     };
     let mut mesh = Mesh::default();
     let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots
@@ -481,9 +501,15 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         }
         let world = parent * local_matrix(&node);
         if let Some(m) = node.mesh() {
-            let to_mm = DAffine3::from_scale(DVec3::splat(1000.0)) * DAffine3::from_mat4(world);
+            // A skinned mesh's node transform is ignored (glTF §3.7.3): the joints place it.
+            let skin = node.skin().and_then(|s| skin_poses.get(s.index()));
+            let to_mm = match skin {
+                Some(_) => DAffine3::from_scale(DVec3::splat(1000.0)),
+                None => DAffine3::from_scale(DVec3::splat(1000.0)) * DAffine3::from_mat4(world),
+            };
+            let weights = super::gltf_shape::morph_weights(&node, &m);
             for prim in m.primitives() {
-                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm)? {
+                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights, skin)? {
                     mesh.append(&part, 0);
                 }
             }
@@ -497,6 +523,43 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         mesh,
         materials: ctx.materials,
     })
+}
+
+/// The joint matrices of a skin in the default pose (`globals`: every node's global
+/// transform), its inverse bind matrices checked and read.
+fn skin_pose(
+    ctx: &GltfCtx,
+    skin: &gltf::Skin,
+    globals: &[DMat4],
+) -> Result<super::gltf_shape::SkinPose, LoadError> {
+    let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    let mut ibm = Vec::new();
+    if let Some(acc) = skin.inverse_bind_matrices() {
+        use gltf::accessor::{DataType as T, Dimensions as D};
+        check_accessor(ctx, &acc, "inverseBindMatrices", D::Mat4, &[T::F32])?;
+        let buffers = &ctx.buffers;
+        let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let reader = skin.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+            reader.read_inverse_bind_matrices().map(|it| {
+                it.map(|m| DMat4::from_cols_array_2d(&m.map(|c| c.map(f64::from))))
+                    .collect::<Vec<_>>()
+            })
+        }));
+        ibm = match read {
+            Ok(Some(m)) => m,
+            _ => {
+                return Err(LoadError::new(
+                    ctx.path,
+                    format!(
+                        "inverseBindMatrices (accessor {}): unreadable data",
+                        acc.index()
+                    ),
+                ));
+            }
+        };
+    }
+    super::gltf_shape::SkinPose::new(&joints, globals, &ibm)
+        .map_err(|m| LoadError::new(ctx.path, format!("{m} (skin {})", skin.index())))
 }
 
 /// A node's local transform in f64 (TRS composed as T · R · S, the quaternion normalised).
@@ -524,6 +587,21 @@ fn local_matrix(node: &gltf::Node) -> DMat4 {
             )
         }
     }
+}
+
+/// An accessor of a per-vertex attribute must have one element a vertex (`n`).
+fn check_count(ctx: &GltfCtx, acc: &gltf::Accessor, what: &str, n: usize) -> Result<(), LoadError> {
+    if acc.count() == n {
+        return Ok(());
+    }
+    Err(LoadError::new(
+        ctx.path,
+        format!(
+            "{what} (accessor {}): {} elements for {n} vertices",
+            acc.index(),
+            acc.count()
+        ),
+    ))
 }
 
 /// Checks an accessor before the `gltf` reader touches it: type, count and byte range.
@@ -585,6 +663,8 @@ fn read_primitive(
     ctx: &mut GltfCtx,
     prim: &gltf::Primitive,
     to_mm: &DAffine3,
+    morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
 ) -> Result<Option<Mesh>, LoadError> {
     use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::mesh::Mode;
@@ -606,7 +686,14 @@ fn read_primitive(
     if let Some(a) = &normals_acc {
         check_accessor(ctx, a, "NORMAL", D::Vec3, &[T::F32])?;
     }
-    let uv_plan = super::gltf_features::uv_plan(&prim.material()).unwrap_or_default();
+    let tangents_acc = prim
+        .get(&gltf::Semantic::Tangents)
+        .filter(|a| a.count() == n && prim.material().normal_texture().is_some());
+    if let Some(a) = &tangents_acc {
+        check_accessor(ctx, a, "TANGENT", D::Vec4, &[T::F32])?;
+    }
+    let uv_plan =
+        super::gltf_features::uv_plan(&prim.material(), &ctx.normal_plans).unwrap_or_default();
     let uv_acc = prim
         .get(&gltf::Semantic::TexCoords(uv_plan.set))
         .filter(|a| a.count() == n);
@@ -635,6 +722,44 @@ fn read_primitive(
     let buffers = &ctx.buffers;
     let has_normals = normals_acc.is_some();
     let has_uv = uv_acc.is_some();
+    let has_tangents = tangents_acc.is_some();
+    if skin.is_some() {
+        for (sem, what, types) in [
+            (gltf::Semantic::Joints(0), "JOINTS_0", &[T::U8, T::U16][..]),
+            (
+                gltf::Semantic::Weights(0),
+                "WEIGHTS_0",
+                &[T::F32, T::U8, T::U16][..],
+            ),
+        ] {
+            let Some(acc) = prim.get(&sem) else {
+                return Err(LoadError::new(
+                    ctx.path,
+                    format!("{what}: a skinned primitive needs JOINTS_0 and WEIGHTS_0"),
+                ));
+            };
+            check_count(ctx, &acc, what, n)?;
+            check_accessor(ctx, &acc, what, D::Vec4, types)?;
+        }
+    }
+    // Morph targets with a non-zero weight: their displacement accessors, checked.
+    let morphing = morph_weights.iter().any(|w| *w != 0.0);
+    if morphing {
+        for (k, t) in prim.morph_targets().enumerate() {
+            if morph_weights.get(k).is_none_or(|w| *w == 0.0) {
+                continue;
+            }
+            let targets = [(t.positions(), "POSITION"), (t.normals(), "NORMAL")];
+            for (acc, what) in targets
+                .iter()
+                .filter_map(|(a, w)| a.as_ref().map(|a| (a, w)))
+            {
+                let what = format!("morph target {k} {what}");
+                check_count(ctx, acc, &what, n)?;
+                check_accessor(ctx, acc, &what, D::Vec3, &[T::F32])?;
+            }
+        }
+    }
     // The checks above keep the reader within its buffers; a panic on a malformed sparse
     // accessor is still turned into an error rather than aborting the run.
     let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -664,9 +789,60 @@ fn read_primitive(
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
         };
-        Some((positions, normals, uvs, indices))
+        let mut positions = positions;
+        let mut normals = normals;
+        if morphing {
+            // One target at a time: memory stays that of one attribute.
+            let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
+            for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
+                let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
+                    continue;
+                };
+                for (values, delta) in [
+                    (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
+                    (&mut normals, q.map(|i| i.map(vec3).collect())),
+                ] {
+                    if let Some(d) = delta {
+                        if d.len() != values.len() && !values.is_empty() {
+                            return None;
+                        }
+                        super::gltf_shape::apply_morph(values, w, &d);
+                    }
+                }
+            }
+        }
+        let tangents: Vec<DVec4> = if has_tangents {
+            reader
+                .read_tangents()?
+                .map(|t| {
+                    let v = DVec4::from_array(t.map(f64::from));
+                    let w = if v.w < 0.0 { -1.0 } else { 1.0 };
+                    if v.is_finite() {
+                        v.truncate().extend(w)
+                    } else {
+                        DVec4::ZERO
+                    }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let influences = match skin {
+            Some(_) => {
+                let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
+                let w: Vec<[f64; 4]> = reader
+                    .read_weights(0)?
+                    .into_f32()
+                    .map(|w| w.map(f64::from))
+                    .collect();
+                Some((j, w))
+            }
+            None => None,
+        };
+        Some((positions, normals, uvs, indices, tangents, influences))
     }));
-    let Ok(Some((positions, normals, uvs, indices))) = read else {
+    let Ok(Some((mut positions, mut normals, uvs, indices, mut tangents, influences))) = read
+    else {
         return Err(LoadError::new(
             ctx.path,
             format!(
@@ -675,6 +851,10 @@ fn read_primitive(
             ),
         ));
     };
+    if let (Some(pose), Some((j, w))) = (skin, &influences) {
+        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
+            .map_err(|m| LoadError::new(ctx.path, m))?;
+    }
     if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
         return Err(LoadError::new(
             ctx.path,
@@ -709,14 +889,17 @@ fn read_primitive(
         return Ok(None);
     }
     let material = material_id(ctx, &prim.material())?;
+    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
+        .map_err(|m| LoadError::new(ctx.path, m))?;
     let mut mesh = Mesh {
         positions_mm: positions,
         normals,
         uvs,
         material_ids: vec![material; triangles.len()],
         triangles,
-        colors: super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
-            .map_err(|m| LoadError::new(ctx.path, m))?,
+        colors,
+        alphas,
+        tangents,
     };
     transform_mesh(&mut mesh, to_mm);
     if !has_normals {
@@ -741,6 +924,7 @@ fn transform_mesh(mesh: &mut Mesh, m: &DAffine3) {
             DVec3::ZERO
         };
     }
+    mesh.transform_tangents(m);
     if m.matrix3.determinant() < 0.0 {
         for t in &mut mesh.triangles {
             t.swap(1, 2);
@@ -763,6 +947,10 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
         Some(info) => Some(gltf_texture(ctx, &info.texture())?),
         None => None,
     };
+    let normal_texture = match mat.normal_texture() {
+        Some(n) => Some(gltf_texture_linear(ctx, &n.texture())?),
+        None => None,
+    };
     let name = match (mat.name(), mat.index()) {
         (Some(n), _) => n.to_string(),
         (None, Some(i)) => format!("material {i}"),
@@ -779,6 +967,17 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
         emissive_strength: mat.emissive_strength().map_or(1.0, f),
         roughness: f(pbr.roughness_factor()),
         metallic: f(pbr.metallic_factor()),
+        alpha_mode: match mat.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask {
+                cutoff: mat.alpha_cutoff().map_or(0.5, f),
+            },
+            gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+        },
+        alpha: f(bc[3]),
+        double_sided: mat.double_sided(),
+        normal_scale: mat.normal_texture().map_or(1.0, |n| f(n.scale())),
+        normal_texture,
     };
     let id = ctx.materials.len() as u32;
     ctx.materials.push(m);
@@ -786,9 +985,22 @@ fn material_id(ctx: &mut GltfCtx, mat: &gltf::Material) -> Result<u32, LoadError
     Ok(id)
 }
 
-/// Decodes (once) the image of a glTF texture, with its sampler's wrap modes.
+/// Decodes (once) the image of a glTF colour texture (sRGB), with its sampler's wrap modes.
 fn gltf_texture(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, LoadError> {
-    if let Some(t) = ctx.textures.get(&tex.index()) {
+    gltf_texture_as(ctx, tex, false)
+}
+
+/// As [`gltf_texture`] for a texture of linear data (a normal map: no sRGB decoding).
+fn gltf_texture_linear(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, LoadError> {
+    gltf_texture_as(ctx, tex, true)
+}
+
+fn gltf_texture_as(
+    ctx: &mut GltfCtx,
+    tex: &gltf::Texture,
+    linear: bool,
+) -> Result<Arc<Texture>, LoadError> {
+    if let Some(t) = ctx.textures.get(&(tex.index(), linear)) {
         return Ok(t.clone());
     }
     let image = tex.source();
@@ -851,13 +1063,18 @@ fn gltf_texture(ctx: &mut GltfCtx, tex: &gltf::Texture) -> Result<Arc<Texture>, 
             })
         })
         .unwrap_or("png");
-    let mut texture = texture_from_encoded_bytes(bytes, ext, &name)
-        .map_err(|e| LoadError::texture(e, ctx.path))?;
+    let mut texture = if linear {
+        decode_image_bytes(&name, ext, bytes, crate::limits::MAX_TEXTURE_PIXELS)
+            .map(|img| Texture::from_pixels(img.width, img.height, img.channels, &img.values, true))
+    } else {
+        texture_from_encoded_bytes(bytes, ext, &name)
+    }
+    .map_err(|e| LoadError::texture(e, ctx.path))?;
     let sampler = tex.sampler();
     texture.wrap_s = Wrap::from_gltf(sampler.wrap_s().as_gl_enum());
     texture.wrap_t = Wrap::from_gltf(sampler.wrap_t().as_gl_enum());
     let t = Arc::new(texture);
-    ctx.textures.insert(tex.index(), t.clone());
+    ctx.textures.insert((tex.index(), linear), t.clone());
     Ok(t)
 }
 
@@ -1086,6 +1303,8 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             material_ids: vec![mat_id; triangles.len()],
             triangles,
             colors: super::obj_features::vertex_colours(m),
+            alphas: Vec::new(),
+            tangents: Vec::new(),
         };
         if part.normals.is_empty() {
             part.compute_normals();

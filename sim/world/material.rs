@@ -72,6 +72,10 @@ pub struct Material {
     pub nearest: bool,
     /// The linear RGB behind `Reflectance::Rgb` (for vertex colours), if it is one.
     pub base_rgb: Option<[f64; 3]>,
+    /// Which hits count (alpha mode, single-sided).
+    pub coverage: super::coverage::Coverage,
+    /// Tangent-space normal map and its scale ([`super::normal_map`]).
+    pub normal_map: Option<(Arc<Texture>, f64)>,
 }
 
 fn lookup(t: &Texture, uv: DVec2, nearest: bool) -> [f64; 3] {

@@ -11,8 +11,9 @@
 
 use std::sync::Arc;
 
-use glam::{DAffine3, DVec2, DVec3};
+use glam::{DAffine3, DVec2, DVec3, DVec4};
 
+use super::coverage::AlphaMode;
 use super::texture::Texture;
 
 /// How a material scatters light.
@@ -45,6 +46,16 @@ pub struct AssetMaterial {
     pub roughness: f64,
     /// Metalness in [0, 1].
     pub metallic: f64,
+    /// glTF `alphaMode` (opaque for OBJ and built-in shapes).
+    pub alpha_mode: AlphaMode,
+    /// Base colour factor alpha (glTF `baseColorFactor[3]`), in [0, 1].
+    pub alpha: f64,
+    /// Seen from both sides (glTF `doubleSided`; always for OBJ and built-in shapes).
+    pub double_sided: bool,
+    /// Tangent-space normal map (linear RGB), if any (glTF `normalTexture`).
+    pub normal_texture: Option<Arc<Texture>>,
+    /// `normalTexture.scale` (finite).
+    pub normal_scale: f64,
 }
 
 impl Default for AssetMaterial {
@@ -59,6 +70,11 @@ impl Default for AssetMaterial {
             emissive_strength: 1.0,
             roughness: 1.0,
             metallic: 0.0,
+            alpha_mode: AlphaMode::Opaque,
+            alpha: 1.0,
+            double_sided: true,
+            normal_texture: None,
+            normal_scale: 1.0,
         }
     }
 }
@@ -79,6 +95,27 @@ pub struct Mesh {
     /// Linear RGB vertex colours multiplying the base colour (glTF `COLOR_0`, OBJ
     /// `v x y z r g b`): same length as `positions_mm`, or empty (white).
     pub colors: Vec<DVec3>,
+    /// Vertex alpha (glTF `COLOR_0`'s fourth component) multiplying the material's alpha:
+    /// same length as `positions_mm`, or empty (1).
+    pub alphas: Vec<f64>,
+    /// Vertex tangents (xyz, handedness w = ±1; glTF `TANGENT`): same length as
+    /// `positions_mm`, or empty (tangents from the texture coordinates, `normal_map`).
+    pub tangents: Vec<DVec4>,
+}
+
+/// Appends the per-vertex attribute `src` of an appended mesh to `dst` (for `base` vertices
+/// before and `total` after): nothing if neither has it, else the vertices without it get
+/// `fill`.
+fn append_attribute<T: Copy>(dst: &mut Vec<T>, src: &[T], base: usize, total: usize, fill: T) {
+    if dst.is_empty() && src.is_empty() {
+        return;
+    }
+    dst.resize(base, fill);
+    if src.is_empty() {
+        dst.resize(total, fill);
+    } else {
+        dst.extend_from_slice(src);
+    }
 }
 
 /// A loaded mesh file or built-in shape.
@@ -108,15 +145,24 @@ impl Mesh {
                 self.uvs.extend_from_slice(&other.uvs);
             }
         }
-        if !self.colors.is_empty() || !other.colors.is_empty() {
-            // Vertices without colours are white (neutral).
-            self.colors.resize(base as usize, DVec3::ONE);
-            if other.colors.is_empty() {
-                self.colors.resize(self.positions_mm.len(), DVec3::ONE);
-            } else {
-                self.colors.extend_from_slice(&other.colors);
-            }
-        }
+        // Vertices without colours are white (neutral), without alpha opaque, without tangents
+        // zero (computed from the UVs when shaded).
+        let total = self.positions_mm.len();
+        append_attribute(
+            &mut self.colors,
+            &other.colors,
+            base as usize,
+            total,
+            DVec3::ONE,
+        );
+        append_attribute(&mut self.alphas, &other.alphas, base as usize, total, 1.0);
+        append_attribute(
+            &mut self.tangents,
+            &other.tangents,
+            base as usize,
+            total,
+            DVec4::ZERO,
+        );
         self.triangles
             .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
         self.material_ids
@@ -133,11 +179,22 @@ impl Mesh {
         for n in &mut self.normals {
             *n = (nm * *n).normalize_or_zero();
         }
+        self.transform_tangents(m);
         if flip {
             // A mirroring transform reverses the winding; keep front faces counter-clockwise.
             for t in &mut self.triangles {
                 t.swap(1, 2);
             }
+        }
+    }
+
+    /// Applies `m` to the tangents: surface directions follow the matrix itself; a mirroring
+    /// `m` flips the handedness.
+    pub fn transform_tangents(&mut self, m: &DAffine3) {
+        let flip = m.matrix3.determinant() < 0.0;
+        for t in &mut self.tangents {
+            let d = (m.matrix3 * t.truncate()).normalize_or_zero();
+            *t = d.extend(if flip { -t.w } else { t.w });
         }
     }
 

@@ -15,14 +15,17 @@ pub mod bench_bvh;
 pub mod bsdf;
 pub mod bvh;
 pub mod colour;
+pub mod coverage;
 pub mod desc;
 pub mod frontal;
 pub mod gltf_features;
+pub mod gltf_shape;
 pub mod integrator;
 pub mod light;
 pub mod load;
 pub mod material;
 pub mod mesh;
+pub mod normal_map;
 pub mod obj_features;
 pub mod polygon;
 pub mod shading;
@@ -97,6 +100,9 @@ pub struct World {
     pub emitters: Vec<Emitter>,
     /// `sampling.max_depth`.
     pub max_depth: u32,
+    /// Some material can reject hits (alpha, single-sided): the scene queries filter
+    /// ([`coverage`]).
+    pub coverage_filter: bool,
 }
 
 fn resolve(base: &Path, p: &str) -> PathBuf {
@@ -281,7 +287,17 @@ fn build_material(
         },
         None => Emission::None,
     };
+    // Cut-outs and sides come from the file's material, whatever the scene overrides.
+    let coverage = coverage::Coverage {
+        mode: a.alpha_mode,
+        factor: a.alpha,
+        texture: a.base_color_texture.clone(),
+        nearest: ov.texture_filter.as_deref() == Some("nearest"),
+        single_sided: !a.double_sided,
+    };
     Ok(Material {
+        coverage,
+        normal_map: a.normal_texture.clone().map(|t| (t, a.normal_scale)),
         name: a.name.clone(),
         model,
         reflectance,
@@ -428,7 +444,9 @@ impl World {
         if environment.is_some() {
             emitters.push(Emitter::Environment);
         }
+        let coverage_filter = materials.iter().any(|m| !m.coverage.counts_every_hit());
         Ok(World {
+            coverage_filter,
             objects,
             mesh,
             tri_object,

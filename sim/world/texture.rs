@@ -6,6 +6,9 @@
 //! coordinate (u, v) (glTF convention: (0, 0) = top-left of the image) maps to texel space
 //! x = u·W − ½, y = v·H − ½ and interpolates bilinearly between the four nearest texels after
 //! wrapping each index (repeat, mirrored repeat or clamp to edge, glTF sampler modes).
+//! Alpha (glTF base colour alpha, a coverage) is linear in every format (glTF §3.9.2: only
+//! the RGB channels are sRGB-encoded) and is filtered the same way; it is kept only when
+//! some texel is below 1.
 
 use std::path::Path;
 
@@ -66,6 +69,8 @@ pub struct Texture {
     pub wrap_s: Wrap,
     /// Wrap mode along v.
     pub wrap_t: Wrap,
+    /// Linear alpha per texel, row-major; empty where the image is opaque.
+    pub alpha: Vec<f32>,
 }
 
 /// IEC 61966-2-1 sRGB decoding of a code value in [0, 1].
@@ -113,7 +118,20 @@ impl Texture {
             texels,
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::Repeat,
+            alpha: Vec::new(),
         }
+    }
+
+    /// The same texture with a linear alpha channel (one value a texel, clamped to [0, 1]);
+    /// an alpha of another length, or one that is 1 everywhere, is not kept.
+    pub fn with_alpha(mut self, alpha: Vec<f32>) -> Texture {
+        if alpha.len() == self.texels.len() && alpha.iter().any(|a| !(*a >= 1.0)) {
+            self.alpha = alpha
+                .into_iter()
+                .map(|a| if a.is_nan() { 0.0 } else { a.clamp(0.0, 1.0) })
+                .collect();
+        }
+        self
     }
 
     /// Loads a PNG, JPEG or EXR file as a colour texture (sRGB-decoded unless EXR).
@@ -146,24 +164,52 @@ impl Texture {
 
     /// Linear RGB of the texel containing texture coordinate `uv` (no filtering).
     pub fn lookup_nearest(&self, uv: DVec2) -> [f64; 3] {
+        match self.nearest_index(uv) {
+            Some(i) => self.texels[i].map(f64::from),
+            None => [0.0; 3],
+        }
+    }
+
+    /// Bilinearly filtered linear RGB at texture coordinate `uv`.
+    pub fn lookup(&self, uv: DVec2) -> [f64; 3] {
+        self.bilinear(uv, |i| self.texels[i])
+    }
+
+    /// Alpha at `uv` (1 without an alpha channel), bilinear or of the nearest texel.
+    pub fn alpha_at(&self, uv: DVec2, nearest: bool) -> f64 {
+        if self.alpha.is_empty() {
+            return 1.0;
+        }
+        if nearest {
+            return match self.nearest_index(uv) {
+                Some(i) => f64::from(self.alpha[i]),
+                None => 0.0,
+            };
+        }
+        self.bilinear(uv, |i| [self.alpha[i]])[0]
+    }
+
+    /// Index of the texel containing `uv` (None for a non-finite coordinate).
+    fn nearest_index(&self, uv: DVec2) -> Option<usize> {
         let (x, y) = (
             (uv.x * self.width as f64).floor(),
             (uv.y * self.height as f64).floor(),
         );
         if !(x.is_finite() && y.is_finite()) {
-            return [0.0; 3];
+            return None;
         }
         let xi = self.wrap_s.index(x as i64, self.width);
         let yi = self.wrap_t.index(y as i64, self.height);
-        self.texels[yi * self.width + xi].map(f64::from)
+        Some(yi * self.width + xi)
     }
 
-    /// Bilinearly filtered linear RGB at texture coordinate `uv`.
-    pub fn lookup(&self, uv: DVec2) -> [f64; 3] {
+    /// Bilinear interpolation of the `N` values `fetch` gives for a texel index.
+    #[inline]
+    fn bilinear<const N: usize>(&self, uv: DVec2, fetch: impl Fn(usize) -> [f32; N]) -> [f64; N] {
         let x = uv.x * self.width as f64 - 0.5;
         let y = uv.y * self.height as f64 - 0.5;
         if !(x.is_finite() && y.is_finite()) {
-            return [0.0; 3];
+            return [0.0; N];
         }
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
@@ -176,13 +222,13 @@ impl Texture {
             self.wrap_t.index(y0, self.height),
             self.wrap_t.index(y0 + 1, self.height),
         ];
-        let mut out = [0.0; 3];
+        let mut out = [0.0; N];
         for (j, &yy) in ys.iter().enumerate() {
             let wy = if j == 0 { 1.0 - fy } else { fy };
             for (i, &xx) in xs.iter().enumerate() {
                 let wx = if i == 0 { 1.0 - fx } else { fx };
-                let t = self.texels[yy * self.width + xx];
-                for c in 0..3 {
+                let t = fetch(yy * self.width + xx);
+                for c in 0..N {
                     out[c] += wx * wy * f64::from(t[c]);
                 }
             }

@@ -8,7 +8,7 @@ use stscam::world::load::{LoadError, load_asset};
 
 use super::common::stscam;
 
-fn b64(bytes: &[u8]) -> String {
+pub(super) fn b64(bytes: &[u8]) -> String {
     const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut s = String::new();
     for c in bytes.chunks(3) {
@@ -27,7 +27,10 @@ fn b64(bytes: &[u8]) -> String {
 
 /// A unit quad (metres) in z = 0 with two texture coordinate sets, as a glTF document with a
 /// data-URI buffer; `material` and `extra` (primitive attributes) are spliced in.
-fn quad_gltf(material: serde_json::Value, extra_attr: Option<(&str, usize)>) -> serde_json::Value {
+pub(super) fn quad_gltf(
+    material: serde_json::Value,
+    extra_attr: Option<(&str, usize)>,
+) -> serde_json::Value {
     let pos: [[f32; 3]; 4] = [[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]];
     let uv0: [[f32; 2]; 4] = [[0., 0.], [1., 0.], [1., 1.], [0., 1.]];
     let uv1: [[f32; 2]; 4] = [[0.25, 0.5], [0.75, 0.5], [0.75, 0.0], [0.25, 0.0]];
@@ -88,7 +91,7 @@ fn png_2x2() -> Vec<u8> {
     stscam::io::encode_png16(2, 2, 3, &[65535; 12], stscam::io::PngTransfer::Srgb).unwrap()
 }
 
-fn load(
+pub(super) fn load(
     dir: &Path,
     name: &str,
     doc: &serde_json::Value,
@@ -146,33 +149,38 @@ fn unsupported_features_are_refused_naming_the_feature() {
     let plain = serde_json::json!({"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}});
     assert!(load(dir.path(), "plain.gltf", &quad_gltf(plain.clone(), None)).is_ok());
     let mut cases: Vec<(&str, serde_json::Value)> = Vec::new();
+    // Hostile alpha values.
     cases.push((
-        "alphaMode Mask",
+        "alphaCutoff",
         quad_gltf(
-            serde_json::json!({"alphaMode": "MASK", "alphaCutoff": 0.5}),
+            serde_json::json!({"alphaMode": "MASK", "alphaCutoff": 1.5}),
             None,
         ),
     ));
     cases.push((
-        "alphaMode Blend",
-        quad_gltf(serde_json::json!({"alphaMode": "BLEND"}), None),
+        "baseColorFactor",
+        quad_gltf(
+            serde_json::json!({"alphaMode": "BLEND",
+                               "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, -0.5]}}),
+            None,
+        ),
     ));
     cases.push((
-        "normalTexture",
+        "normalTexture.scale",
         quad_gltf(
-            serde_json::json!({"normalTexture": {"index": 0, "scale": 1.0}}),
+            serde_json::json!({"normalTexture": {"index": 0, "scale": 1e39}}),
             None,
         ),
     ));
     let mut morph = quad_gltf(plain.clone(), None);
     morph["meshes"][0]["primitives"][0]["targets"] = serde_json::json!([{"POSITION": 0}]);
-    morph["meshes"][0]["weights"] = serde_json::json!([0.5]);
-    cases.push(("morph target weights", morph.clone()));
+    morph["meshes"][0]["weights"] = serde_json::json!([0.5, 0.5]);
+    cases.push(("weights", morph.clone()));
     let mut skin = quad_gltf(plain.clone(), None);
     skin["nodes"] = serde_json::json!([{"mesh": 0, "skin": 0}, {"name": "bone"}]);
     skin["skins"] = serde_json::json!([{"joints": [1]}]);
     skin["scenes"] = serde_json::json!([{"nodes": [0, 1]}]);
-    cases.push(("skin", skin));
+    cases.push(("JOINTS_0", skin));
     let mut draco = quad_gltf(plain.clone(), None);
     draco["extensionsUsed"] = serde_json::json!(["KHR_draco_mesh_compression"]);
     draco["extensionsRequired"] = serde_json::json!(["KHR_draco_mesh_compression"]);

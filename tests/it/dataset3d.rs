@@ -444,3 +444,102 @@ fn bad_depth_and_meshes_keys_are_refused_with_one_line() {
         assert!(!o.exists(), "{key}: something was written");
     }
 }
+
+/// `objects.frontal_space` writes the 3-D ground truth in a standard colour space with the
+/// library function of `render --frontal-space`: with `xyz` and `linear-srgb` the frontal
+/// arrays have three channels ([3, h, w]) and `metadata.jsonl` records the space, the
+/// captures (mono), depths and masks keep the bytes of the sensor run, and the linear-sRGB
+/// frontal image is the IEC 61966-2-1 matrix times the XYZ one (the same samples, weighted by
+/// M·cmf; tolerance 1e-5 of the largest value). An explicit `"sensor"` gives the default
+/// run's sample files; another spelling is refused in one line naming the key.
+#[test]
+fn meshes_frontal_space_writes_xyz_and_linear_srgb() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = |space: Option<&str>| {
+        let mut text = meshes_recipe("fs", 2, 2);
+        if let Some(s) = space {
+            text = text.replace(
+                "size_px = 24\n",
+                &format!("size_px = 24\nfrontal_space = \"{s}\"\n"),
+            );
+        }
+        let tag = space.unwrap_or("default");
+        let r = write(d, &format!("{tag}.toml"), &text);
+        let out = d.join(tag);
+        build(&r, &out, &[]);
+        out
+    };
+    let (base, sensor, xyz, srgb) = (
+        run(None),
+        run(Some("sensor")),
+        run(Some("xyz")),
+        run(Some("linear-srgb")),
+    );
+    // The same files, except that the recipe recorded in dataset.json names the key.
+    let (mut ts, mut tb) = (crate::common::tree(&sensor), crate::common::tree(&base));
+    let (js, jb) = (
+        ts.remove("dataset.json").unwrap(),
+        tb.remove("dataset.json").unwrap(),
+    );
+    assert!(ts == tb, "an explicit \"sensor\" changes the sample files");
+    assert!(String::from_utf8_lossy(&js).contains("frontal_space"));
+    assert!(!String::from_utf8_lossy(&jb).contains("frontal_space"));
+    let m = metadata(&base);
+    assert_eq!(m.len(), 2);
+    let file = |root: &Path, split: &str, v: &serde_json::Value, k: &str| {
+        root.join(split).join(v[k].as_str().unwrap())
+    };
+    for (split, v) in &m {
+        assert!(v.get("frontal_space").is_none());
+        let (shape, _) = npy(&file(&base, split, v, "frontal_npy"));
+        assert_eq!(shape, vec![24, 24]);
+        let (_, fx) = npy(&file(&xyz, split, v, "frontal_npy"));
+        let (shape_s, fs) = npy(&file(&srgb, split, v, "frontal_npy"));
+        assert_eq!(shape_s, vec![3, 24, 24], "frontal_space ignored");
+        for k in ["capture_npy", "depth_npy", "mask_file_name"] {
+            for other in [&xyz, &srgb] {
+                assert_eq!(
+                    std::fs::read(file(&base, split, v, k)).unwrap(),
+                    std::fs::read(file(other, split, v, k)).unwrap(),
+                    "{k}"
+                );
+            }
+        }
+        let mx = stscam::world::colour::XYZ_TO_LINEAR_SRGB;
+        let n = 24 * 24;
+        let big = fx.iter().fold(0f32, |a, b| a.max(b.abs())).max(1e-30);
+        assert!(big > 0.0);
+        for i in 0..n {
+            for r in 0..3 {
+                let want: f64 = (0..3).map(|c| mx[r][c] * f64::from(fx[c * n + i])).sum();
+                let got = f64::from(fs[r * n + i]);
+                assert!(
+                    (got - want).abs() <= 1e-5 * f64::from(big),
+                    "pixel {i} ch {r}: {got} vs {want}"
+                );
+            }
+        }
+    }
+    for (root, name) in [(&xyz, "xyz"), (&srgb, "linear-srgb")] {
+        for (split, v) in metadata(root) {
+            assert_eq!(v["frontal_space"], name, "{split}");
+        }
+    }
+    let bad = write(
+        d,
+        "bad.toml",
+        &meshes_recipe("fs", 2, 2)
+            .replace("size_px = 24\n", "size_px = 24\nfrontal_space = \"srgb\"\n"),
+    );
+    let out = stscam(&[
+        "dataset",
+        bad.to_str().unwrap(),
+        "--out",
+        d.join("bad").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("objects.frontal_space"), "{err}");
+}

@@ -12,6 +12,8 @@ mod dataset3d;
 mod depth;
 mod estimators;
 mod frontal_colour;
+mod gltf_coverage;
+mod gltf_shape;
 mod grating_command;
 mod hardening3d;
 mod hostile;

@@ -34,7 +34,7 @@ const CROP48: [&str; 4] = [
 // Helpers
 
 /// Runs `stscam render [scene] --out out extra...`, asserts success, returns the sidecar.
-fn render(scene: Option<&Path>, out: &Path, extra: &[&str]) -> serde_json::Value {
+pub(super) fn render(scene: Option<&Path>, out: &Path, extra: &[&str]) -> serde_json::Value {
     let mut args: Vec<&str> = vec!["render"];
     if let Some(s) = scene {
         args.push(s.to_str().unwrap());
@@ -50,7 +50,7 @@ fn render(scene: Option<&Path>, out: &Path, extra: &[&str]) -> serde_json::Value
     serde_json::from_slice(&std::fs::read(out.join("capture.json")).unwrap()).unwrap()
 }
 
-fn exr(path: &Path) -> (usize, usize, Vec<ExrChannel>) {
+pub(super) fn exr(path: &Path) -> (usize, usize, Vec<ExrChannel>) {
     read_exr(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
@@ -62,7 +62,7 @@ fn channel<'a>(ch: &'a [ExrChannel], name: &str) -> &'a [f32] {
 }
 
 /// A 16-bit grey PNG (mask.png) as values, with its size.
-fn read_mask(path: &Path) -> (usize, usize, Vec<u16>) {
+pub(super) fn read_mask(path: &Path) -> (usize, usize, Vec<u16>) {
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
     let mut reader = dec.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
