@@ -64,8 +64,9 @@ pub fn time_to_error(points: &[Point], target: f64) -> Option<(f64, bool)> {
     Some((last.seconds * (last.relative_rmse / target).powi(2), true))
 }
 
-/// How the error of a render is measured.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+/// How the error of a render is measured (`bench render --error`; one definition for clap and
+/// serde).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum ErrorMeasure {
     /// Relative RMSE against a high-spp reference of the same estimator family.

@@ -33,7 +33,7 @@ pub struct BenchRenderOptions {
     /// Error measure: against a high-spp reference, or from two independent half renders
     /// (no reference; what validation/mitsuba/bench.py measures for Mitsuba).
     #[arg(long, value_enum, default_value = "reference")]
-    pub error: ErrorArg,
+    pub error: crate::bench::ErrorMeasure,
     /// Extra curves (JSON: {"name": ..., "points": [{"spp", "seconds", "relative_rmse"}]}),
     /// e.g. Mitsuba's from validation/mitsuba (repeatable).
     #[arg(long)]
@@ -81,15 +81,6 @@ pub struct BenchReconOptions {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-}
-
-/// Error measure of `bench render --error`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
-pub enum ErrorArg {
-    /// Relative RMSE against a high-spp reference.
-    Reference,
-    /// ‖A − B‖/‖A + B‖ of two independent half renders.
-    Halves,
 }
 
 /// Peak resident memory of this process so far (VmHWM), MiB, where the OS reports it.
@@ -371,7 +362,7 @@ fn cmd_bench_render(
     ref_spp: u32,
     budget_s: f64,
     target: f64,
-    error: ErrorArg,
+    error: crate::bench::ErrorMeasure,
     extra: &[PathBuf],
     json: bool,
     replot: bool,
@@ -384,10 +375,7 @@ fn cmd_bench_render(
     if replot {
         return replot_bench(out);
     }
-    let measure = match error {
-        ErrorArg::Reference => ErrorMeasure::Reference,
-        ErrorArg::Halves => ErrorMeasure::Halves,
-    };
+    let measure = error;
     use crate::render::Estimator;
     if crop == 0
         || ref_spp == 0
