@@ -9,7 +9,7 @@
 use stscam::demo::{DEMO_TARGETS, noisy_capture_of};
 use stscam::hadamard::{CalibrationSettings, FrameSource, calibrate};
 use stscam::matrix::compute_matrix_stack;
-use stscam::noise::{NoiseRng, SensorNoise};
+use stscam::noise::SensorNoise;
 use stscam::recon::Problem;
 use stscam::recon::admm::{AdmmSettings, admm_tv};
 use stscam::recon::cg::{CgSettings, cg_normal};
@@ -58,8 +58,7 @@ fn main() {
         })
         .collect();
     let p_true = Problem::new(&m.h, size, size);
-    let white = m.capture_of(&vec![1.0; m.h.cols]);
-    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
+    let white_peak = stscam::demo::white_peak_of(&m);
     let fracs: Vec<f64> = std::env::var("FRACS").map_or(vec![0.8, 0.2, 0.05, 0.0125], |s| {
         s.split(',').map(|x| x.parse().unwrap()).collect()
     });
@@ -72,17 +71,7 @@ fn main() {
             desc.dark_offset_dn *= (1u32 << (bits - 8)) as f64;
         }
         let noise = SensorNoise::new(&desc, white_peak);
-        let dark: Vec<f64> = m
-            .offset
-            .iter()
-            .enumerate()
-            .map(|(i, &o)| {
-                noise.measure(
-                    f64::from(o),
-                    &mut NoiseRng::new(&[1, 0x4441_524B, i as u64]),
-                )
-            })
-            .collect();
+        let dark = stscam::demo::dark_frame(&m, &noise, 1);
         let mut hs: Vec<(&str, Problem)> = vec![];
         for (name, dark_frame, thr) in [("cal-demo", true, 5.0)] {
             let cal = calibrate(

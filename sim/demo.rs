@@ -173,12 +173,22 @@ pub(crate) fn planes_of_spec(
 /// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
 pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
-    // All object pixels (of every primary) white.
+    let noise = SensorNoise::new(&sys.scene.noise, white_peak_of(m));
+    let dark = dark_frame(m, &noise, seed);
+    (noise, dark)
+}
+
+/// The brightest value of the all-white capture H·1 + o of `m` (every object pixel of every
+/// primary white): what fixes the exposure.
+pub fn white_peak_of(m: &SystemMatrix) -> f64 {
     let white = m.capture_of(&vec![1.0; m.h.cols]);
-    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
-    let noise = SensorNoise::new(&sys.scene.noise, white_peak);
-    let dark: Vec<f64> = m
-        .offset
+    white.iter().flatten().fold(0.0f64, |a, &v| a.max(v))
+}
+
+/// A noisy dark frame (the capture of an all-black display, `m`'s offset) measured by `noise`
+/// from the noise stream of `seed`.
+pub fn dark_frame(m: &SystemMatrix, noise: &SensorNoise, seed: u64) -> Vec<f64> {
+    m.offset
         .iter()
         .enumerate()
         .map(|(i, &o)| {
@@ -187,8 +197,7 @@ pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNo
                 &mut NoiseRng::new(&[seed, 0x4441_524B, i as u64]),
             )
         })
-        .collect();
-    (noise, dark)
+        .collect()
 }
 
 /// The black level each pixel sits at, from a measured dark frame (capture units, the sensor's
@@ -658,9 +667,9 @@ pub fn table_markdown(rows: &[DemoRow]) -> String {
         .filter(|r| r.method == "cgm")
         .map(|r| format!("{} {}: {}", r.target, r.matrix, r.iterations))
         .collect();
-    s += "\nPSNR (peak 1) / SSIM of the reconstruction clipped to [0, 1] against the object, both in linear display intensity. Both methods are regularised by the discrepancy principle on the sensor noise model (in the range of H; docs/validation.md): ADMM-TV's τ_rel (τ = τ_rel·‖Hᵀg‖∞) and CGM's stopping iteration.\n";
+    s += "\nPSNR (peak 1) / SSIM of the reconstruction clipped to [0, 1] against the object, both in linear display intensity. Both methods are regularised by the discrepancy principle on the sensor noise model (in the range of H; docs/validation.md): ADMM-TV's tau_rel (tau = tau_rel·max |Hᵀg|) and CGM's stopping iteration.\n";
     if !taus.is_empty() {
-        s += &format!("\nADMM-TV τ_rel: {}.\n", taus.join(", "));
+        s += &format!("\nADMM-TV tau_rel: {}.\n", taus.join(", "));
     }
     if !its.is_empty() {
         s += &format!("\nCGM iterations: {}.\n", its.join(", "));

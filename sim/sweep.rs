@@ -1242,7 +1242,7 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
     ),
     (
         "psnr",
-        "the demo's protocol: H at spp and seed, the target rendered with seed + 1, sensor noise with the exposure from the all-white capture H 1 + o and a noisy dark frame subtracted, ADMM-TV (50 iterations) with τ by the discrepancy principle on the sensor noise (recon::discrepancy); PSNR (peak 1) of the reconstruction clipped to [0, 1] against the linear target",
+        "the demo's protocol: H at spp and seed, the target rendered with seed + 1, sensor noise with the exposure from the all-white capture H 1 + o and a noisy dark frame subtracted, ADMM-TV (50 iterations) with tau by the discrepancy principle on the sensor noise (recon::discrepancy); PSNR (peak 1) of the reconstruction clipped to [0, 1] against the linear target",
     ),
 ];
 
