@@ -31,6 +31,7 @@ use crate::noise::{NoiseRng, SensorNoise};
 use crate::recon::Problem;
 use crate::recon::admm::{AdmmSettings, admm_tv};
 use crate::recon::cg::{CgSettings, cg_normal};
+use crate::recon::discrepancy::{NoiseLevel, admm_tv_discrepancy, cg_discrepancy};
 use crate::recon::metrics::{psnr, ssim};
 use crate::render::{RenderSettings, render};
 use crate::system::System;
@@ -75,9 +76,20 @@ pub struct DemoRow {
     pub psnr_db: f64,
     /// SSIM.
     pub ssim: f64,
-    /// Per-frame solve time (back-projection + iterations), ms.
+    /// Per-frame solve time (back-projection + iterations, and for the noise rule its
+    /// least-squares fit, trace probes and τ search), ms.
     pub frame_ms: f64,
+    /// Iterations done (CGM: where the discrepancy principle stopped it; ADMM-TV: per solve).
+    pub iterations: usize,
+    /// ADMM-TV: τ_rel chosen by the discrepancy principle (τ = τ_rel·‖Hᵀg‖∞).
+    pub tau_rel: Option<f64>,
+    /// Whether the discrepancy target was met inside the allowed range (CGM: before
+    /// [`DEMO_CG_MAX_ITERS`]; ADMM-TV: τ_rel inside the search bracket).
+    pub target_met: bool,
 }
+
+/// CGM's iteration cap in the demo's table (the discrepancy principle stops it earlier).
+pub const DEMO_CG_MAX_ITERS: usize = 100;
 
 /// One target of the demo's several-depths part.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -161,12 +173,22 @@ pub(crate) fn planes_of_spec(
 /// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
 pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
-    // All object pixels (of every primary) white.
+    let noise = SensorNoise::new(&sys.scene.noise, white_peak_of(m));
+    let dark = dark_frame(m, &noise, seed);
+    (noise, dark)
+}
+
+/// The brightest value of the all-white capture H·1 + o of `m` (every object pixel of every
+/// primary white): what fixes the exposure.
+pub fn white_peak_of(m: &SystemMatrix) -> f64 {
     let white = m.capture_of(&vec![1.0; m.h.cols]);
-    let white_peak = white.iter().flatten().fold(0.0f64, |a, &v| a.max(v));
-    let noise = SensorNoise::new(&sys.scene.noise, white_peak);
-    let dark: Vec<f64> = m
-        .offset
+    white.iter().flatten().fold(0.0f64, |a, &v| a.max(v))
+}
+
+/// A noisy dark frame (the capture of an all-black display, `m`'s offset) measured by `noise`
+/// from the noise stream of `seed`.
+pub fn dark_frame(m: &SystemMatrix, noise: &SensorNoise, seed: u64) -> Vec<f64> {
+    m.offset
         .iter()
         .enumerate()
         .map(|(i, &o)| {
@@ -175,8 +197,15 @@ pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNo
                 &mut NoiseRng::new(&[seed, 0x4441_524B, i as u64]),
             )
         })
-        .collect();
-    (noise, dark)
+        .collect()
+}
+
+/// The black level each pixel sits at, from a measured dark frame (capture units, the sensor's
+/// dark offset removed): what `recon::discrepancy::NoiseLevel::of_capture` takes as `offset`.
+pub fn black_level_of(dark: &[f64], noise: &SensorNoise) -> Vec<f32> {
+    dark.iter()
+        .map(|&d| (d - noise.dark_offset_units()) as f32)
+        .collect()
 }
 
 /// The measured capture of the linear object `truth` (the object size of `sys`'s display):
@@ -312,18 +341,28 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     let setup_s = t0.elapsed().as_secs_f64();
     let mut table = Vec::new();
     let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
+    // Both methods regularise by the discrepancy principle on the sensor model
+    // (`recon::discrepancy`); the black level each pixel sits at comes from the measured dark
+    // frame (a camera knows its dark frame, not the simulator's offset).
+    let dark_level = black_level_of(&dark, &noise);
     for shot in &shots {
         let mut per = Vec::new();
         for (mname, p) in [("true", &p_true), ("calibrated", &p_est)] {
+            let t_level = Instant::now();
+            let level = NoiseLevel::of_capture(p, &shot.g, &dark_level, true, &noise);
+            let level_ms = 1e3 * t_level.elapsed().as_secs_f64();
             for method in ["cgm", "admm-tv"] {
                 let t = Instant::now();
                 let htg = p.back_project(&shot.g);
-                let f = if method == "cgm" {
-                    cg_normal(p, &htg, &set.cg).f
+                let (f, iterations, tau_rel, target_met) = if method == "cgm" {
+                    let r = cg_discrepancy(p, &htg, &level, DEMO_CG_MAX_ITERS);
+                    let met = r.iterations < DEMO_CG_MAX_ITERS;
+                    (r.f, r.iterations, None, met)
                 } else {
-                    admm_tv(p, &htg, &set.admm).f
+                    let c = admm_tv_discrepancy(p, &htg, &level, &set.admm);
+                    (c.result.f, set.admm.iters, Some(c.tau_rel), c.reached)
                 };
-                let frame_ms = 1e3 * t.elapsed().as_secs_f64();
+                let frame_ms = level_ms + 1e3 * t.elapsed().as_secs_f64();
                 table.push(DemoRow {
                     target: shot.name.to_string(),
                     kind: shot.kind.to_string(),
@@ -333,6 +372,9 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
                     psnr_db: psnr(&f, &shot.truth),
                     ssim: ssim(&f, &shot.truth, ow, oh),
                     frame_ms,
+                    iterations,
+                    tau_rel,
+                    target_met,
                 });
                 per.push(f);
             }
@@ -513,8 +555,9 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),
         "noise": sys.scene.noise,
         "exposure_electrons_per_unit": noise.electrons_per_unit,
-        "cgm": {"iters": set.cg.iters, "tol": set.cg.tol},
-        "admm_tv": {"iters": set.admm.iters, "tau_rel": set.admm.tau_rel, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
+        "cgm": {"table": {"stopping": "discrepancy principle in the range of H (recon::discrepancy)", "max_iters": DEMO_CG_MAX_ITERS}, "several_depths": {"iters": set.cg.iters, "tol": set.cg.tol}},
+        "admm_tv": {"iters": set.admm.iters, "table": {"tau": "discrepancy principle in the range of H (recon::discrepancy), bisection in log tau_rel", "tau_rel_bracket": [crate::recon::discrepancy::TAU_REL_MIN, crate::recon::discrepancy::TAU_REL_MAX]}, "several_depths": {"tau_rel": set.admm.tau_rel}, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
+        "noise_conditions": noise_conditions(&sys.scene.noise, &noise),
         "metrics": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM of Wang et al. 2004 (Gaussian sigma 1.5, 11x11, K1 0.01, K2 0.03), mean over the pixels where the window fits",
         "matrix_nnz": m.h.nnz(),
         "h_est_nnz": cal.h_est.nnz(),
@@ -591,8 +634,63 @@ pub fn table_markdown(rows: &[DemoRow]) -> String {
             cell("calibrated", "admm-tv")
         );
     }
-    s += "\nPSNR (peak 1) / SSIM of the reconstruction clipped to [0, 1] against the object, both in linear display intensity.\n";
+    let mean = |m: &str, method: &str| {
+        let v: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.matrix == m && r.method == method)
+            .map(|r| r.psnr_db)
+            .collect();
+        format!("{:.2} dB", v.iter().sum::<f64>() / v.len().max(1) as f64)
+    };
+    s += &format!(
+        "| mean | | {} | {} | {} | {} |\n",
+        mean("true", "cgm"),
+        mean("true", "admm-tv"),
+        mean("calibrated", "cgm"),
+        mean("calibrated", "admm-tv")
+    );
+    let taus: Vec<String> = rows
+        .iter()
+        .filter(|r| r.method == "admm-tv")
+        .map(|r| {
+            let t = r.tau_rel.map_or("–".to_string(), |t| format!("{t:.2e}"));
+            format!(
+                "{} {}: {t}{}",
+                r.target,
+                r.matrix,
+                if r.target_met { "" } else { " (bound)" }
+            )
+        })
+        .collect();
+    let its: Vec<String> = rows
+        .iter()
+        .filter(|r| r.method == "cgm")
+        .map(|r| format!("{} {}: {}", r.target, r.matrix, r.iterations))
+        .collect();
+    s += "\nPSNR (peak 1) / SSIM of the reconstruction clipped to [0, 1] against the object, both in linear display intensity. Both methods are regularised by the discrepancy principle on the sensor noise model (in the range of H; docs/validation.md): ADMM-TV's tau_rel (tau = tau_rel·max |Hᵀg|) and CGM's stopping iteration.\n";
+    if !taus.is_empty() {
+        s += &format!("\nADMM-TV tau_rel: {}.\n", taus.join(", "));
+    }
+    if !its.is_empty() {
+        s += &format!("\nCGM iterations: {}.\n", its.join(", "));
+    }
     s
+}
+
+/// The demo's noise conditions as numbers (demo.json `noise_conditions`): the sensor model's
+/// parameters and what they mean for the all-white frame.
+fn noise_conditions(desc: &crate::scene::NoiseDesc, noise: &SensorNoise) -> serde_json::Value {
+    let white_e = desc.exposure_fraction * desc.full_well_e;
+    serde_json::json!({
+        "bit_depth": desc.bit_depth,
+        "full_well_e": desc.full_well_e,
+        "read_noise_e": desc.read_noise_e,
+        "dark_offset_dn": desc.dark_offset_dn,
+        "white_peak_e": white_e,
+        "white_peak_dn": white_e / noise.electrons_per_dn,
+        "white_peak_snr": white_e / (white_e + desc.read_noise_e * desc.read_noise_e).sqrt(),
+        "frames_averaged": 1,
+    })
 }
 
 /// The several-depths table as Markdown: one row per target.

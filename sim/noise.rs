@@ -201,6 +201,56 @@ impl SensorNoise {
         dn * (self.electrons_per_dn / self.electrons_per_unit)
     }
 
+    /// The variance (capture units²) of [`measure`](Self::measure) for the noiseless value
+    /// `v` below saturation: shot noise (mean e = v·G electrons), read noise σ_read² and the
+    /// ADC's uniform rounding error (one DN)²/12, converted with the gain G:
+    /// (e + σ_read²)/G² + (e⁻ per DN / G)²/12. Clipping at 0 and full scale is ignored (it only
+    /// lowers the variance).
+    pub fn variance(&self, v: f64) -> f64 {
+        if self.electrons_per_unit <= 0.0 {
+            return 0.0;
+        }
+        let g = self.electrons_per_unit;
+        let e = v.max(0.0) * g;
+        let q = self.electrons_per_dn / g;
+        (e + self.read_noise_e * self.read_noise_e) / (g * g) + q * q / 12.0
+    }
+
+    /// The mean squared error E[(x − v − dark offset)²] of a measurement x of the noiseless
+    /// value `v` (capture units²), the ADC's rounding taken exactly: the electrons are taken as
+    /// Gaussian with the shot-plus-read variance s² (DN²) about the mean μ (DN, dark offset
+    /// in), and E[(round(μ + sZ) − μ)²] = Σₖ (k − μ)² [Φ((k + ½ − μ)/s) − Φ((k − ½ − μ)/s)].
+    /// Unlike [`variance`](Self::variance) (which assumes the rounding error uniform, true when
+    /// s ≳ ½ DN or μ's fraction is random), this is right for a pixel that receives almost no
+    /// light and sits at an integer black level: its rounding error is then nearly zero.
+    pub fn mse_about(&self, v: f64) -> f64 {
+        if self.electrons_per_unit <= 0.0 {
+            return 0.0;
+        }
+        let g = self.electrons_per_unit;
+        let e = v.max(0.0) * g;
+        let s = (e + self.read_noise_e * self.read_noise_e).sqrt() / self.electrons_per_dn;
+        let mu = (e / self.electrons_per_dn + self.dark_offset_dn).min(self.full_scale_dn);
+        let to_units = (self.electrons_per_dn / g).powi(2);
+        if s > 2.0 {
+            // Sheppard's correction is exact to < 1e-30 relative here.
+            return (s * s + 1.0 / 12.0) * to_units;
+        }
+        if s < 1e-12 {
+            let r = mu.round() - mu;
+            return r * r * to_units;
+        }
+        let lo = (mu - 10.0 * s - 1.0).floor().max(0.0) as i64;
+        let hi = (mu + 10.0 * s + 1.0).ceil().min(self.full_scale_dn) as i64;
+        let mut acc = 0.0;
+        for k in lo..=hi {
+            let k = k as f64;
+            let p = normal_cdf((k + 0.5 - mu) / s) - normal_cdf((k - 0.5 - mu) / s);
+            acc += p * (k - mu) * (k - mu);
+        }
+        acc * to_units
+    }
+
     /// True if the noiseless value `v` saturates the ADC (before noise).
     pub fn saturates(&self, v: f64) -> bool {
         v * self.dn_per_unit() + self.dark_offset_dn > self.full_scale_dn
@@ -210,6 +260,27 @@ impl SensorNoise {
 /// Stream tag of a dataset capture's noise: pixel i of the capture of sample seed s draws
 /// from `NoiseRng([s, NOISE_TAG, i])`.
 pub const NOISE_TAG: u64 = 0x4E4F_4953;
+
+/// The standard normal distribution function Φ(x) = ½ erfc(−x/√2), erfc by the Chebyshev
+/// fit of Numerical Recipes (3rd ed., §6.2.2, `erfccheb`; relative error < 1.2e-7 everywhere).
+pub fn normal_cdf(x: f64) -> f64 {
+    let z = (x / std::f64::consts::SQRT_2).abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let poly = -z * z - 1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    let erfc = t * poly.exp();
+    if x >= 0.0 {
+        1.0 - 0.5 * erfc
+    } else {
+        0.5 * erfc
+    }
+}
 
 /// The stored noisy capture of a clean one, as datasets store it: each value measured by
 /// `noise` (pixel i with `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, in
@@ -244,6 +315,15 @@ mod tests {
         } else {
             0.5 * (1.0 - y)
         }
+    }
+
+    #[test]
+    fn normal_cdf_against_abramowitz_stegun() {
+        for i in -60..=60 {
+            let x = f64::from(i) * 0.1;
+            assert!((super::normal_cdf(x) - normal_cdf(x)).abs() < 3e-7, "{x}");
+        }
+        assert!((super::normal_cdf(1.0) - 0.841_344_746).abs() < 1e-7);
     }
 
     #[test]
@@ -344,6 +424,40 @@ mod tests {
         let expect_var = (e + 49.0) / (g * g) + 1.0 / 12.0 / nz.dn_per_unit().powi(2);
         assert!((mean - v - nz.dark_offset_units()).abs() < 4.0 * (expect_var / n as f64).sqrt());
         assert!((var / expect_var - 1.0).abs() < 0.02, "{var} {expect_var}");
+        // `variance` states the same model (used by the discrepancy principle); at twice the
+        // signal it is outside the sampled variance's 2 % band (the check can fail).
+        assert!((nz.variance(v) / var - 1.0).abs() < 0.02);
+        assert!((nz.variance(2.0 * v) / var - 1.0).abs() > 0.2);
+        // mse_about agrees there (s ≫ ½ DN) and, for a dark pixel of an 8-bit sensor at its
+        // integer black level (s ≈ 0.18 DN), matches the sampled mean squared error, which
+        // is far below the uniform-rounding variance.
+        assert!((nz.mse_about(v) / var - 1.0).abs() < 0.02);
+        let mut d8 = desc();
+        d8.bit_depth = 8;
+        let nz8 = SensorNoise::new(&d8, 2.0);
+        let off = nz8.dark_offset_units();
+        let n = 400_000u64;
+        let mut mse = 0.0;
+        for i in 0..n {
+            let x = nz8.measure(0.0, &mut NoiseRng::new(&[6, i])) - off;
+            mse += x * x / n as f64;
+        }
+        let m = nz8.mse_about(0.0);
+        assert!((m / mse - 1.0).abs() < 0.1, "{m} {mse}");
+        assert!(nz8.variance(0.0) > 5.0 * m);
+        // A dimly lit pixel: s = 0.3 DN (89 e⁻), its rounding error neither uniform nor nil.
+        let v =
+            (0.09 * nz8.electrons_per_dn * nz8.electrons_per_dn - 49.0) / nz8.electrons_per_unit;
+        let mut mse = 0.0;
+        for i in 0..n {
+            let x = nz8.measure(v, &mut NoiseRng::new(&[7, i])) - off - v;
+            mse += x * x / n as f64;
+        }
+        assert!(
+            (nz8.mse_about(v) / mse - 1.0).abs() < 0.03,
+            "{} {mse}",
+            nz8.mse_about(v)
+        );
         // Saturation clips at full scale.
         let x = nz.measure(10.0, &mut NoiseRng::new(&[2]));
         assert!((x * nz.dn_per_unit() - 4095.0).abs() < 1e-9);

@@ -34,12 +34,26 @@ pub struct CgResult {
 /// Preconditioned CG for A x = b from the warm start `x`, with A given by `apply` and an
 /// optional inverse diagonal preconditioner. Returns (iterations, relative residual).
 pub(crate) fn pcg(
+    apply: impl FnMut(&[f64], &mut [f64]),
+    inv_diag: Option<&[f64]>,
+    b: &[f64],
+    x: &mut [f64],
+    iters: usize,
+    tol: f64,
+) -> (usize, f64) {
+    pcg_until(apply, inv_diag, b, x, iters, tol, |_, _| false)
+}
+
+/// [`pcg`] that also stops after the first iteration at which `stop(x, r)` holds (x the
+/// iterate, r = b − A x its residual).
+pub(crate) fn pcg_until(
     mut apply: impl FnMut(&[f64], &mut [f64]),
     inv_diag: Option<&[f64]>,
     b: &[f64],
     x: &mut [f64],
     iters: usize,
     tol: f64,
+    mut stop: impl FnMut(&[f64], &[f64]) -> bool,
 ) -> (usize, f64) {
     let n = b.len();
     let bnorm = dot(b, b).sqrt();
@@ -84,6 +98,9 @@ pub(crate) fn pcg(
         }
         k += 1;
         res = dot(&r, &r).sqrt() / bnorm;
+        if stop(x, &r) {
+            break;
+        }
         precond(&r, &mut z);
         let rz_new = dot(&r, &z);
         let beta = rz_new / rz;

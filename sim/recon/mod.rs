@@ -12,6 +12,7 @@ pub mod admm;
 pub mod cg;
 pub mod colour;
 pub mod depth;
+pub mod discrepancy;
 pub mod joint;
 pub mod layered;
 pub mod metrics;

@@ -218,3 +218,81 @@ fn reconstruct_rejects_bad_input_with_one_line() {
         "not a power of two",
     );
 }
+
+/// The paper's finding (ADMM-TV denoises better than CGM, its §4) on a small paper camera at
+/// the scene's stated noise (8-bit, white peak at 80 % of a 10 000 e⁻ full well, 7 e⁻ read
+/// noise, one frame, dark frame subtracted): half-scale optics (32 × 32 object, 220 × 220
+/// crop of 9.6 µm pixels, framed as the demo frames it), H at 16 spp (seed 1), captures
+/// H′f + o′ with an independent H′ (seed 2, no inverse crime). Both methods regularised by the
+/// discrepancy principle in the range of H (`recon::discrepancy`): ADMM-TV's mean PSNR over the
+/// demo's four targets beats CGM's by more than 0.5 dB (measured: 42.05 against 41.08 dB);
+/// the same test with the noise budget scaled by 10⁻⁴ (τ → its lower bound, CGM → its cap:
+/// both nearly least squares) loses that margin, so the margin comes from the noise-chosen
+/// regularisation.
+#[test]
+fn admm_tv_with_tau_from_the_noise_beats_cgm_on_a_small_paper_camera() {
+    use stscam::recon::discrepancy::{NoiseLevel, admm_tv_discrepancy, cg_discrepancy};
+    let mut set: Vec<String> = [
+        "sensor.crop_px=220",
+        "sensor.pitch_um=9.6",
+        "display.image=letter:A@32",
+        "display.lcd_pixels_per_image_pixel=20",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let build = |set: &[String]| {
+        stscam::system::System::build(&stscam::scene::load_scene(None, set).expect("scene"))
+            .expect("system")
+    };
+    let sys0 = build(&set);
+    if let Some(off) = stscam::analysis::framing_offset_px(&sys0) {
+        set.push(format!("sensor.crop_offset_px=[{},{}]", off[0], off[1]));
+    }
+    let sys = build(&set);
+    let d0 = -sys.display.z_mm;
+    let matrix = |seed| {
+        stscam::matrix::compute_matrix_stack(
+            &sys,
+            &stscam::render::RenderSettings::lattice(16, seed, false),
+            &[d0],
+        )
+        .swap_remove(0)
+    };
+    let (m, m2) = (matrix(1), matrix(2));
+    let (noise, dark) = stscam::demo::exposure_and_dark(&sys, &m, 1);
+    let black = stscam::demo::black_level_of(&dark, &noise);
+    let p = Problem::new(&m.h, 32, 32);
+    let run = |budget_scale: f64| {
+        let (mut cg, mut admm) = (0.0, 0.0);
+        for (ti, (_, _, spec)) in stscam::demo::DEMO_TARGETS.iter().enumerate() {
+            let t = stscam::targets::builtin_target(&format!("{spec}@32")).expect("target");
+            let truth = stscam::display::Display::intensity_of(&t.values, 1, false, 2.2);
+            let frame = stscam::demo::noisy_capture_of(&m2, &truth, &noise, 1, ti as u64);
+            let g: Vec<f64> = frame.iter().zip(&dark).map(|(a, d)| a - d).collect();
+            let mut level = NoiseLevel::of_capture(&p, &g, &black, true, &noise);
+            let htg = p.back_project(&g);
+            // The budget's part above the least-squares residual, scaled.
+            let floor = stscam::recon::discrepancy::residual_norm2(
+                &p,
+                &htg,
+                level.g_norm2,
+                level.f_ls.as_deref().expect("f_ls"),
+            );
+            level.budget = floor + budget_scale * (level.budget - floor);
+            cg += psnr(&cg_discrepancy(&p, &htg, &level, 100).f, &truth) / 4.0;
+            let c = admm_tv_discrepancy(&p, &htg, &level, &AdmmSettings::default());
+            admm += psnr(&c.result.f, &truth) / 4.0;
+        }
+        (cg, admm)
+    };
+    let (cg, admm) = run(1.0);
+    eprintln!("mean PSNR: CGM {cg:.2} dB, ADMM-TV {admm:.2} dB");
+    assert!(admm > cg + 0.5, "ADMM-TV {admm:.2} dB vs CGM {cg:.2} dB");
+    let (cg0, admm0) = run(1e-4);
+    eprintln!("budget x1e-4: CGM {cg0:.2} dB, ADMM-TV {admm0:.2} dB");
+    assert!(
+        admm0 < cg0 + 0.5,
+        "ADMM-TV {admm0:.2} dB vs CGM {cg0:.2} dB"
+    );
+}

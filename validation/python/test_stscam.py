@@ -698,20 +698,58 @@ def test_operator_reconstruct_equals_reconstruct_and_batches(small_h, scene, met
 
 
 def test_operator_torch_gradient_and_batch(small_h):
+    # Runs wherever torch is installed (.ci/run installs it); skipped only without torch.
     torch = pytest.importorskip("torch")
     h, off = small_h
     op = stscam.Operator(h, off, object_shape=(32, 32))
     A = op.torch()
-    x = torch.rand(2, 32, 32, dtype=torch.float64, requires_grad=True)
+    x = torch.rand(3, 32, 32, dtype=torch.float64, requires_grad=True)
     y = A(x)
-    assert y.shape == (2, 48 * 64)
-    assert torch.equal(y[1], A(x[1]))
+    assert y.shape == (3, 48 * 64)
+    # A batch equals a loop over its frames, bit for bit, forward and adjoint, in float64 and
+    # float32, and equals the numpy operator.
+    for i in range(3):
+        assert torch.equal(y[i], A(x[i]))
     assert np.array_equal(y.detach().numpy(), op.forward(x.detach().numpy()))
-    w = torch.rand(2, 48 * 64, dtype=torch.float64)
+    w = torch.rand(3, 48 * 64, dtype=torch.float64)
+    hw = A.adjoint(w)
+    assert hw.shape == (3, 32, 32)
+    for i in range(3):
+        assert torch.equal(hw[i], A.adjoint(w[i]))
+    assert np.array_equal(hw.numpy(), op.adjoint(w.numpy()))
+    x32 = x.detach().float()
+    assert y.dtype == torch.float64 and A(x32).dtype == torch.float32
+    assert torch.equal(A(x32)[2], A(x32[2]))
+    # Autograd: the backward of A is the adjoint, and of A.adjoint the forward.
     (y * w).sum().backward()
     assert np.allclose(x.grad.numpy(), op.adjoint(w.numpy()), rtol=1e-12, atol=0)
-    small = stscam.Operator(h[:40, :].tocsc()[:, :16].tocsr(), None, object_shape=(4, 4))
-    assert torch.autograd.gradcheck(small.torch(), (torch.rand(1, 4, 4, dtype=torch.float64, requires_grad=True),))
+    w.requires_grad_(True)
+    v = torch.rand(3, 32, 32, dtype=torch.float64)
+    (A.adjoint(w) * v).sum().backward()
+    assert np.allclose(w.grad.numpy(), op.forward(v.numpy()), rtol=1e-12, atol=0)
+    # torch's numerical gradient check on a small block of H (its 16 strongest columns and the
+    # 40 strongest rows of those: a block of zeros would pass any check), both directions.
+    cols = np.argsort(-np.asarray(abs(h).sum(axis=0)).ravel(), kind="stable")[:16]
+    sub = h.tocsc()[:, cols].tocsr()
+    rows = np.argsort(-np.asarray(abs(sub).sum(axis=1)).ravel(), kind="stable")[:40]
+    block = sub[rows]
+    assert block.nnz > 40
+    small = stscam.Operator(block, None, object_shape=(4, 4))
+    B = small.torch()
+    assert torch.autograd.gradcheck(B, (torch.rand(2, 4, 4, dtype=torch.float64, requires_grad=True),))
+    assert torch.autograd.gradcheck(B.adjoint, (torch.rand(2, 40, dtype=torch.float64, requires_grad=True),))
+    # A wrong backward fails the same check: the adjoint scaled by 2.
+    class Wrong(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, t):
+            return B(t)
+
+        @staticmethod
+        def backward(ctx, g):
+            return 2 * B.adjoint(g)
+
+    with pytest.raises(RuntimeError):  # torch's GradcheckError
+        torch.autograd.gradcheck(Wrong.apply, (torch.rand(1, 4, 4, dtype=torch.float64, requires_grad=True),))
 
 
 def test_operator_deepinv_physics_with_the_sensor_noise(scene, small_h):
