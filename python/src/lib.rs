@@ -888,14 +888,7 @@ impl Solver {
 
 /// The TV kind of a `tv` argument (`"iso"` or `"aniso"`), as the CLI's `--tv`.
 fn tv_kind(tv: &str) -> PyResult<stscam::recon::admm::TvKind> {
-    use stscam::recon::admm::TvKind;
-    match tv {
-        "iso" => Ok(TvKind::Iso),
-        "aniso" => Ok(TvKind::Aniso),
-        t => Err(value_error(format!(
-            "tv {t:?}: expected \"iso\" or \"aniso\""
-        ))),
-    }
+    stscam::options::parse("tv", tv).map_err(value_error)
 }
 
 /// The solver options of `reconstruct`'s arguments, checked as the CLI checks its flags.

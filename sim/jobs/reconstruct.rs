@@ -29,7 +29,7 @@ pub struct ReconstructOptions {
     pub mu: f64,
     /// Total variation.
     #[arg(long, value_enum, default_value = "iso")]
-    pub tv: TvArg,
+    pub tv: crate::recon::admm::TvKind,
     /// Object shape WxH (default: from H.json, else square).
     #[arg(long, value_name = "WxH")]
     pub object: Option<String>,
@@ -64,18 +64,9 @@ pub enum MethodArg {
     Depth,
 }
 
-/// Total variation of `reconstruct --tv`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
-pub enum TvArg {
-    /// Isotropic TV.
-    Iso,
-    /// Anisotropic TV.
-    Aniso,
-}
-
 #[allow(clippy::too_many_arguments)]
 fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure> {
-    use crate::recon::{Method, Problem, Solution, SolveOptions, admm};
+    use crate::recon::{Method, Problem, Solution, SolveOptions};
     let ReconstructOptions {
         matrix,
         capture,
@@ -138,11 +129,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         }
         (Some(m), _) => *m,
     };
-    let tv = if *tv == TvArg::Iso {
-        admm::TvKind::Iso
-    } else {
-        admm::TvKind::Aniso
-    };
+    let tv = *tv;
     if stack {
         let opts = crate::recon::layered::StackOptions {
             method: if method == MethodArg::Joint {

@@ -15,13 +15,14 @@
 
 use super::{Problem, cg::pcg, dot};
 
-/// Which total variation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+/// Which total variation (`reconstruct --tv`, Python's `tv=`: one definition for clap, serde
+/// and the Python module).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum TvKind {
-    /// Σ_p √((D_x f)_p² + (D_y f)_p²).
+    /// Isotropic TV: Σ_p √((D_x f)_p² + (D_y f)_p²).
     Iso,
-    /// Σ_p |(D_x f)_p| + |(D_y f)_p|.
+    /// Anisotropic TV: Σ_p |(D_x f)_p| + |(D_y f)_p|.
     Aniso,
 }
 
