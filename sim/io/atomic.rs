@@ -121,6 +121,12 @@ fn anonymous_in(_dir: &Path) -> std::io::Result<Option<File>> {
     Ok(None)
 }
 
+/// Whether files written into `dir` are unnamed until their commit (`O_TMPFILE` and `/proc`
+/// available there); where not, the named staging described in the module comment is used.
+pub fn unnamed_files_supported(dir: &Path) -> bool {
+    matches!(anonymous_in(dir), Ok(Some(_)))
+}
+
 /// Gives the unnamed `file` the name `path`. Fails with `AlreadyExists` if anything (a file
 /// or a link) is there: `linkat` neither follows nor replaces the new name.
 #[cfg(target_os = "linux")]
