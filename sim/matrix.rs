@@ -657,7 +657,6 @@ pub use crate::io::hfile::{LoadedMatrix, default_offset_path, load_matrix, read_
 mod tests {
     use super::*;
 
-    
     /// max |H f + offset − render| over the render's peak.
     fn rel_diff(m: &SystemMatrix, f: &[f64], cap: &crate::render::Capture) -> f64 {
         let pred = m.capture_of(f);

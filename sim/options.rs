@@ -32,7 +32,10 @@ mod tests {
 
     #[test]
     fn names_and_messages_match_the_command_line() {
-        assert_eq!(parse::<SamplerKind>("sampler", "sobol"), Ok(SamplerKind::Sobol));
+        assert_eq!(
+            parse::<SamplerKind>("sampler", "sobol"),
+            Ok(SamplerKind::Sobol)
+        );
         assert_eq!(parse::<SamplerKind>("sampler", "r5"), Ok(SamplerKind::R5));
         assert_eq!(
             parse::<SamplerKind>("sampler", "halton"),

@@ -880,7 +880,9 @@ impl SceneSource<'_> {
     pub fn load(&self, overrides: &[String]) -> Result<LoadedScene, SceneError> {
         match *self {
             SceneSource::File(path) => load_scene(path, overrides),
-            SceneSource::Text(text, name, dir) => load_scene_text(Some((text, name, dir)), overrides),
+            SceneSource::Text(text, name, dir) => {
+                load_scene_text(Some((text, name, dir)), overrides)
+            }
         }
     }
 }

@@ -1114,7 +1114,8 @@ pub fn run_sweep_from(
     let build = |p: &[f64]| -> Result<System, SweepError> {
         let mut ov = base_overrides.to_vec();
         ov.extend(point_overrides(axes, p));
-        scene.load(&ov)
+        scene
+            .load(&ov)
             .and_then(|ls| System::build(&ls))
             .map_err(|source| SweepError::GridPoint {
                 point: label(p),
@@ -1146,7 +1147,9 @@ pub fn run_sweep_from(
     // The base scene's H for the stale-calibration PSNR (module header).
     let nominal = match &set.psnr {
         Some(ps) => {
-            let base = scene.load(base_overrides).and_then(|ls| System::build(&ls))?;
+            let base = scene
+                .load(base_overrides)
+                .and_then(|ls| System::build(&ls))?;
             Some(psnr_problem(&base, ps, false))
         }
         None => None,

@@ -203,8 +203,16 @@ impl ObjectArrays {
     /// resume and merge refuse to mix datasets of different arrays.
     fn sha256(&self) -> String {
         let mut bytes: Vec<u8> = Vec::with_capacity(self.values.len() * 4 + 32);
-        bytes.extend(format!("{}x{}x{} linear={};", self.n, self.size, self.size, self.linear).bytes());
-        self.values.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+        bytes.extend(
+            format!(
+                "{}x{}x{} linear={};",
+                self.n, self.size, self.size, self.linear
+            )
+            .bytes(),
+        );
+        self.values
+            .iter()
+            .for_each(|v| bytes.extend(v.to_le_bytes()));
         sha256_hex(&bytes)
     }
 }
@@ -395,7 +403,9 @@ pub fn plan_with_objects(
         serde_json::to_vec(&recipe).map_err(|e| recipe_err(recipe_path, "", e.to_string()))?;
     let recipe_sha256 = match &arrays {
         None => sha256_hex(&canonical),
-        Some(a) => sha256_hex(format!("{}+arrays:{}", sha256_hex(&canonical), a.sha256()).as_bytes()),
+        Some(a) => {
+            sha256_hex(format!("{}+arrays:{}", sha256_hex(&canonical), a.sha256()).as_bytes())
+        }
     };
     let scene_file = recipe.scene.file.as_ref().map(|f| base.join(f));
     let mut base_overrides = recipe.scene.set.clone();

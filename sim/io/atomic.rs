@@ -325,7 +325,11 @@ pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoErr
 
 /// Under the commit lock: a staging folder holding `files`' names linked to their unnamed
 /// files. On failure the folder is removed.
-fn stage_unnamed(dir: &Path, files: &[(&str, &[u8])], unnamed: &[File]) -> Result<PathBuf, IoError> {
+fn stage_unnamed(
+    dir: &Path,
+    files: &[(&str, &[u8])],
+    unnamed: &[File],
+) -> Result<PathBuf, IoError> {
     let stage = create_stage(dir)?;
     for ((name, _), file) in files.iter().zip(unnamed) {
         if let Err(e) = link_anonymous(file, &stage.join(name)) {

@@ -11,7 +11,6 @@
 
 use serde::{Deserialize, Serialize};
 
-
 /// A number or three numbers (per-axis scale).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(untagged, expecting = "a number or [x, y, z]")]
@@ -205,11 +204,12 @@ pub fn validate_world(objects: &[ObjectDesc], lights: &[LightDesc]) -> Result<()
         if !finite_all(&o.position_mm) {
             return err(k("position_mm"), "must be finite".into());
         }
-        crate::limits::check_coords(&k("position_mm"), &o.position_mm)
-            .map_err(|e| WorldProblem {
+        crate::limits::check_coords(&k("position_mm"), &o.position_mm).map_err(|e| {
+            WorldProblem {
                 key: e.setting,
                 message: e.message,
-            })?;
+            }
+        })?;
         if !finite_all(&o.rotation_deg) {
             return err(k("rotation_deg"), "must be finite".into());
         }
@@ -307,11 +307,12 @@ pub fn validate_world(objects: &[ObjectDesc], lights: &[LightDesc]) -> Result<()
         let needs_pos = l.kind != "environment";
         match l.position_mm {
             Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
-            Some(p) => crate::limits::check_coords(&k("position_mm"), &p)
-                .map_err(|e| WorldProblem {
-                key: e.setting,
-                message: e.message,
-            })?,
+            Some(p) => {
+                crate::limits::check_coords(&k("position_mm"), &p).map_err(|e| WorldProblem {
+                    key: e.setting,
+                    message: e.message,
+                })?
+            }
             None if needs_pos => {
                 return err(
                     k("position_mm"),

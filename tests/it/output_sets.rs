@@ -224,7 +224,10 @@ fn sigkill_before_the_commit_leaves_nothing_behind() {
         if unnamed == refs[0].len() {
             break;
         }
-        assert!(start.elapsed() < Duration::from_secs(30), "the writer never held its files");
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the writer never held its files"
+        );
         std::thread::sleep(Duration::from_millis(2));
     }
     c.kill().unwrap();
