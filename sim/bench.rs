@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use crate::render::{Estimator, RenderSettings, UserSideSampler, relative_rmse, render_with};
+use crate::render::{Estimator, RenderSettings, UserSideSampler, relative_rmse, render};
 use crate::sampler::SamplerKind;
 use crate::system::System;
 
@@ -91,9 +91,10 @@ fn timed_render(
         user_side,
         spectral_bins: None,
         progress: false,
+        estimator,
     };
     let t0 = Instant::now();
-    let cap = render_with(sys, &set, estimator);
+    let cap = render(sys, &set);
     (cap.channels, t0.elapsed().as_secs_f64())
 }
 
@@ -102,34 +103,20 @@ fn timed_render(
 pub enum CurveSampler {
     /// The same kind at every spp.
     Kind(SamplerKind),
-    /// The lattice's previous default (CHANGELOG.md): a Korobov rule only where its worst
-    /// 2-D Zaremba index reached 0.15 N (of the powers of two, N = 4 and 64), else R_5; in
-    /// 3-D scenes, hashed numbers on the user side.
-    PreviousDefault,
     /// The default lattice with every branch of every camera sample traced on the user side
     /// (`UserSideSampler::Padded`: the previous 3-D default, CHANGELOG.md).
     EveryBranch,
 }
 
 impl CurveSampler {
-    /// The sampler kind and the user side's numbers used at `spp`.
-    pub fn at(self, spp: u32) -> (SamplerKind, UserSideSampler) {
+    /// The sampler kind and the user side's estimator of the curve.
+    pub fn kinds(self) -> (SamplerKind, UserSideSampler) {
         match self {
             CurveSampler::Kind(k) => (k, UserSideSampler::Auto),
             CurveSampler::EveryBranch => (SamplerKind::Lattice, UserSideSampler::Padded),
-            CurveSampler::PreviousDefault => {
-                let kind = match crate::sampler::LatticeRule::korobov_best(u64::from(spp)) {
-                    Some((_, q)) if q >= PREVIOUS_KOROBOV_MIN_QUALITY => SamplerKind::Lattice,
-                    _ => SamplerKind::R5,
-                };
-                (kind, UserSideSampler::Hashed)
-            }
         }
     }
 }
-
-/// The Korobov quality threshold of the previous default ([`CurveSampler::PreviousDefault`]).
-pub const PREVIOUS_KOROBOV_MIN_QUALITY: f64 = 0.15;
 
 /// Renders `sys` at spp 1, 2, 4, … (2, 4, … for `Halves`) with `estimator` and `sampler` until `budget_s`
 /// seconds have been spent (or `max_spp`), measuring each render's error. With `progress`,
@@ -162,7 +149,7 @@ pub fn measure_curve(
     while spp <= max_spp && spent < budget_s {
         let (seconds, err) = match measure {
             ErrorMeasure::Reference => {
-                let (img, t) = timed_render(sys, spp, 7, estimator, sampler.at(spp));
+                let (img, t) = timed_render(sys, spp, 7, estimator, sampler.kinds());
                 let pairs: Vec<(&[f32], &[f32])> = img
                     .iter()
                     .zip(reference)
@@ -171,8 +158,8 @@ pub fn measure_curve(
                 (t, relative_rmse(&pairs))
             }
             ErrorMeasure::Halves => {
-                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler.at(spp / 2));
-                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler.at(spp / 2));
+                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler.kinds());
+                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler.kinds());
                 let (mut num, mut den) = (0.0f64, 0.0f64);
                 for (ca, cb) in a.iter().zip(&b) {
                     for (x, y) in ca.iter().zip(cb) {

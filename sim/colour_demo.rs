@@ -102,47 +102,22 @@ pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[
     let rule = crate::render::lattice_rule(&set);
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let stride = stride.max(1);
-    let nch = sys.response.curves.len();
     let rows: Vec<Vec<[f64; 3]>> = (0..h)
         .step_by(stride)
         .collect::<Vec<_>>()
         .into_par_iter()
         .map(|row| {
-            let mut acc = vec![[0.0f64; 3]; g];
+            let mut shares = Shares {
+                sys,
+                acc: vec![[0.0f64; 3]; g],
+                factor_rsum: (0.0, 0.0),
+                wp: [0.0; 3],
+            };
             let mut stats = crate::render::RenderStats::default();
             for col in (0..w).step_by(stride) {
-                let pixel = (row * w + col) as u64;
-                let sampler =
-                    crate::sampler::PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
-                let mut first = 0u64;
-                let mut batch = [None; crate::render::SAMPLE_BATCH];
-                while first < u64::from(spp) {
-                    let len = (u64::from(spp) - first).min(batch.len() as u64) as usize;
-                    crate::render::camera_samples(
-                        sys,
-                        &sampler,
-                        col,
-                        row,
-                        first,
-                        &mut batch[..len],
-                    );
-                    first += len as u64;
-                    for s in batch[..len].iter().flatten() {
-                        let r = crate::render::channel_weights(sys, s.lambda_nm);
-                        let rsum: f64 = r[..nch].iter().sum();
-                        let wp = sys.display.primary_weights(s.lambda_nm);
-                        crate::render::trace_branches(sys, s, &mut stats, |wt, b| {
-                            if sys.display.pixel_at(b.object_point_mm).is_some() {
-                                let c = s.factor * wt * rsum;
-                                for p in 0..3 {
-                                    acc[b.grating as usize][p] += c * wp[p];
-                                }
-                            }
-                        });
-                    }
-                }
+                crate::render::drive_pixel(sys, &set, rule, (col, row), &mut stats, &mut shares);
             }
-            acc
+            shares.acc
         })
         .collect();
     let mut tot = vec![[0.0f64; 3]; g];
@@ -157,6 +132,51 @@ pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[
     tot.iter()
         .map(|t| std::array::from_fn(|p| if sum[p] > 0.0 { t[p] / sum[p] } else { 0.0 }))
         .collect()
+}
+
+/// The light of each primary through each grating, summed over camera samples
+/// ([`grating_shares`]).
+struct Shares<'a> {
+    sys: &'a System,
+    /// Per grating and primary.
+    acc: Vec<[f64; 3]>,
+    /// The current sample's factor and response sum.
+    factor_rsum: (f64, f64),
+    /// The current sample's primary shares.
+    wp: [f64; 3],
+}
+
+impl crate::render::SampleConsumer for Shares<'_> {
+    fn begin(&mut self, s: &crate::render::CameraSample, _i: u64) {
+        let nch = self.sys.response.curves.len();
+        let r = crate::render::channel_weights(self.sys, s.lambda_nm);
+        let rsum: f64 = r[..nch].iter().sum();
+        self.factor_rsum = (s.factor, rsum);
+        self.wp = self.sys.display.primary_weights(s.lambda_nm);
+    }
+
+    fn branch(
+        &mut self,
+        _s: &crate::render::CameraSample,
+        b: &crate::trace::Branch,
+    ) -> std::ops::ControlFlow<()> {
+        let wt = crate::render::display_weight(self.sys, b);
+        if wt > 0.0 && self.sys.display.pixel_at(b.object_point_mm).is_some() {
+            let c = self.factor_rsum.0 * wt * self.factor_rsum.1;
+            for p in 0..3 {
+                self.acc[b.grating as usize][p] += c * self.wp[p];
+            }
+        }
+        std::ops::ControlFlow::Continue(())
+    }
+
+    fn end(
+        &mut self,
+        _s: &crate::render::CameraSample,
+        _i: u64,
+        _stats: &mut crate::render::RenderStats,
+    ) {
+    }
 }
 
 /// One row of the figure: (label, truth, noisy capture, reconstructions, captions).

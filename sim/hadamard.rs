@@ -731,6 +731,7 @@ pub fn calibrate_scene(
         let pb = crate::progress::Progress::new(job.progress, n as u64 + 1, "calibration frames");
         let quiet = RenderSettings {
             progress: false,
+            estimator: Default::default(),
             ..rs.clone()
         };
         let fr = render_frames(sys, &quiet, || pb.inc(1));

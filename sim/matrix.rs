@@ -31,10 +31,9 @@
 use rayon::prelude::*;
 
 use crate::render::{
-    RenderSettings, RenderStats, SAMPLE_BATCH, camera_samples, channel_weights, lattice_rule,
-    row_progress, trace_branches,
+    CameraSample, RenderSettings, RenderStats, SampleConsumer, channel_weights, display_weight,
+    drive_pixel, lattice_rule, row_progress,
 };
-use crate::sampler::PixelSampler;
 use crate::sparse::CsrMatrix;
 use crate::system::System;
 
@@ -226,150 +225,200 @@ fn matrix_row_lanes<const L: usize>(
     row: usize,
     pixels: std::ops::Range<usize>,
 ) -> (Vec<RowBlock>, RenderStats) {
-    use crate::optics::interface::lateral_shift;
-    let w = sys.camera.width_px;
-    let (first_col, n_cols) = (pixels.start, pixels.len());
+    let n_cols = pixels.len();
     let nch = sys.response.curves.len();
-    let disp = &sys.display;
-    let bl = disp.black_level;
-    let inv_spp = 1.0 / f64::from(set.spp.max(1));
     let mut stats = RenderStats::default();
-    let planes = L / 4;
-    let n_obj = (disp.width_px * disp.height_px) as u32;
-    let mut acc: Vec<DepthAccumulator<L>> = depths_mm
-        .iter()
-        .map(|&depth_mm| DepthAccumulator {
-            depth_mm,
-            table: ColumnTable::new(),
-            recent: [(EMPTY, 0); RECENT],
-            off: [0.0; 4],
-            block: RowBlock {
-                counts: vec![Vec::with_capacity(n_cols); nch],
-                entries: vec![(Vec::new(), Vec::new()); nch],
-                offset: vec![vec![0.0; n_cols]; nch],
-            },
-        })
-        .collect();
+    let mut columns = MatrixColumns::<L> {
+        sys,
+        grid: PixelGrid::of(&sys.display),
+        acc: depths_mm
+            .iter()
+            .map(|&depth_mm| DepthAccumulator {
+                depth_mm,
+                table: ColumnTable::new(),
+                recent: [(EMPTY, 0); RECENT],
+                off: [0.0; 4],
+                block: RowBlock {
+                    counts: vec![Vec::with_capacity(n_cols); nch],
+                    entries: vec![(Vec::new(), Vec::new()); nch],
+                    offset: vec![vec![0.0; n_cols]; nch],
+                },
+            })
+            .collect(),
+        branches: Vec::with_capacity(64),
+        total: 0.0,
+        weighted: Vec::with_capacity(64),
+    };
     let mut order: Vec<usize> = Vec::new();
-    let mut branches: Vec<(f64, glam::DVec2)> = Vec::with_capacity(64);
-    let mut weighted: Vec<(glam::DVec2, [f64; L], [f64; 4])> = Vec::with_capacity(64);
-    let grid = PixelGrid::of(disp);
+    let first_col = pixels.start;
     for col in pixels {
-        let pixel = (row * w + col) as u64;
-        let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
-        for a in &mut acc {
+        for a in &mut columns.acc {
             a.off = [0.0; 4];
         }
-        let spp = u64::from(set.spp);
-        let mut batch = [None; SAMPLE_BATCH];
-        let mut first = 0u64;
-        while first < spp {
-            let len = (spp - first).min(SAMPLE_BATCH as u64) as usize;
-            camera_samples(sys, &sampler, col, row, first, &mut batch[..len]);
-            first += len as u64;
-            for s in &batch[..len] {
-                let Some(s) = s else {
-                    continue;
-                };
-                branches.clear();
-                let mut total = 0.0;
-                trace_branches(sys, s, &mut stats, |wt, b| {
-                    branches.push((wt, b.exit_point_mm));
-                    total += wt;
-                });
-                // A non-finite sample is dropped at every depth alike: the decision uses all of
-                // its branches, wherever they land (branch weights are finite and positive, so this
-                // drops exactly the samples whose factor is not finite).
-                if !(s.factor * total).is_finite() {
-                    stats.nonfinite_samples += 1;
-                    continue;
-                }
-                let r = channel_weights(sys, s.lambda_nm);
-                let wp = disp.primary_weights(s.lambda_nm);
-                // Per branch, once for every depth: its H contribution c·r_ch (times w_p per
-                // primary of a colour display) and its offset contribution c·r_ch·bl (unused
-                // channels stay 0, so whole lanes add).
-                weighted.clear();
-                weighted.extend(branches.iter().map(|&(wt, exit)| {
-                    let c = s.factor * wt;
-                    let (mut cr, mut crb) = ([0.0f64; L], [0.0f64; 4]);
-                    for ch in 0..nch {
-                        if L == 4 {
-                            cr[ch] = c * r[ch];
-                        } else {
-                            for (p, w) in wp.iter().enumerate() {
-                                cr[4 * p + ch] = c * r[ch] * w;
-                            }
-                        }
-                        crb[ch] = c * r[ch] * bl;
-                    }
-                    (exit, cr, crb)
-                }));
-                // Physical light travels along −dir (as in `trace`): every branch of the sample
-                // crosses the air gap to depth D with the same lateral shift.
-                let u = -s.ray.dir.truncate();
-                for a in &mut acc {
-                    let shift = lateral_shift(u, 1.0, a.depth_mm);
-                    for (exit, cr, crb) in &weighted {
-                        let x = *exit - shift;
-                        // `Display::on_lcd`, with the pixel lookup done once.
-                        let k = grid.pixel_at(x);
-                        if k.is_none() && !disp.within_extent(x) {
-                            continue;
-                        }
-                        for (o, v) in a.off.iter_mut().zip(crb) {
-                            *o += v;
-                        }
-                        if let Some((kc, kr)) = k {
-                            let key = (kr * disp.width_px + kc) as u32;
-                            // A pixel's samples land on a few object pixels per depth: a small
-                            // direct-mapped cache finds most entries without probing the table.
-                            let slot = recent_slot(key);
-                            let idx = if a.recent[slot].0 == key {
-                                a.recent[slot].1 as usize
-                            } else {
-                                let idx = a.table.index(key);
-                                a.recent[slot] = (key, idx as u32);
-                                idx
-                            };
-                            let e = &mut a.table.sums[idx];
-                            for (e, v) in e.iter_mut().zip(cr) {
-                                *e += v;
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        for a in &mut acc {
-            let table = &mut a.table;
-            order.clear();
-            order.extend(0..table.keys.len());
-            order.sort_unstable_by_key(|&i| table.keys[i]);
-            for ch in 0..nch {
-                let (cols, vals) = &mut a.block.entries[ch];
-                let mut n = 0u32;
-                // Columns increase: primary blocks in order, object pixels sorted within.
-                for p in 0..planes {
-                    for &i in &order {
-                        let v = (table.sums[i][4 * p + ch] * (1.0 - bl) * inv_spp) as f32;
-                        if v != 0.0 {
-                            cols.push(p as u32 * n_obj + table.keys[i]);
-                            vals.push(v);
-                            n += 1;
-                        }
-                    }
-                }
-                a.block.counts[ch].push(n);
-            }
-            for (o, &v) in a.block.offset.iter_mut().zip(&a.off) {
-                o[col - first_col] = v * inv_spp;
-            }
-            table.clear();
-            a.recent = [(EMPTY, 0); RECENT];
+        drive_pixel(sys, set, rule, (col, row), &mut stats, &mut columns);
+        for a in &mut columns.acc {
+            a.store_pixel(sys, set, col - first_col, &mut order);
         }
     }
-    (acc.into_iter().map(|a| a.block).collect(), stats)
+    (columns.acc.into_iter().map(|a| a.block).collect(), stats)
+}
+
+/// The camera samples of a pixel summed into the columns of every depth's H
+/// ([`matrix_row_lanes`]).
+struct MatrixColumns<'a, const L: usize> {
+    sys: &'a System,
+    grid: PixelGrid,
+    acc: Vec<DepthAccumulator<L>>,
+    /// The current sample's branches: (weight averaged over the display's polarisation,
+    /// front-face exit point), and the sum of their weights.
+    branches: Vec<(f64, glam::DVec2)>,
+    total: f64,
+    /// Per branch: its exit point, H contribution per lane and offset contribution per channel.
+    weighted: Vec<(glam::DVec2, [f64; L], [f64; 4])>,
+}
+
+impl<const L: usize> SampleConsumer for MatrixColumns<'_, L> {
+    #[inline(always)]
+    fn begin(&mut self, _s: &CameraSample, _i: u64) {
+        self.branches.clear();
+        self.total = 0.0;
+    }
+
+    #[inline(always)]
+    fn branch(&mut self, _s: &CameraSample, b: &crate::trace::Branch) -> std::ops::ControlFlow<()> {
+        let wt = display_weight(self.sys, b);
+        if wt > 0.0 {
+            self.branches.push((wt, b.exit_point_mm));
+            self.total += wt;
+        }
+        std::ops::ControlFlow::Continue(())
+    }
+
+    fn end(&mut self, s: &CameraSample, _i: u64, stats: &mut RenderStats) {
+        use crate::optics::interface::lateral_shift;
+        let (sys, disp) = (self.sys, &self.sys.display);
+        let nch = sys.response.curves.len();
+        let bl = disp.black_level;
+        // A non-finite sample is dropped at every depth alike: the decision uses all of
+        // its branches, wherever they land (branch weights are finite and positive, so this
+        // drops exactly the samples whose factor is not finite).
+        if !(s.factor * self.total).is_finite() {
+            stats.nonfinite_samples += 1;
+            return;
+        }
+        let r = channel_weights(sys, s.lambda_nm);
+        let wp = disp.primary_weights(s.lambda_nm);
+        // Per branch, once for every depth: its H contribution c·r_ch (times w_p per
+        // primary of a colour display) and its offset contribution c·r_ch·bl (unused
+        // channels stay 0, so whole lanes add).
+        self.weighted.clear();
+        self.weighted
+            .extend(self.branches.iter().map(|&(wt, exit)| {
+                let c = s.factor * wt;
+                let (mut cr, mut crb) = ([0.0f64; L], [0.0f64; 4]);
+                for ch in 0..nch {
+                    if L == 4 {
+                        cr[ch] = c * r[ch];
+                    } else {
+                        for (p, w) in wp.iter().enumerate() {
+                            cr[4 * p + ch] = c * r[ch] * w;
+                        }
+                    }
+                    crb[ch] = c * r[ch] * bl;
+                }
+                (exit, cr, crb)
+            }));
+        // Physical light travels along −dir (as in `trace`): every branch of the sample
+        // crosses the air gap to depth D with the same lateral shift.
+        let u = -s.ray.dir.truncate();
+        for a in &mut self.acc {
+            let shift = lateral_shift(u, 1.0, a.depth_mm);
+            for (exit, cr, crb) in &self.weighted {
+                a.add(disp, &self.grid, *exit - shift, cr, crb);
+            }
+        }
+    }
+}
+
+impl<const L: usize> DepthAccumulator<L> {
+    /// Adds one branch landing at `x` on this depth's plane: its offset contribution `crb` if
+    /// it is on the display, and its H contribution `cr` to the object pixel it hits.
+    #[inline(always)]
+    fn add(
+        &mut self,
+        disp: &crate::display::Display,
+        grid: &PixelGrid,
+        x: glam::DVec2,
+        cr: &[f64; L],
+        crb: &[f64; 4],
+    ) {
+        // `Display::on_lcd`, with the pixel lookup done once.
+        let k = grid.pixel_at(x);
+        if k.is_none() && !disp.within_extent(x) {
+            return;
+        }
+        for (o, v) in self.off.iter_mut().zip(crb) {
+            *o += v;
+        }
+        if let Some((kc, kr)) = k {
+            let key = (kr * disp.width_px + kc) as u32;
+            // A pixel's samples land on a few object pixels per depth: a small
+            // direct-mapped cache finds most entries without probing the table.
+            let slot = recent_slot(key);
+            let idx = if self.recent[slot].0 == key {
+                self.recent[slot].1 as usize
+            } else {
+                let idx = self.table.index(key);
+                self.recent[slot] = (key, idx as u32);
+                idx
+            };
+            let e = &mut self.table.sums[idx];
+            for (e, v) in e.iter_mut().zip(cr) {
+                *e += v;
+            }
+        }
+    }
+
+    /// Stores the finished pixel (index `i` in the row block): its entries sorted by column
+    /// and its offset, each divided by the spp, then empties the table for the next pixel.
+    fn store_pixel(
+        &mut self,
+        sys: &System,
+        set: &RenderSettings,
+        i: usize,
+        order: &mut Vec<usize>,
+    ) {
+        let disp = &sys.display;
+        let (nch, bl) = (sys.response.curves.len(), disp.black_level);
+        let inv_spp = 1.0 / f64::from(set.spp.max(1));
+        let planes = L / 4;
+        let n_obj = (disp.width_px * disp.height_px) as u32;
+        let table = &mut self.table;
+        order.clear();
+        order.extend(0..table.keys.len());
+        order.sort_unstable_by_key(|&i| table.keys[i]);
+        for ch in 0..nch {
+            let (cols, vals) = &mut self.block.entries[ch];
+            let mut n = 0u32;
+            // Columns increase: primary blocks in order, object pixels sorted within.
+            for p in 0..planes {
+                for &k in order.iter() {
+                    let v = (table.sums[k][4 * p + ch] * (1.0 - bl) * inv_spp) as f32;
+                    if v != 0.0 {
+                        cols.push(p as u32 * n_obj + table.keys[k]);
+                        vals.push(v);
+                        n += 1;
+                    }
+                }
+            }
+            self.block.counts[ch].push(n);
+        }
+        for (o, &v) in self.block.offset.iter_mut().zip(&self.off) {
+            o[i] = v * inv_spp;
+        }
+        table.clear();
+        self.recent = [(EMPTY, 0); RECENT];
+    }
 }
 
 /// Moves the object (display) plane to `depth_mm` in front of the plate, keeping the camera

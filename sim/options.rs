@@ -36,10 +36,9 @@ mod tests {
             parse::<SamplerKind>("sampler", "sobol"),
             Ok(SamplerKind::Sobol)
         );
-        assert_eq!(parse::<SamplerKind>("sampler", "r5"), Ok(SamplerKind::R5));
         assert_eq!(
             parse::<SamplerKind>("sampler", "halton"),
-            Err(r#"sampler "halton": expected "lattice", "r5", "independent" or "sobol""#.into())
+            Err(r#"sampler "halton": expected "lattice", "independent" or "sobol""#.into())
         );
         // The serde name of every variant is the name clap and Python accept.
         for v in SamplerKind::value_variants() {

@@ -350,13 +350,12 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
-    the R5 sequence), ``"r5"`` (the R5 sequence at every ``spp``), ``"independent"`` or
-    ``"sobol"``; ``user_side`` (3-D scenes) is ``"auto"`` (default: ``"resampled"``,
+    the R5 sequence), ``"independent"`` or ``"sobol"``; ``user_side`` (3-D scenes) is ``"auto"`` (default: ``"resampled"``,
     or ``"padded"`` in scenes with emissive meshes), ``"resampled"`` (a pixel's branches share
     about one user-side path per camera sample, drawn per replica in proportion to their
     weight), ``"padded"`` (every branch traced, the first vertex's light and BSDF samples
-    stratified over a pixel's samples) or ``"hashed"`` (as ``"padded"`` with independent
-    numbers), as ``stscam render --user-side``. ``frontal_px`` is N, ``"N"``, ``"WxH"`` or
+    stratified over a pixel's samples; independent numbers with ``sampler="independent"``),
+    as ``stscam render --user-side``. ``frontal_px`` is N, ``"N"``, ``"WxH"`` or
     ``(w, h)`` as ``--frontal-px``. ``target`` (a numpy array (h, w) or (h, w, 3) with
     ``encoding="linear"`` or ``"display"``) is shown instead of the scene's image.
     ``noise="sensor"`` passes the capture through the sensor model (:func:`sensor_noise` with

@@ -165,6 +165,7 @@ fn cmd_bench_recon(
         user_side: Default::default(),
         spectral_bins: None,
         progress: true,
+        estimator: Default::default(),
     };
     crate::render::check_limits(&sys, &rs, 1, "--spp").map_err(limit)?;
     let t0 = Instant::now();
@@ -451,6 +452,7 @@ fn cmd_bench_render(
                     user_side: Default::default(),
                     spectral_bins: None,
                     progress: true,
+                    estimator: Default::default(),
                 },
             )
             .channels
@@ -469,11 +471,6 @@ fn cmd_bench_render(
             Estimator::Bragg,
             CurveSampler::Kind(SamplerKind::Lattice),
             "stscam: Bragg sampling + replica splitting (default)",
-        ),
-        (
-            Estimator::Bragg,
-            CurveSampler::PreviousDefault,
-            "stscam: the previous default (R5 points except Korobov rules at 4 and 64 spp; 3-D scenes: hashed user side)",
         ),
         (
             Estimator::Bragg,

@@ -145,6 +145,7 @@ fn cmd_matrix(
         user_side: Default::default(),
         spectral_bins: None,
         progress: true,
+        estimator: Default::default(),
     };
     crate::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
     warn_coverage(&sys, "", con);

@@ -72,6 +72,7 @@ fn cmd_render(
         user_side,
         spectral_bins: bins,
         progress: true,
+        estimator: Default::default(),
     };
     crate::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
     if let (Some((fw, fh)), true) = (frontal_size, sys.world.is_some()) {

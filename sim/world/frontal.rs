@@ -23,7 +23,8 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::colour::{ColourWeights, FrontalSpace};
-use super::integrator::{PathCounts, PathRng};
+use super::integrator::PathCounts;
+use crate::sampler::PathRng;
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
 

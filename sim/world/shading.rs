@@ -115,7 +115,7 @@ impl FoldedBsdf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::integrator::PathRng;
+    use crate::sampler::PathRng;
 
     /// Directional albedo ∫ f′cos′ over the geometric hemisphere by uniform-hemisphere
     /// quadrature about n_g, and the sampling estimate E[weight] (Monte Carlo); both must equal

@@ -17,6 +17,7 @@ fn total(sys: &System, e: Estimator, spp: u32, seed: u64) -> (f64, f64) {
                 user_side: Default::default(),
                 spectral_bins: None,
                 progress: false,
+                estimator: Default::default(),
             };
             render_with(sys, &set, e).channels[0]
                 .iter()

@@ -23,6 +23,7 @@ fn settings(spp: u32, seed: u64) -> RenderSettings {
         user_side: Default::default(),
         spectral_bins: None,
         progress: false,
+        estimator: Default::default(),
     }
 }
 

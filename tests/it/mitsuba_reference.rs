@@ -111,6 +111,7 @@ fn render_y(sys: &System, seed: u64, spp: u32, n: usize) -> Vec<f64> {
             user_side: Default::default(),
             spectral_bins: None,
             progress: false,
+            estimator: Default::default(),
         },
     );
     assert_eq!((cap.width, cap.height), (n, n));

@@ -29,6 +29,7 @@ fn settings() -> RenderSettings {
         user_side: Default::default(),
         spectral_bins: None,
         progress: false,
+        estimator: Default::default(),
     }
 }
 

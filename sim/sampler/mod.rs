@@ -22,7 +22,6 @@
 //!   with it, 0.69–0.75 % with R_5, 0.63–0.71 % with the 3-D choice; 2048 points 0.36–0.42 %,
 //!   0.52–0.54 %, 0.32–0.34 %). Where no Korobov rule reaches 0.095 N (N = 16, 32, odd powers
 //!   of small primes, …) and above `MAX_KOROBOV_N` samples, R_5 is used.
-//! - `R5`: the R_5 lattice sequence for every sample count (what `Lattice` falls back to).
 //! - `Independent`: every number an independent hash of (seed, pixel, index, dimension).
 //!
 //! Hash: the splitmix64/Murmur3 finaliser, applied to a chained combination of the inputs.
@@ -31,6 +30,9 @@
 //! (1, a, a², …)); S. K. Zaremba, Ann. Mat. Pura Appl. 73, 293 (1966) (the index);
 //! H. Niederreiter, Random Number Generation and Quasi-Monte Carlo Methods (SIAM 1992), ch. 5;
 //! I. H. Sloan & S. Joe, Lattice Methods for Multiple Integration (Oxford 1994).
+
+mod path_rng;
+pub use path_rng::PathRng;
 
 /// Number of dimensions a camera sample uses.
 pub const DIMS: usize = 5;
@@ -42,9 +44,6 @@ pub const DIMS: usize = 5;
 pub enum SamplerKind {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.
     Lattice,
-    /// The R_5 lattice sequence at every spp (the lattice's fallback; once the default at every
-    /// spp but 4 and 64: CHANGELOG.md).
-    R5,
     /// Independent hashed random numbers.
     Independent,
     /// Owen-scrambled 5-D Sobol' points (`sampler::sobol`).
@@ -470,7 +469,7 @@ impl PixelSampler {
         }
     }
 
-    /// Uses a Korobov lattice rule instead of R_5 (for `Lattice` only; `R5` ignores it).
+    /// Uses a Korobov lattice rule instead of R_5 (for `Lattice` only).
     pub fn with_rule(mut self, rule: Option<LatticeRule>) -> Self {
         self.rule = rule;
         self
@@ -521,7 +520,7 @@ impl PixelSampler {
                     *ud = if v >= 1.0 { v - 1.0 } else { v };
                 }
             }
-            (SamplerKind::Lattice, None) | (SamplerKind::R5, _) => {
+            (SamplerKind::Lattice, None) => {
                 let i = index as f64;
                 for ((ud, shift), alpha) in u.iter_mut().zip(&self.shift).zip(&self.alpha) {
                     let v = shift + (i * alpha).fract();
@@ -670,7 +669,6 @@ mod tests {
             (SamplerKind::Lattice, LatticeRule::korobov(64)),
             (SamplerKind::Lattice, LatticeRule::korobov(100)),
             (SamplerKind::Lattice, None),
-            (SamplerKind::R5, LatticeRule::korobov(64)),
             (SamplerKind::Independent, None),
             (SamplerKind::Sobol, None),
         ] {
@@ -686,15 +684,26 @@ mod tests {
         }
     }
 
+    /// Without a rule the lattice is the R_5 sequence: point i is shift + i·α (mod 1),
+    /// computed here independently of `get`.
     #[test]
-    fn r5_is_the_lattice_without_a_rule() {
+    fn the_lattice_without_a_rule_is_r5() {
         let lat = PixelSampler::new(SamplerKind::Lattice, 3, 41);
-        let r5 = PixelSampler::new(SamplerKind::R5, 3, 41).with_rule(LatticeRule::korobov(64));
-        for i in [0u64, 1, 63, 64, 1000] {
-            assert_eq!(lat.get(i), r5.get(i));
+        let a = alphas();
+        let shift = lat.get(0);
+        for i in [1u64, 63, 64, 1000] {
+            let u = lat.get(i);
+            for d in 0..DIMS {
+                let want = (shift[d] + i as f64 * a[d]).rem_euclid(1.0);
+                assert!(
+                    (u[d] - want).abs() < 1e-9,
+                    "i {i} d {d}: {} vs {want}",
+                    u[d]
+                );
+            }
         }
         let kor = lat.with_rule(LatticeRule::korobov(64));
-        assert_ne!(kor.get(1), r5.get(1));
+        assert_ne!(kor.get(1), lat.get(1));
     }
 
     #[test]
@@ -706,7 +715,6 @@ mod tests {
     fn addressable_and_deterministic() {
         for kind in [
             SamplerKind::Lattice,
-            SamplerKind::R5,
             SamplerKind::Independent,
             SamplerKind::Sobol,
         ] {
@@ -722,17 +730,23 @@ mod tests {
     /// critical value is 27.9).
     #[test]
     fn marginals_are_uniform() {
-        for kind in [
-            SamplerKind::Lattice,
-            SamplerKind::R5,
-            SamplerKind::Independent,
-            SamplerKind::Sobol,
+        // The lattice with its Korobov rule and without (R_5).
+        for (kind, ruled) in [
+            (SamplerKind::Lattice, true),
+            (SamplerKind::Lattice, false),
+            (SamplerKind::Independent, true),
+            (SamplerKind::Sobol, true),
         ] {
             let n_pix = 4000u64;
             let spp = 8u64;
             let mut bins = [[0u64; 10]; DIMS];
             for p in 0..n_pix {
-                let s = PixelSampler::new(kind, 1, p).with_rule(LatticeRule::korobov(spp));
+                let rule = if ruled {
+                    LatticeRule::korobov(spp)
+                } else {
+                    None
+                };
+                let s = PixelSampler::new(kind, 1, p).with_rule(rule);
                 for i in 0..spp {
                     for (d, v) in s.get(i).iter().enumerate() {
                         assert!((0.0..1.0).contains(v));
