@@ -322,6 +322,7 @@ fn render<'py>(
             user_side,
             spectral_bins: spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling)),
             progress: false,
+            estimator: Default::default(),
         };
         // The CLI's limits (run time and memory), for every render of the call.
         let renders = batch.len().max(1) as u64;
