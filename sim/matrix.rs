@@ -31,8 +31,8 @@
 use rayon::prelude::*;
 
 use crate::render::{
-    CameraSample, RenderSettings, RenderStats, SampleConsumer, channel_weights, display_weight,
-    drive_pixel, lattice_rule, row_progress,
+    CameraSample, RenderSettings, RenderStats, SampleConsumer, channel_weights, drive_pixel,
+    lattice_rule, row_progress,
 };
 use crate::sparse::CsrMatrix;
 use crate::system::System;
@@ -230,6 +230,7 @@ fn matrix_row_lanes<const L: usize>(
     let mut stats = RenderStats::default();
     let mut columns = MatrixColumns::<L> {
         sys,
+        pol: sys.display.polarization_weights,
         grid: PixelGrid::of(&sys.display),
         acc: depths_mm
             .iter()
@@ -267,6 +268,8 @@ fn matrix_row_lanes<const L: usize>(
 /// ([`matrix_row_lanes`]).
 struct MatrixColumns<'a, const L: usize> {
     sys: &'a System,
+    /// The display's polarisation fractions [TE, TM].
+    pol: [f64; 2],
     grid: PixelGrid,
     acc: Vec<DepthAccumulator<L>>,
     /// The current sample's branches: (weight averaged over the display's polarisation,
@@ -286,7 +289,7 @@ impl<const L: usize> SampleConsumer for MatrixColumns<'_, L> {
 
     #[inline(always)]
     fn branch(&mut self, _s: &CameraSample, b: &crate::trace::Branch) -> std::ops::ControlFlow<()> {
-        let wt = display_weight(self.sys, b);
+        let wt = self.pol[0] * b.weight[0] + self.pol[1] * b.weight[1];
         if wt > 0.0 {
             self.branches.push((wt, b.exit_point_mm));
             self.total += wt;
@@ -294,6 +297,9 @@ impl<const L: usize> SampleConsumer for MatrixColumns<'_, L> {
         std::ops::ControlFlow::Continue(())
     }
 
+    // Out of line: the trace loop of the driver stays small (measured: inlined, the matrix
+    // took 4.5 % more CPU time).
+    #[inline(never)]
     fn end(&mut self, s: &CameraSample, _i: u64, stats: &mut RenderStats) {
         use crate::optics::interface::lateral_shift;
         let (sys, disp) = (self.sys, &self.sys.display);
