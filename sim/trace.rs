@@ -438,6 +438,11 @@ fn top_coupling<T: FilmTables>(ctx: &PathContext<T>, j: usize) -> Option<TopCoup
 
 /// Traces grating `j`'s guided wave (out-coupled at the top vHOE with `top`) down the plate,
 /// visiting its replicas; `Break` if `visit` stopped the path.
+///
+/// Longer than the project's ~120-line guide on purpose: it is the zig-zag loop of the hot
+/// path (one iteration per plate contact: face reflection, bottom-vHOE split, replica weight,
+/// truncation), inlined into every caller, with the guided wave's state carried across
+/// contacts; the per-contact physics is in the grating and interface functions it calls.
 #[inline(always)]
 fn trace_guided<T: FilmTables>(
     ctx: &PathContext<T>,

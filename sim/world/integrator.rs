@@ -252,6 +252,12 @@ impl World {
 
     /// Spectral radiance arriving at `o` from direction −`d` (unit `d` is the ray's
     /// direction), at `lambda_nm`.
+    ///
+    /// Longer than the project's ~120-line guide on purpose: it is the one bounce loop of the
+    /// user-side path (emission with MIS, next-event estimation, BSDF sampling, Russian
+    /// roulette), whose state (throughput, previous pdf, frame, counters) lives across every
+    /// step of an iteration; its steps already call out to named functions (`closest`,
+    /// `light_pdf`, `sample_emitter`, `visible`, the BSDF's `sample`).
     pub fn radiance(
         &self,
         disp: &Display,
