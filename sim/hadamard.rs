@@ -444,6 +444,24 @@ mod tests {
     use super::*;
 
     #[test]
+    fn capture_noise_has_one_name_for_clap_serde_and_python() {
+        use clap::ValueEnum;
+        for v in CaptureNoise::value_variants() {
+            let clap_name = v.to_possible_value().unwrap().get_name().to_string();
+            assert_eq!(
+                serde_json::to_value(v).unwrap(),
+                serde_json::Value::String(clap_name)
+            );
+        }
+        let parse = crate::options::parse::<CaptureNoise>;
+        assert_eq!(parse("noise", "none"), Ok(CaptureNoise::None));
+        assert_eq!(
+            parse("noise", "loud"),
+            Err(r#"noise "loud": expected "sensor" or "none""#.into())
+        );
+    }
+
+    #[test]
     fn colour_calibration_recovers_each_primary_within_the_noise_prediction() {
         let ov: Vec<String> = [
             "sensor.crop_px=24",
@@ -592,6 +610,18 @@ impl TrueMatrix {
     }
 }
 
+/// The noise of the simulated captures (`calibrate --noise`; Python's `noise=`): one definition
+/// for clap and the Python module, the first paragraph of each variant's comment its `--help`
+/// line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CaptureNoise {
+    /// The scene's [noise] section.
+    Sensor,
+    /// An ideal camera.
+    None,
+}
+
 /// A whole simulated calibration of a scene (`stscam calibrate`).
 pub struct CalibrationJob {
     /// H_true from disk, or `None` to compute it from the scene at `spp` and `seed`.
@@ -600,8 +630,8 @@ pub struct CalibrationJob {
     pub spp: u32,
     /// Seed of the tracer and of the noise.
     pub seed: u64,
-    /// Apply the scene's sensor noise model (exposure from the all-white frame), else none.
-    pub sensor_noise: bool,
+    /// The scene's sensor noise model (exposure from the all-white frame), or none.
+    pub noise: CaptureNoise,
     /// Store the dark-frame-subtracted estimate.
     pub dark_frame: bool,
     /// Render every pattern with the tracer instead of taking frames from H_true.
@@ -695,7 +725,7 @@ pub fn calibrate_scene(
             "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
         ));
     }
-    let sensor_noise = if job.sensor_noise {
+    let sensor_noise = if job.noise == CaptureNoise::Sensor {
         let white = h_true.mul_vec(&vec![1.0; n]);
         let peak = white
             .iter()

@@ -557,15 +557,7 @@ fn reconstruct_stack<'py>(
     threads: Option<usize>,
 ) -> PyResult<(Vec<(f64, Bound<'py, PyBytes>)>, Option<String>, String)> {
     use stscam::recon::layered::{StackMethod, StackOptions, solve_stack, stack_setup_bytes};
-    let method = match method {
-        "joint" => StackMethod::Joint,
-        "depth" => StackMethod::Depth,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"joint\" or \"depth\""
-            )));
-        }
-    };
+    let method: StackMethod = stscam::options::parse("method", method).map_err(value_error)?;
     let tv = tv_kind(tv)?;
     for (name, v) in [("--tau", tau), ("--mu", mu)] {
         if !(v.is_finite() && v >= 0.0) {
@@ -899,15 +891,7 @@ fn solve_options(
     tv: &str,
 ) -> PyResult<stscam::recon::SolveOptions> {
     use stscam::recon::{Method, SolveOptions};
-    let method = match method {
-        "cg" => Method::Cg,
-        "admm-tv" => Method::AdmmTv,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"cg\" or \"admm-tv\""
-            )));
-        }
-    };
+    let method: Method = stscam::options::parse("method", method).map_err(value_error)?;
     let tv = tv_kind(tv)?;
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(value_error(format!(
@@ -943,7 +927,7 @@ fn calibrate<'py>(
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use stscam::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
+    use stscam::hadamard::{CalibrationJob, CaptureNoise, TrueMatrix, calibrate_scene};
     check_spp(spp)?;
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(value_error(
@@ -958,7 +942,11 @@ fn calibrate<'py>(
         matrix,
         spp,
         seed,
-        sensor_noise: noise,
+        noise: if noise {
+            CaptureNoise::Sensor
+        } else {
+            CaptureNoise::None
+        },
         dark_frame,
         render_frames: render,
         threshold_sigma,

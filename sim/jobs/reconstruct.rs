@@ -51,17 +51,43 @@ pub struct ReconstructOptions {
     pub threads: Option<usize>,
 }
 
-/// Method of `reconstruct --method`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+/// Method of `reconstruct --method`: a solver of one H ([`crate::recon::Method`]) or of a depth
+/// stack ([`crate::recon::layered::StackMethod`]). The names and help lines are those enums'
+/// (one definition for clap and the Python module); this type only joins the two lists.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MethodArg {
-    /// Conjugate gradients on the normal equations (the paper's CGM).
-    Cg,
-    /// ADMM with total variation.
-    AdmmTv,
-    /// Depth stack: joint multi-depth ADMM-TV with a sparsity prior across depth.
-    Joint,
-    /// Depth stack: estimate the depth of one planar object, then ADMM-TV at that depth.
-    Depth,
+    /// A method of one H.
+    One(crate::recon::Method),
+    /// A method of a depth stack.
+    Stack(crate::recon::layered::StackMethod),
+}
+
+impl MethodArg {
+    /// The name on the command line (`cg`, `admm-tv`, `joint`, `depth`).
+    fn name(self) -> String {
+        self.to_possible_value()
+            .map(|p| p.get_name().to_string())
+            .unwrap_or_default()
+    }
+}
+
+impl ValueEnum for MethodArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        use crate::recon::{Method, layered::StackMethod};
+        &[
+            Self::One(Method::Cg),
+            Self::One(Method::AdmmTv),
+            Self::Stack(StackMethod::Joint),
+            Self::Stack(StackMethod::Depth),
+        ]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        match self {
+            Self::One(m) => m.to_possible_value(),
+            Self::Stack(m) => m.to_possible_value(),
+        }
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -107,46 +133,41 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     }
     let stack = crate::stack::is_stack(matrix);
     let method = match (method, stack) {
-        (None, false) => MethodArg::AdmmTv,
-        (None, true) => MethodArg::Joint,
-        (Some(m @ (MethodArg::Joint | MethodArg::Depth)), false) => {
+        (None, false) => MethodArg::One(Method::AdmmTv),
+        (None, true) => MethodArg::Stack(crate::recon::layered::StackMethod::Joint),
+        (Some(m @ MethodArg::Stack(_)), false) => {
             return Err(bad_input(format!(
                 "{}: --method {}: needs a depth stack (H_stack.npz from matrix --depth-mm D1,D2,...)",
                 matrix.display(),
-                if *m == MethodArg::Joint {
-                    "joint"
-                } else {
-                    "depth"
-                }
+                m.name()
             )));
         }
-        (Some(m @ (MethodArg::Cg | MethodArg::AdmmTv)), true) => {
+        (Some(m @ MethodArg::One(_)), true) => {
             return Err(bad_input(format!(
                 "{}: --method {}: a depth stack takes --method joint or depth (or pass one depth's H_<D>mm.npz)",
                 matrix.display(),
-                if *m == MethodArg::Cg { "cg" } else { "admm-tv" }
+                m.name()
             )));
         }
         (Some(m), _) => *m,
     };
     let tv = *tv;
-    if stack {
-        let opts = crate::recon::layered::StackOptions {
-            method: if method == MethodArg::Joint {
-                crate::recon::layered::StackMethod::Joint
-            } else {
-                crate::recon::layered::StackMethod::Depth
-            },
-            iters,
-            tau_rel: tau,
-            mu_rel: *mu,
-            tv,
-            ..Default::default()
-        };
-        return reconstruct_stack(
-            matrix, capture, offset, truth, gamma, out, *threads, &opts, con,
-        );
-    }
+    let method = match method {
+        MethodArg::Stack(method) => {
+            let opts = crate::recon::layered::StackOptions {
+                method,
+                iters,
+                tau_rel: tau,
+                mu_rel: *mu,
+                tv,
+                ..Default::default()
+            };
+            return reconstruct_stack(
+                matrix, capture, offset, truth, gamma, out, *threads, &opts, con,
+            );
+        }
+        MethodArg::One(method) => method,
+    };
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
     let pool = thread_pool(*threads)?;
@@ -183,11 +204,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     let setup_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let opts = SolveOptions {
-        method: if method == MethodArg::Cg {
-            Method::Cg
-        } else {
-            Method::AdmmTv
-        },
+        method,
         iters,
         tau_rel: tau,
         tv,
@@ -419,4 +436,36 @@ fn reconstruct_stack(
 /// report sent to `con`.
 pub fn run(o: &ReconstructOptions, con: &Console) -> Result<(), JobError> {
     cmd_reconstruct(o, con)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recon::{Method, layered::StackMethod};
+
+    #[test]
+    fn methods_are_the_solvers_names_in_the_cli_order() {
+        let names: Vec<String> = MethodArg::value_variants()
+            .iter()
+            .map(|m| m.name())
+            .collect();
+        assert_eq!(names, ["cg", "admm-tv", "joint", "depth"]);
+        assert_eq!(
+            MethodArg::from_str("admm-tv", false),
+            Ok(MethodArg::One(Method::AdmmTv))
+        );
+        assert_eq!(
+            MethodArg::from_str("depth", false),
+            Ok(MethodArg::Stack(StackMethod::Depth))
+        );
+        // Python's messages (one H, then a stack) come from the same enums.
+        assert_eq!(
+            crate::options::parse::<Method>("method", "joint"),
+            Err(r#"method "joint": expected "cg" or "admm-tv""#.into())
+        );
+        assert_eq!(
+            crate::options::parse::<StackMethod>("method", "cg"),
+            Err(r#"method "cg": expected "joint" or "depth""#.into())
+        );
+    }
 }
