@@ -1039,7 +1039,8 @@ fn depth_stack(
     out
 }
 
-/// Generates a dataset (or one shard of it) into `opts.out`.
+/// Generates a dataset (or one shard of it) into `opts.out`: the scenes (H, scene.json), the
+/// exposure, the samples, then the metadata and card ([`Generation`]'s steps).
 pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
     let recipe = &plan.recipe;
     let ids = opts
@@ -1047,18 +1048,19 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         .map_or(0..recipe.samples, |s| s.range(recipe.samples));
     // Held until the run ends (dropped on return, also on an error).
     let _lock = prepare_out(plan, opts)?;
-    let root = &opts.out;
-    let cancel = crate::cancel::current();
-    let check_cancel = || {
-        if cancel.is_cancelled() {
-            Err(DatasetError::Cancelled)
-        } else {
-            Ok(())
-        }
+    let run = Generation {
+        plan,
+        opts,
+        root: &opts.out,
+        cancel: crate::cancel::current(),
     };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
-    let done = |s: &SampleSpec| plan.sample_files(s).iter().all(|f| root.join(f).is_file());
+    let done = |s: &SampleSpec| {
+        plan.sample_files(s)
+            .iter()
+            .all(|f| run.root.join(f).is_file())
+    };
     let todo: Vec<&SampleSpec> = specs.iter().filter(|s| !done(s)).collect();
     // Scenes: the reference scene 0 and every scene a sample of this run uses.
     let used: BTreeSet<usize> = std::iter::once(0)
@@ -1071,231 +1073,14 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 .map(|s| s.scene),
         )
         .collect();
-    let mut matrices: BTreeMap<usize, SceneMatrix> = BTreeMap::new();
-    let object = (recipe.objects.size_px, recipe.objects.size_px);
-    let mut crop = (0, 0);
-    let mut channel_names: Vec<String> = Vec::new();
-    let mut stack = depth_stack(plan, root, &used, opts.progress);
-    for &k in &used {
-        let ps = &plan.scenes[k];
-        let sys = &ps.system;
-        crop = (sys.camera.width_px, sys.camera.height_px);
-        channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
-        let dir = root.join(&ps.id);
-        let files = plan.scene_files(k);
-        let complete = files.iter().all(|f| root.join(f).is_file());
-        if plan.has_matrix && complete && need_h.contains(&k) {
-            let m = crate::matrix::load_matrix(&dir.join("H.npz"), Some(object), None)?;
-            let offset = m.offset.ok_or_else(|| {
-                out_err(
-                    &dir.join("offset.npy"),
-                    "missing; delete the scene folder and --resume",
-                )
-            })?;
-            matrices.insert(k, SceneMatrix { h: m.h, offset });
-        } else if !complete {
-            let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
-                .map_err(|e| out_err(&dir, e.to_string()))?;
-            if plan.has_matrix {
-                let m: SystemMatrix = stack.remove(&k).unwrap_or_else(|| {
-                    compute_matrix(
-                        sys,
-                        &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
-                    )
-                });
-                check_cancel()?;
-                let sidecar = serde_json::json!({
-                    "object_px": [object.0, object.1],
-                    "crop_px": [m.crop.0, m.crop.1],
-                    "shape": [m.h.rows, m.h.cols],
-                    "nnz": m.h.nnz(),
-                    "channels": m.channels,
-                    "spp": recipe.spp,
-                    "seed": plan.scene_seed(k),
-                    "overrides": ps.overrides,
-                    "depth_mm": ps.params.get(DEPTH_KEY),
-                    "units": crate::matrix::MATRIX_UNITS,
-                    "stscam_version": crate::VERSION,
-                });
-                crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
-                    .map_err(DatasetError::Write)?;
-                matrices.insert(
-                    k,
-                    SceneMatrix {
-                        h: m.h,
-                        offset: m.offset,
-                    },
-                );
-            } else {
-                std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
-                    .map_err(DatasetError::Write)?;
-            }
-        }
-    }
-    // Exposure from the reference scene's all-white capture.
-    let ref_sys = &plan.scenes[0].system;
-    let white_peak = if let Some(m) = matrices.get(&0) {
-        let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
-        g.iter()
-            .zip(&m.offset)
-            .map(|(a, &b)| a + f64::from(b))
-            .fold(0.0, f64::max)
-    } else {
-        let white = vec![1.0; object.0 * object.1];
-        let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
-        // 3-D datasets: display white on the scene's display plane, without the scene's objects.
-        let mut flat = ref_sys.clone();
-        if recipe.is_meshes() {
-            flat.world = None;
-        }
-        render_object(&flat, &white, recipe.spp, seed)
-            .into_iter()
-            .fold(0.0f64, f64::max)
-    };
-    check_cancel()?;
-    let noise_desc = &ref_sys.scene.noise;
-    let exposure = Exposure {
-        white_peak,
-        full_scale: white_peak / noise_desc.exposure_fraction,
-        noise: (recipe.noise == NoiseModel::Sensor)
-            .then(|| SensorNoise::new(noise_desc, white_peak)),
-    };
+    let scenes = run.scenes(&used, &need_h)?;
+    let exposure = run.exposure(&scenes.matrices)?;
     let scenes_s = t0.elapsed().as_secs_f64();
-    // Samples.
     let t1 = Instant::now();
-    let bar = progress_bar(opts.progress, todo.len());
-    let counter = AtomicUsize::new(0);
-    let one = |s: &SampleSpec, sys: &System| -> Result<(), DatasetError> {
-        let gamma = sys.scene.display.gamma;
-        let f = plan.object_of(s, gamma)?;
-        let clean: Vec<f64> = match recipe.mode {
-            CaptureMode::Matrix => {
-                let m = &matrices[&s.scene];
-                let g = m.h.mul_vec(&f);
-                g.iter()
-                    .zip(&m.offset)
-                    .map(|(a, &b)| a + f64::from(b))
-                    .collect()
-            }
-            CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
-        };
-        check_cancel()?;
-        let capture = exposure.measure(&clean, s.seed);
-        write_sample(
-            plan,
-            root,
-            s,
-            &f,
-            &capture,
-            crop,
-            channel_names.len(),
-            gamma,
-            exposure.full_scale,
-        )?;
-        counter.fetch_add(1, Ordering::Relaxed);
-        bar.inc(1);
-        Ok(())
-    };
-    match recipe.mode {
-        CaptureMode::Matrix => {
-            todo.par_iter()
-                .try_for_each(|s| one(s, &plan.scenes[s.scene].system))?;
-        }
-        CaptureMode::Render if recipe.is_meshes() => {
-            for s in &todo {
-                let (ls, sys) = plan.sample_scene(s)?;
-                let Some((src, files)) = plan.mesh_source(s) else {
-                    continue;
-                };
-                let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
-                let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
-                    .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
-                let space = recipe.objects.frontal_space();
-                let band = &sys.scene.sampling;
-                if space != crate::world::colour::FrontalSpace::Sensor
-                    && crate::world::colour::ColourWeights::new(
-                        space,
-                        band.lambda_min_nm,
-                        band.lambda_max_nm,
-                    )
-                    .is_none()
-                {
-                    return Err(recipe_err(
-                        &plan.recipe_path,
-                        "objects.frontal_space",
-                        format!(
-                            "{}: the CIE luminance function is 0 over the sampling band",
-                            space.name()
-                        ),
-                    ));
-                }
-                let (clean, frontal) =
-                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
-                let capture = exposure.measure(&clean, s.seed);
-                write_mesh_sample(plan, root, s, &capture, &frontal, crop, exposure.full_scale)?;
-                counter.fetch_add(1, Ordering::Relaxed);
-                bar.inc(1);
-            }
-        }
-        CaptureMode::Render => {
-            for s in &todo {
-                let (_, sys) = plan.sample_scene(s)?;
-                one(s, &sys)?;
-            }
-        }
-    }
-    bar.finish_and_clear();
-    check_cancel()?;
+    let generated = run.samples(&todo, &scenes, &exposure)?;
     let samples_s = t1.elapsed().as_secs_f64();
-    let generated = counter.load(Ordering::Relaxed);
-    // Finish: metadata, checksums, card.
     let t2 = Instant::now();
-    let capture_shape = if channel_names.len() == 1 {
-        vec![crop.1, crop.0]
-    } else {
-        vec![channel_names.len(), crop.1, crop.0]
-    };
-    let ctx = CardContext {
-        plan,
-        capture_shape,
-        channels: channel_names,
-        exposure: serde_json::json!({
-            "rule": "fixed once for the whole dataset from the reference scene's all-white capture (scene_000)",
-            "white_peak": exposure.white_peak,
-            "capture_full_scale": exposure.full_scale,
-            "noise_model": recipe.noise,
-            "sensor": noise_desc,
-            "electrons_per_unit": exposure.noise.as_ref().map(|n| n.electrons_per_unit),
-        }),
-    };
-    let metadata: Vec<(usize, String)> = specs
-        .par_iter()
-        .map(|s| Ok((s.split, metadata_line(plan, s)?)))
-        .collect::<Result<_, DatasetError>>()?;
-    let scene_ids: Vec<usize> = used.into_iter().collect();
-    let card = finish(root, &ctx, &metadata, &scene_ids, &specs)?;
-    match opts.shard {
-        Some(shard) => {
-            let sc = ShardCard {
-                shard,
-                ids: [ids.start, ids.end],
-                card,
-            };
-            let bytes = serde_json::to_vec_pretty(&sc).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("shard.json"), &bytes)
-                .map_err(DatasetError::Write)?;
-        }
-        None => {
-            let bytes =
-                serde_json::to_vec_pretty(&card).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("dataset.json"), &bytes)
-                .map_err(DatasetError::Write)?;
-        }
-    }
-    std::fs::remove_file(root.join(RUN_MARKER))
-        .map_err(|e| write_err(&root.join(RUN_MARKER), e))?;
+    run.finish(ids, &specs, used, scenes, &exposure)?;
     let finish_s = t2.elapsed().as_secs_f64();
     Ok(RunSummary {
         samples: specs.len(),
@@ -1309,6 +1094,344 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         },
         finish_s,
     })
+}
+
+/// What the steps of [`generate`] share: the plan, the run's options and output folder, and
+/// the cancel token of the calling thread (checked between steps and samples).
+struct Generation<'a> {
+    plan: &'a Plan,
+    opts: &'a RunOptions,
+    root: &'a Path,
+    cancel: crate::cancel::Token,
+}
+
+/// The scenes of a run: H and offset of each scene a matrix-mode sample needs, and the
+/// sensor's crop and channel names (the same in every scene).
+struct SceneSetup {
+    matrices: BTreeMap<usize, SceneMatrix>,
+    crop: (usize, usize),
+    channel_names: Vec<String>,
+}
+
+impl Generation<'_> {
+    /// `Err(Cancelled)` once the run was cancelled.
+    fn check_cancel(&self) -> Result<(), DatasetError> {
+        if self.cancel.is_cancelled() {
+            Err(DatasetError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// The object size of the recipe, pixels.
+    fn object(&self) -> (usize, usize) {
+        let n = self.plan.recipe.objects.size_px;
+        (n, n)
+    }
+
+    /// Step 1: every scene of `used` written (scene.json, and H with its sidecar where the
+    /// recipe has H) unless complete; H loaded or kept for the scenes of `need_h`.
+    fn scenes(
+        &self,
+        used: &BTreeSet<usize>,
+        need_h: &BTreeSet<usize>,
+    ) -> Result<SceneSetup, DatasetError> {
+        let (plan, root, object) = (self.plan, self.root, self.object());
+        let mut matrices: BTreeMap<usize, SceneMatrix> = BTreeMap::new();
+        let mut crop = (0, 0);
+        let mut channel_names: Vec<String> = Vec::new();
+        let mut stack = depth_stack(plan, root, used, self.opts.progress);
+        for &k in used {
+            let ps = &plan.scenes[k];
+            let sys = &ps.system;
+            crop = (sys.camera.width_px, sys.camera.height_px);
+            channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
+            let dir = root.join(&ps.id);
+            let files = plan.scene_files(k);
+            let complete = files.iter().all(|f| root.join(f).is_file());
+            if plan.has_matrix && complete && need_h.contains(&k) {
+                let m = crate::matrix::load_matrix(&dir.join("H.npz"), Some(object), None)?;
+                let offset = m.offset.ok_or_else(|| {
+                    out_err(
+                        &dir.join("offset.npy"),
+                        "missing; delete the scene folder and --resume",
+                    )
+                })?;
+                matrices.insert(k, SceneMatrix { h: m.h, offset });
+            } else if !complete && let Some(m) = self.write_scene(k, stack.remove(&k))? {
+                matrices.insert(k, m);
+            }
+        }
+        Ok(SceneSetup {
+            matrices,
+            crop,
+            channel_names,
+        })
+    }
+
+    /// Writes scene `k`'s folder: scene.json, and where the recipe has H, H (from the depth
+    /// stack's `stacked`, else computed here) with its sidecar, which it returns.
+    fn write_scene(
+        &self,
+        k: usize,
+        stacked: Option<SystemMatrix>,
+    ) -> Result<Option<SceneMatrix>, DatasetError> {
+        let (plan, recipe, object) = (self.plan, &self.plan.recipe, self.object());
+        let ps = &plan.scenes[k];
+        let dir = self.root.join(&ps.id);
+        let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
+            .map_err(|e| out_err(&dir, e.to_string()))?;
+        if !plan.has_matrix {
+            std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
+            crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                .map_err(DatasetError::Write)?;
+            return Ok(None);
+        }
+        let m: SystemMatrix = stacked.unwrap_or_else(|| {
+            compute_matrix(
+                &ps.system,
+                &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), self.opts.progress),
+            )
+        });
+        self.check_cancel()?;
+        let sidecar = serde_json::json!({
+            "object_px": [object.0, object.1],
+            "crop_px": [m.crop.0, m.crop.1],
+            "shape": [m.h.rows, m.h.cols],
+            "nnz": m.h.nnz(),
+            "channels": m.channels,
+            "spp": recipe.spp,
+            "seed": plan.scene_seed(k),
+            "overrides": ps.overrides,
+            "depth_mm": ps.params.get(DEPTH_KEY),
+            "units": crate::matrix::MATRIX_UNITS,
+            "stscam_version": crate::VERSION,
+        });
+        crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
+        crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+            .map_err(DatasetError::Write)?;
+        Ok(Some(SceneMatrix {
+            h: m.h,
+            offset: m.offset,
+        }))
+    }
+
+    /// Step 2: the exposure, from the reference scene's all-white capture (H's where it has
+    /// one, else rendered).
+    fn exposure(&self, matrices: &BTreeMap<usize, SceneMatrix>) -> Result<Exposure, DatasetError> {
+        let (recipe, object) = (&self.plan.recipe, self.object());
+        let ref_sys = &self.plan.scenes[0].system;
+        let white_peak = if let Some(m) = matrices.get(&0) {
+            let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
+            g.iter()
+                .zip(&m.offset)
+                .map(|(a, &b)| a + f64::from(b))
+                .fold(0.0, f64::max)
+        } else {
+            let white = vec![1.0; object.0 * object.1];
+            let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
+            // 3-D datasets: display white on the scene's display plane, without the scene's
+            // objects.
+            let mut flat = ref_sys.clone();
+            if recipe.is_meshes() {
+                flat.world = None;
+            }
+            render_object(&flat, &white, recipe.spp, seed)
+                .into_iter()
+                .fold(0.0f64, f64::max)
+        };
+        self.check_cancel()?;
+        let noise_desc = &ref_sys.scene.noise;
+        Ok(Exposure {
+            white_peak,
+            full_scale: white_peak / noise_desc.exposure_fraction,
+            noise: (recipe.noise == NoiseModel::Sensor)
+                .then(|| SensorNoise::new(noise_desc, white_peak)),
+        })
+    }
+
+    /// Step 3: the samples of `todo` (in parallel with H, one by one when rendered); returns
+    /// how many were made.
+    fn samples(
+        &self,
+        todo: &[&SampleSpec],
+        scenes: &SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<usize, DatasetError> {
+        let (plan, recipe) = (self.plan, &self.plan.recipe);
+        let bar = progress_bar(self.opts.progress, todo.len());
+        let counter = AtomicUsize::new(0);
+        let made = || {
+            counter.fetch_add(1, Ordering::Relaxed);
+            bar.inc(1);
+        };
+        match recipe.mode {
+            CaptureMode::Matrix => {
+                todo.par_iter().try_for_each(|s| {
+                    self.flat_sample(s, &plan.scenes[s.scene].system, scenes, exposure)
+                        .map(|()| made())
+                })?;
+            }
+            CaptureMode::Render if recipe.is_meshes() => {
+                for s in todo {
+                    if self.mesh_sample(s, scenes.crop, exposure)? {
+                        made();
+                    }
+                }
+            }
+            CaptureMode::Render => {
+                for s in todo {
+                    let (_, sys) = plan.sample_scene(s)?;
+                    self.flat_sample(s, &sys, scenes, exposure)?;
+                    made();
+                }
+            }
+        }
+        bar.finish_and_clear();
+        self.check_cancel()?;
+        Ok(counter.load(Ordering::Relaxed))
+    }
+
+    /// A sample of a flat object on the display: its object, its capture (with H or rendered
+    /// in `sys`), measured and written.
+    fn flat_sample(
+        &self,
+        s: &SampleSpec,
+        sys: &System,
+        scenes: &SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<(), DatasetError> {
+        let plan = self.plan;
+        let gamma = sys.scene.display.gamma;
+        let f = plan.object_of(s, gamma)?;
+        let clean: Vec<f64> = match plan.recipe.mode {
+            CaptureMode::Matrix => {
+                let m = &scenes.matrices[&s.scene];
+                let g = m.h.mul_vec(&f);
+                g.iter()
+                    .zip(&m.offset)
+                    .map(|(a, &b)| a + f64::from(b))
+                    .collect()
+            }
+            CaptureMode::Render => render_object(sys, &f, plan.recipe.spp, s.seed),
+        };
+        self.check_cancel()?;
+        let capture = exposure.measure(&clean, s.seed);
+        write_sample(
+            plan,
+            self.root,
+            s,
+            &f,
+            &capture,
+            scenes.crop,
+            scenes.channel_names.len(),
+            gamma,
+            exposure.full_scale,
+        )
+    }
+
+    /// A sample of a 3-D scene: its meshes drawn, rendered with the frontal view, measured and
+    /// written; `false` where the sample has no mesh source.
+    fn mesh_sample(
+        &self,
+        s: &SampleSpec,
+        crop: (usize, usize),
+        exposure: &Exposure,
+    ) -> Result<bool, DatasetError> {
+        let (plan, recipe) = (self.plan, &self.plan.recipe);
+        let (ls, sys) = plan.sample_scene(s)?;
+        let Some((src, files)) = plan.mesh_source(s) else {
+            return Ok(false);
+        };
+        let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
+        let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
+            .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
+        let space = recipe.objects.frontal_space();
+        let band = &sys.scene.sampling;
+        if space != crate::world::colour::FrontalSpace::Sensor
+            && crate::world::colour::ColourWeights::new(
+                space,
+                band.lambda_min_nm,
+                band.lambda_max_nm,
+            )
+            .is_none()
+        {
+            return Err(recipe_err(
+                &plan.recipe_path,
+                "objects.frontal_space",
+                format!(
+                    "{}: the CIE luminance function is 0 over the sampling band",
+                    space.name()
+                ),
+            ));
+        }
+        let (clean, frontal) =
+            meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
+        let capture = exposure.measure(&clean, s.seed);
+        write_mesh_sample(
+            plan,
+            self.root,
+            s,
+            &capture,
+            &frontal,
+            crop,
+            exposure.full_scale,
+        )?;
+        Ok(true)
+    }
+
+    /// Step 4: metadata, checksums and the card (`dataset.json`, or a shard's `shard.json`
+    /// for ids `ids`); then the run marker is removed.
+    fn finish(
+        &self,
+        ids: std::ops::Range<usize>,
+        specs: &[SampleSpec],
+        used: BTreeSet<usize>,
+        scenes: SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<(), DatasetError> {
+        let (plan, root) = (self.plan, self.root);
+        let (crop, channel_names) = (scenes.crop, scenes.channel_names);
+        let capture_shape = if channel_names.len() == 1 {
+            vec![crop.1, crop.0]
+        } else {
+            vec![channel_names.len(), crop.1, crop.0]
+        };
+        let ctx = CardContext {
+            plan,
+            capture_shape,
+            channels: channel_names,
+            exposure: serde_json::json!({
+                "rule": "fixed once for the whole dataset from the reference scene's all-white capture (scene_000)",
+                "white_peak": exposure.white_peak,
+                "capture_full_scale": exposure.full_scale,
+                "noise_model": plan.recipe.noise,
+                "sensor": plan.scenes[0].system.scene.noise,
+                "electrons_per_unit": exposure.noise.as_ref().map(|n| n.electrons_per_unit),
+            }),
+        };
+        let metadata: Vec<(usize, String)> = specs
+            .par_iter()
+            .map(|s| Ok((s.split, metadata_line(plan, s)?)))
+            .collect::<Result<_, DatasetError>>()?;
+        let scene_ids: Vec<usize> = used.into_iter().collect();
+        let card = finish(root, &ctx, &metadata, &scene_ids, specs)?;
+        let (name, bytes) = match self.opts.shard {
+            Some(shard) => {
+                let sc = ShardCard {
+                    shard,
+                    ids: [ids.start, ids.end],
+                    card,
+                };
+                ("shard.json", serde_json::to_vec_pretty(&sc))
+            }
+            None => ("dataset.json", serde_json::to_vec_pretty(&card)),
+        };
+        let bytes = bytes.map_err(|e| out_err(root, e.to_string()))?;
+        crate::io::write_atomic(&root.join(name), &bytes).map_err(DatasetError::Write)?;
+        std::fs::remove_file(root.join(RUN_MARKER))
+            .map_err(|e| write_err(&root.join(RUN_MARKER), e))
+    }
 }
 
 /// The capture of object `f` (linear intensities) rendered by the tracer, channel-major.
