@@ -1789,6 +1789,62 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     if shards.is_empty() {
         return Err(out_err(out, "no shard folders given"));
     }
+    let cards = read_shard_cards(shards)?;
+    check_shards(&cards, out)?;
+    let first = &cards[0].1;
+    // Verify every file before writing anything.
+    let (mut files, origin) = verified_files(&cards)?;
+    let nonempty = out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| IoError::Io {
+                path: out.to_path_buf(),
+                source: e,
+            })?
+            .next()
+            .is_some();
+    if nonempty || (out.exists() && !out.is_dir()) {
+        return Err(out_err(out, "exists and is not empty"));
+    }
+    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+    let _lock = lock_out(out)?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
+        .map_err(DatasetError::Write)?;
+    origin
+        .par_iter()
+        .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
+            let dst = out.join(rel);
+            if let Some(parent) = dst.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
+            }
+            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
+            put(out, rel, &bytes)
+        })?;
+    let counts = merge_metadata(&cards, out, &mut files)?;
+    let scenes = merged_scenes(&cards);
+    let mut card = first.card.clone();
+    card.samples = counts.values().sum();
+    if card.samples != card.recipe.samples {
+        let _ = std::fs::remove_dir_all(out);
+        return Err(out_err(out, "the shards do not cover every sample"));
+    }
+    card.counts = counts;
+    card.scenes = scenes.into_values().collect();
+    card.files = files;
+    let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
+    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
+    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
+    Ok(RunSummary {
+        samples: card.samples,
+        generated: 0,
+        scenes_s: 0.0,
+        samples_s: 0.0,
+        samples_per_s: 0.0,
+        finish_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The shard cards of `shards` (each folder's shard.json), in shard order.
+fn read_shard_cards(shards: &[PathBuf]) -> Result<Vec<(PathBuf, ShardCard)>, DatasetError> {
     let mut cards: Vec<(PathBuf, ShardCard)> = Vec::new();
     for d in shards {
         let p = d.join("shard.json");
@@ -1804,9 +1860,15 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
         cards.push((d.clone(), c));
     }
     cards.sort_by_key(|c| c.1.shard.index);
+    Ok(cards)
+}
+
+/// Checks that the shards of `cards` (in shard order) come from one recipe, stscam version and
+/// exposure and are shards 0..N−1 each once.
+fn check_shards(cards: &[(PathBuf, ShardCard)], out: &Path) -> Result<(), DatasetError> {
     let first = &cards[0].1;
     let n = first.shard.count;
-    for (d, c) in &cards {
+    for (d, c) in cards {
         if c.card.recipe_sha256 != first.card.recipe_sha256
             || c.card.stscam_version != first.card.stscam_version
         {
@@ -1835,10 +1897,20 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             format!("need shards 0..{n} each exactly once, got {indices:?}"),
         ));
     }
+    Ok(())
+}
+
+/// Every shard's files checked against its card's checksums; the files to copy (all but the
+/// metadata, the same in every shard that has them) with their entries and the shard folder
+/// each is copied from.
+#[allow(clippy::type_complexity)]
+fn verified_files(
+    cards: &[(PathBuf, ShardCard)],
+) -> Result<(BTreeMap<String, FileEntry>, BTreeMap<String, PathBuf>), DatasetError> {
     // Verify every file before writing anything.
     let mut files: BTreeMap<String, FileEntry> = BTreeMap::new();
     let mut origin: BTreeMap<String, PathBuf> = BTreeMap::new();
-    for (d, c) in &cards {
+    for (d, c) in cards {
         let checks: Vec<Result<(), DatasetError>> = c
             .card
             .files
@@ -1869,37 +1941,22 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             }
         }
     }
-    let nonempty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| IoError::Io {
-                path: out.to_path_buf(),
-                source: e,
-            })?
-            .next()
-            .is_some();
-    if nonempty || (out.exists() && !out.is_dir()) {
-        return Err(out_err(out, "exists and is not empty"));
-    }
-    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
-    let _lock = lock_out(out)?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
-        .map_err(DatasetError::Write)?;
-    origin
-        .par_iter()
-        .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
-            let dst = out.join(rel);
-            if let Some(parent) = dst.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
-            }
-            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
-            put(out, rel, &bytes)
-        })?;
+    Ok((files, origin))
+}
+
+/// The metadata of each split, the shards' concatenated in shard (= id) order, written to
+/// `out` and entered in `files`; returns the sample count of each split.
+fn merge_metadata(
+    cards: &[(PathBuf, ShardCard)],
+    out: &Path,
+    files: &mut BTreeMap<String, FileEntry>,
+) -> Result<BTreeMap<String, usize>, DatasetError> {
     // Metadata: concatenate per split in shard (= id) order.
     let mut counts = BTreeMap::new();
     for split in SPLITS {
         let rel = format!("{split}/metadata.jsonl");
         let mut text = String::new();
-        for (d, c) in &cards {
+        for (d, c) in cards {
             if c.card.files.contains_key(&rel) {
                 text.push_str(
                     &std::fs::read_to_string(d.join(&rel)).map_err(|e| IoError::Io {
@@ -1916,9 +1973,14 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             files.insert(rel.clone(), file_entry(out, &rel)?);
         }
     }
+    Ok(counts)
+}
+
+/// The union of the shards' scenes, in index order (ids sort as indices).
+fn merged_scenes(cards: &[(PathBuf, ShardCard)]) -> BTreeMap<String, serde_json::Value> {
     // Scenes: union, in index order (ids sort as indices).
     let mut scenes: BTreeMap<String, serde_json::Value> = BTreeMap::new();
-    for (_, c) in &cards {
+    for (_, c) in cards {
         for s in &c.card.scenes {
             let id = s
                 .get("id")
@@ -1928,26 +1990,7 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             scenes.entry(id).or_insert_with(|| s.clone());
         }
     }
-    let mut card = first.card.clone();
-    card.samples = counts.values().sum();
-    if card.samples != card.recipe.samples {
-        let _ = std::fs::remove_dir_all(out);
-        return Err(out_err(out, "the shards do not cover every sample"));
-    }
-    card.counts = counts;
-    card.scenes = scenes.into_values().collect();
-    card.files = files;
-    let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
-    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
-    Ok(RunSummary {
-        samples: card.samples,
-        generated: 0,
-        scenes_s: 0.0,
-        samples_s: 0.0,
-        samples_per_s: 0.0,
-        finish_s: t0.elapsed().as_secs_f64(),
-    })
+    scenes
 }
 
 #[cfg(test)]
