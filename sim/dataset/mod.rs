@@ -369,30 +369,7 @@ pub fn plan_with_objects(
     let text = crate::io::read_text(recipe_path)?;
     let mut recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
     if let Some(a) = &arrays {
-        if recipe.is_meshes() {
-            return Err(recipe_err(
-                recipe_path,
-                "objects.sources",
-                "objects given as arrays replace 2-D sources; a `meshes` recipe has 3-D objects",
-            ));
-        }
-        if a.size != recipe.objects.size_px {
-            return Err(recipe_err(
-                recipe_path,
-                "objects.size_px",
-                format!(
-                    "the recipe's objects are {0}x{0} pixels but the arrays are {1}x{1}",
-                    recipe.objects.size_px, a.size
-                ),
-            ));
-        }
-        if a.n > recipe::MAX_SAMPLES {
-            return Err(recipe_err(
-                recipe_path,
-                "samples",
-                format!("{} arrays: at most {} samples", a.n, recipe::MAX_SAMPLES),
-            ));
-        }
+        check_arrays(recipe_path, &recipe, a)?;
         recipe.samples = a.n;
     }
     let base = recipe_path
@@ -419,6 +396,82 @@ pub fn plan_with_objects(
             key,
         )
     };
+    let scenes = planned_scenes(&recipe, &load)?;
+    // Ranged keys: both ends must give valid scenes.
+    for (i, v) in recipe.vary.iter().enumerate() {
+        if let Some([lo, hi]) = v.range {
+            for x in [lo, hi] {
+                load(
+                    &[format!("{}={}", v.key, fmt_value(x))],
+                    &format!("vary[{i}].range"),
+                )?;
+            }
+        }
+    }
+    let images = object_files(recipe_path, &base, &recipe, &scenes)?;
+    // 3-D datasets have no H (the display's H says nothing of a mesh).
+    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
+    check_run_limits(recipe_path, &recipe, &scenes)?;
+    let counts = recipe.split_counts();
+    let id_width = (recipe.samples - 1).to_string().len().max(6);
+    let depths_mm = match &recipe.depth {
+        Some(d) => d
+            .depths_mm()
+            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
+        None => Vec::new(),
+    };
+    Ok(Plan {
+        recipe,
+        recipe_path: recipe_path.to_path_buf(),
+        recipe_sha256,
+        scene_file,
+        base_overrides,
+        scenes,
+        images,
+        depths_mm,
+        has_matrix,
+        counts,
+        id_width,
+        arrays,
+    })
+}
+
+/// Checks object arrays `a` against the recipe: a 2-D recipe, the objects' size, at most
+/// [`recipe::MAX_SAMPLES`] of them.
+fn check_arrays(recipe_path: &Path, recipe: &Recipe, a: &ObjectArrays) -> Result<(), DatasetError> {
+    if recipe.is_meshes() {
+        return Err(recipe_err(
+            recipe_path,
+            "objects.sources",
+            "objects given as arrays replace 2-D sources; a `meshes` recipe has 3-D objects",
+        ));
+    }
+    if a.size != recipe.objects.size_px {
+        return Err(recipe_err(
+            recipe_path,
+            "objects.size_px",
+            format!(
+                "the recipe's objects are {0}x{0} pixels but the arrays are {1}x{1}",
+                recipe.objects.size_px, a.size
+            ),
+        ));
+    }
+    if a.n > recipe::MAX_SAMPLES {
+        return Err(recipe_err(
+            recipe_path,
+            "samples",
+            format!("{} arrays: at most {} samples", a.n, recipe::MAX_SAMPLES),
+        ));
+    }
+    Ok(())
+}
+
+/// The recipe's distinct scenes (one per combination of listed `vary` values), each loaded by
+/// `load(overrides, key)` and moved to its `[depth]` distance.
+fn planned_scenes(
+    recipe: &Recipe,
+    load: &impl Fn(&[String], &str) -> Result<(LoadedScene, System), DatasetError>,
+) -> Result<Vec<PlannedScene>, DatasetError> {
     let mut scenes = Vec::new();
     for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
         let key = if params.is_empty() { "scene" } else { "vary" };
@@ -434,17 +487,18 @@ pub fn plan_with_objects(
             system,
         });
     }
-    // Ranged keys: both ends must give valid scenes.
-    for (i, v) in recipe.vary.iter().enumerate() {
-        if let Some([lo, hi]) = v.range {
-            for x in [lo, hi] {
-                load(
-                    &[format!("{}={}", v.key, fmt_value(x))],
-                    &format!("vary[{i}].range"),
-                )?;
-            }
-        }
-    }
+    Ok(scenes)
+}
+
+/// The files of each object source (none for built-in targets): image folders listed with
+/// every header read (so a file that is not an image stops the run before anything is
+/// written), mesh folders listed.
+fn object_files(
+    recipe_path: &Path,
+    base: &Path,
+    recipe: &Recipe,
+    scenes: &[PlannedScene],
+) -> Result<Vec<Vec<(PathBuf, String)>>, DatasetError> {
     let mut images = Vec::new();
     for (i, src) in recipe.objects.sources.iter().enumerate() {
         if let Source::Images {
@@ -476,9 +530,16 @@ pub fn plan_with_objects(
             images.push(Vec::new());
         }
     }
-    // 3-D datasets have no H (the display's H says nothing of a mesh).
-    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
-    // Run time: one H per scene, the white capture and, in render mode, one render per sample.
+    Ok(images)
+}
+
+/// The render limits of every scene for the run's renders: one H per scene, the white capture
+/// and, in render mode, one render per sample.
+fn check_run_limits(
+    recipe_path: &Path,
+    recipe: &Recipe,
+    scenes: &[PlannedScene],
+) -> Result<(), DatasetError> {
     let renders = scenes.len() as u64
         + 1
         + if recipe.mode == CaptureMode::Render {
@@ -486,7 +547,7 @@ pub fn plan_with_objects(
         } else {
             0
         };
-    for ps in &scenes {
+    for ps in scenes {
         crate::render::check_limits(
             &ps.system,
             &RenderSettings::lattice(recipe.spp, 0, false),
@@ -495,28 +556,7 @@ pub fn plan_with_objects(
         )
         .map_err(|e| recipe_err(recipe_path, "spp", e.message))?;
     }
-    let counts = recipe.split_counts();
-    let id_width = (recipe.samples - 1).to_string().len().max(6);
-    let depths_mm = match &recipe.depth {
-        Some(d) => d
-            .depths_mm()
-            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
-        None => Vec::new(),
-    };
-    Ok(Plan {
-        recipe,
-        recipe_path: recipe_path.to_path_buf(),
-        recipe_sha256,
-        scene_file,
-        base_overrides,
-        scenes,
-        images,
-        depths_mm,
-        has_matrix,
-        counts,
-        id_width,
-        arrays,
-    })
+    Ok(())
 }
 
 impl Plan {
