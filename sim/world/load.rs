@@ -658,7 +658,8 @@ fn check_accessor(
 }
 
 /// Reads one primitive into a mesh in mm (material ids already resolved), or `None` if it has
-/// no triangles (points, lines, empty).
+/// no triangles (points, lines, empty): its accessors checked ([`check_primitive`]), its
+/// vertex data read ([`read_vertex_data`]), posed, and its triangles assembled.
 fn read_primitive(
     ctx: &mut GltfCtx,
     prim: &gltf::Primitive,
@@ -666,7 +667,6 @@ fn read_primitive(
     morph_weights: &[f64],
     skin: Option<&super::gltf_shape::SkinPose>,
 ) -> Result<Option<Mesh>, LoadError> {
-    use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::mesh::Mode;
     let mode = prim.mode();
     if !matches!(
@@ -675,6 +675,101 @@ fn read_primitive(
     ) {
         return Ok(None);
     }
+    let Some(plan) = check_primitive(ctx, prim, morph_weights, skin)? else {
+        return Ok(None);
+    };
+    // The checks above keep the reader within its buffers; a panic on a malformed sparse
+    // accessor is still turned into an error rather than aborting the run.
+    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        read_vertex_data(&ctx.buffers, prim, &plan, morph_weights, skin)
+    }));
+    let Ok(Some(PrimData {
+        mut positions,
+        mut normals,
+        uvs,
+        indices,
+        mut tangents,
+        influences,
+    })) = read
+    else {
+        return Err(LoadError::new(
+            ctx.path,
+            format!(
+                "mesh primitive {} has unreadable accessor data",
+                prim.index()
+            ),
+        ));
+    };
+    if let (Some(pose), Some((j, w))) = (skin, &influences) {
+        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
+            .map_err(|m| LoadError::new(ctx.path, m))?;
+    }
+    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(LoadError::new(
+            ctx.path,
+            format!("index {i} is out of range ({} vertices)", positions.len()),
+        ));
+    }
+    let triangles = assemble_triangles(mode, &indices, plan.tris);
+    if triangles.is_empty() {
+        return Ok(None);
+    }
+    let material = material_id(ctx, &prim.material())?;
+    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, plan.n)
+        .map_err(|m| LoadError::new(ctx.path, m))?;
+    let mut mesh = Mesh {
+        positions_mm: positions,
+        normals,
+        uvs,
+        material_ids: vec![material; triangles.len()],
+        triangles,
+        colors,
+        alphas,
+        tangents,
+    };
+    transform_mesh(&mut mesh, to_mm);
+    if !plan.has_normals {
+        mesh.compute_normals();
+    }
+    Ok(Some(mesh))
+}
+
+/// What [`check_primitive`] found of a primitive: its vertex count, triangle count, and which
+/// attributes [`read_vertex_data`] reads.
+struct PrimPlan {
+    n: usize,
+    tris: usize,
+    has_normals: bool,
+    has_uv: bool,
+    has_tangents: bool,
+    uv_plan: super::gltf_features::UvPlan,
+    /// Morph targets with a non-zero weight apply.
+    morphing: bool,
+}
+
+/// A primitive's vertex data, read and morphed (not yet posed).
+struct PrimData {
+    positions: Vec<DVec3>,
+    normals: Vec<DVec3>,
+    uvs: Vec<DVec2>,
+    indices: Vec<u32>,
+    tangents: Vec<DVec4>,
+    /// Joints and weights of a skinned primitive.
+    influences: Option<(Vec<[u16; 4]>, Vec<[f64; 4]>)>,
+}
+
+/// Checks the accessors of a triangle primitive (positions, normals, tangents, texture
+/// coordinates, indices, skin and non-zero morph targets) against their buffers and counts its
+/// triangles and vertices against the asset's limits; `None` without positions.
+fn check_primitive(
+    ctx: &mut GltfCtx,
+    prim: &gltf::Primitive,
+    morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
+) -> Result<Option<PrimPlan>, LoadError> {
+    use gltf::accessor::{DataType as T, Dimensions as D};
+    use gltf::mesh::Mode;
+    let mode = prim.mode();
     let Some(pos_acc) = prim.get(&gltf::Semantic::Positions) else {
         return Ok(None);
     };
@@ -719,10 +814,6 @@ fn read_primitive(
             format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
         ));
     }
-    let buffers = &ctx.buffers;
-    let has_normals = normals_acc.is_some();
-    let has_uv = uv_acc.is_some();
-    let has_tangents = tangents_acc.is_some();
     if skin.is_some() {
         for (sem, what, types) in [
             (gltf::Semantic::Joints(0), "JOINTS_0", &[T::U8, T::U16][..]),
@@ -760,107 +851,119 @@ fn read_primitive(
             }
         }
     }
-    // The checks above keep the reader within its buffers; a panic on a malformed sparse
-    // accessor is still turned into an error rather than aborting the run.
-    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-        let positions: Vec<DVec3> = reader
-            .read_positions()?
+    Ok(Some(PrimPlan {
+        n,
+        tris,
+        has_normals: normals_acc.is_some(),
+        has_uv: uv_acc.is_some(),
+        has_tangents: tangents_acc.is_some(),
+        uv_plan,
+        morphing,
+    }))
+}
+
+/// Reads the vertex data `plan` names from `buffers`, with the non-zero morph targets applied
+/// one at a time (memory stays that of one attribute); `None` where an accessor cannot be read.
+fn read_vertex_data(
+    buffers: &[Vec<u8>],
+    prim: &gltf::Primitive,
+    plan: &PrimPlan,
+    morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
+) -> Option<PrimData> {
+    let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+    let positions: Vec<DVec3> = reader
+        .read_positions()?
+        .map(|p| DVec3::from_array(p.map(f64::from)))
+        .collect();
+    let normals: Vec<DVec3> = if plan.has_normals {
+        reader
+            .read_normals()?
             .map(|p| DVec3::from_array(p.map(f64::from)))
-            .collect();
-        let normals: Vec<DVec3> = if has_normals {
-            reader
-                .read_normals()?
-                .map(|p| DVec3::from_array(p.map(f64::from)))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let uvs: Vec<DVec2> = if has_uv {
-            reader
-                .read_tex_coords(uv_plan.set)?
-                .into_f32()
-                .map(|p| uv_plan.apply(DVec2::new(f64::from(p[0]), f64::from(p[1]))))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let indices: Vec<u32> = match reader.read_indices() {
-            Some(i) => i.into_u32().collect(),
-            None => (0..positions.len() as u32).collect(),
-        };
-        let mut positions = positions;
-        let mut normals = normals;
-        if morphing {
-            // One target at a time: memory stays that of one attribute.
-            let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
-            for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
-                let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
-                    continue;
-                };
-                for (values, delta) in [
-                    (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
-                    (&mut normals, q.map(|i| i.map(vec3).collect())),
-                ] {
-                    if let Some(d) = delta {
-                        if d.len() != values.len() && !values.is_empty() {
-                            return None;
-                        }
-                        super::gltf_shape::apply_morph(values, w, &d);
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let uvs: Vec<DVec2> = if plan.has_uv {
+        reader
+            .read_tex_coords(plan.uv_plan.set)?
+            .into_f32()
+            .map(|p| {
+                plan.uv_plan
+                    .apply(DVec2::new(f64::from(p[0]), f64::from(p[1])))
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let indices: Vec<u32> = match reader.read_indices() {
+        Some(i) => i.into_u32().collect(),
+        None => (0..positions.len() as u32).collect(),
+    };
+    let mut positions = positions;
+    let mut normals = normals;
+    if plan.morphing {
+        // One target at a time: memory stays that of one attribute.
+        let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
+        for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
+            let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
+                continue;
+            };
+            for (values, delta) in [
+                (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
+                (&mut normals, q.map(|i| i.map(vec3).collect())),
+            ] {
+                if let Some(d) = delta {
+                    if d.len() != values.len() && !values.is_empty() {
+                        return None;
                     }
+                    super::gltf_shape::apply_morph(values, w, &d);
                 }
             }
         }
-        let tangents: Vec<DVec4> = if has_tangents {
-            reader
-                .read_tangents()?
-                .map(|t| {
-                    let v = DVec4::from_array(t.map(f64::from));
-                    let w = if v.w < 0.0 { -1.0 } else { 1.0 };
-                    if v.is_finite() {
-                        v.truncate().extend(w)
-                    } else {
-                        DVec4::ZERO
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let influences = match skin {
-            Some(_) => {
-                let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
-                let w: Vec<[f64; 4]> = reader
-                    .read_weights(0)?
-                    .into_f32()
-                    .map(|w| w.map(f64::from))
-                    .collect();
-                Some((j, w))
-            }
-            None => None,
-        };
-        Some((positions, normals, uvs, indices, tangents, influences))
-    }));
-    let Ok(Some((mut positions, mut normals, uvs, indices, mut tangents, influences))) = read
-    else {
-        return Err(LoadError::new(
-            ctx.path,
-            format!(
-                "mesh primitive {} has unreadable accessor data",
-                prim.index()
-            ),
-        ));
+    }
+    let tangents: Vec<DVec4> = if plan.has_tangents {
+        reader
+            .read_tangents()?
+            .map(|t| {
+                let v = DVec4::from_array(t.map(f64::from));
+                let w = if v.w < 0.0 { -1.0 } else { 1.0 };
+                if v.is_finite() {
+                    v.truncate().extend(w)
+                } else {
+                    DVec4::ZERO
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
     };
-    if let (Some(pose), Some((j, w))) = (skin, &influences) {
-        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
-            .map_err(|m| LoadError::new(ctx.path, m))?;
-    }
-    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-        return Err(LoadError::new(
-            ctx.path,
-            format!("index {i} is out of range ({} vertices)", positions.len()),
-        ));
-    }
+    let influences = match skin {
+        Some(_) => {
+            let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
+            let w: Vec<[f64; 4]> = reader
+                .read_weights(0)?
+                .into_f32()
+                .map(|w| w.map(f64::from))
+                .collect();
+            Some((j, w))
+        }
+        None => None,
+    };
+    Some(PrimData {
+        positions,
+        normals,
+        uvs,
+        indices,
+        tangents,
+        influences,
+    })
+}
+
+/// The triangles of `indices` in primitive `mode` (lists, strips with alternating winding, fans
+/// around the first index); strips and fans without their degenerate triangles.
+fn assemble_triangles(mode: gltf::mesh::Mode, indices: &[u32], tris: usize) -> Vec<[u32; 3]> {
+    use gltf::mesh::Mode;
     let mut triangles = Vec::with_capacity(tris);
     match mode {
         Mode::Triangles => {
@@ -885,27 +988,7 @@ fn read_primitive(
     if mode != Mode::Triangles {
         triangles.retain(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2]);
     }
-    if triangles.is_empty() {
-        return Ok(None);
-    }
-    let material = material_id(ctx, &prim.material())?;
-    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
-        .map_err(|m| LoadError::new(ctx.path, m))?;
-    let mut mesh = Mesh {
-        positions_mm: positions,
-        normals,
-        uvs,
-        material_ids: vec![material; triangles.len()],
-        triangles,
-        colors,
-        alphas,
-        tangents,
-    };
-    transform_mesh(&mut mesh, to_mm);
-    if !has_normals {
-        mesh.compute_normals();
-    }
-    Ok(Some(mesh))
+    triangles
 }
 
 /// Applies `m` to positions and (inverse transpose, renormalised) normals; a mirroring `m`
