@@ -1206,6 +1206,9 @@ fn obj_counts(path: &Path) -> Result<(u64, u64), LoadError> {
     Ok((vertices, triangles))
 }
 
+/// Reads a Wavefront OBJ file with its material libraries: counts checked before reading
+/// ([`obj_counts`]), the models read and triangulated ([`read_obj_models`]), then each model a
+/// part of one mesh with its converted material ([`obj_part`]).
 fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let (nv, nt) = obj_counts(path)?;
     if nt > MAX_TRIANGLES as u64 || nv > MAX_VERTICES as u64 {
@@ -1222,88 +1225,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             "no triangles (no face has three corners)",
         ));
     }
-    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
-    let mut reader = Utf8Lines {
-        inner: BufReader::new(file),
-        line: Vec::new(),
-        pos: 0,
-    };
-    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
-    let log = RefCell::new(MtlLog::default());
-    let opts = tobj::LoadOptions {
-        // Polygons are triangulated below by ear clipping (`obj_features`).
-        triangulate: false,
-        single_index: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
-        let full = mtl
-            .to_str()
-            .and_then(|s| resolve_reference(&dir, s, false))
-            .unwrap_or_else(|| dir.join(mtl));
-        let mut log = log.borrow_mut();
-        let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
-        match opened {
-            Err(e) => {
-                // Only a library that does not exist is tolerated: a folder, FIFO, device or
-                // broken file in its place is an error even then.
-                let missing = std::fs::metadata(&full)
-                    .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
-                if options.allow_missing_mtl && missing {
-                    return Ok((Vec::new(), Default::default()));
-                }
-                if log.error.is_none() {
-                    log.error = Some(LoadError::new(
-                        &e.path,
-                        format!(
-                            "cannot open material library (used by {}): {}",
-                            file_name(path),
-                            e.message
-                        ),
-                    ));
-                }
-                Err(tobj::LoadError::OpenFileFailed)
-            }
-            Ok(text) => {
-                let r = tobj::load_mtl_buf(&mut text.as_bytes());
-                match &r {
-                    Ok((mats, _)) => log.loaded.push((full, mats.len())),
-                    Err(e) => {
-                        if log.error.is_none() {
-                            log.error = Some(LoadError::new(
-                                &full,
-                                format!("not a readable material library ({e})"),
-                            ));
-                        }
-                    }
-                }
-                r
-            }
-        }
-    });
-    let log = log.into_inner();
-    if let Some(e) = log.error {
-        return Err(e);
-    }
-    let (mut models, materials) =
-        result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
-    for m in &mut models {
-        super::obj_features::triangulate_faces(&mut m.mesh);
-    }
-    let materials = materials.unwrap_or_default();
-    // Size checks before building the f64 arrays.
-    let (mut nv, mut nt) = (0usize, 0usize);
-    for m in &models {
-        nv += m.mesh.positions.len() / 3;
-        nt += m.mesh.indices.len() / 3;
-    }
-    if nt > MAX_TRIANGLES || nv > MAX_VERTICES {
-        return Err(LoadError::new(
-            path,
-            format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
-        ));
-    }
+    let (models, materials, log) = read_obj_models(path, options)?;
     // Which library each tobj material came from (for texture paths).
     let mut lib_of = Vec::with_capacity(materials.len());
     for (p, n) in &log.loaded {
@@ -1312,7 +1234,6 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let mut asset = Asset::default();
     let mut converted: HashMap<Option<usize>, u32> = HashMap::new();
     let mut cache: HashMap<PathBuf, Arc<Texture>> = HashMap::new();
-    let unit = options.obj_unit_mm;
     for model in &models {
         let m = &model.mesh;
         let n = m.positions.len() / 3;
@@ -1345,56 +1266,167 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
                 format!("face index {i} is out of range"),
             ));
         }
-        let positions_mm = m
-            .positions
-            .chunks_exact(3)
-            .map(|p| DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * unit)
-            .collect();
-        let normals: Vec<DVec3> = if m.normals.len() == 3 * n {
-            m.normals
-                .chunks_exact(3)
-                .map(|p| {
-                    let v = DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                    let len = v.length();
-                    if len > 0.0 && len.is_finite() {
-                        v / len
-                    } else {
-                        DVec3::ZERO
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let uvs = if m.texcoords.len() == 2 * n {
-            m.texcoords
-                .chunks_exact(2)
-                .map(|t| DVec2::new(f64::from(t[0]), 1.0 - f64::from(t[1])))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let triangles: Vec<[u32; 3]> = m
-            .indices
-            .chunks_exact(3)
-            .map(|t| [t[0], t[1], t[2]])
-            .collect();
-        let mut part = Mesh {
-            positions_mm,
-            normals,
-            uvs,
-            material_ids: vec![mat_id; triangles.len()],
-            triangles,
-            colors: super::obj_features::vertex_colours(m),
-            alphas: Vec::new(),
-            tangents: Vec::new(),
-        };
-        if part.normals.is_empty() {
-            part.compute_normals();
-        }
+        let part = obj_part(m, mat_id, options.obj_unit_mm);
         asset.mesh.append(&part, 0);
     }
     Ok(asset)
+}
+
+/// The models and materials of OBJ file `path` (faces triangulated by ear clipping) and the
+/// log of its material libraries, with the sizes checked before any f64 array is built.
+fn read_obj_models(
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>, MtlLog), LoadError> {
+    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
+    let mut reader = Utf8Lines {
+        inner: BufReader::new(file),
+        line: Vec::new(),
+        pos: 0,
+    };
+    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let log = RefCell::new(MtlLog::default());
+    let opts = tobj::LoadOptions {
+        // Polygons are triangulated below by ear clipping (`obj_features`).
+        triangulate: false,
+        single_index: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
+        load_mtl(mtl, &dir, path, options, &mut log.borrow_mut())
+    });
+    let log = log.into_inner();
+    if let Some(e) = log.error {
+        return Err(e);
+    }
+    let (mut models, materials) =
+        result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
+    for m in &mut models {
+        super::obj_features::triangulate_faces(&mut m.mesh);
+    }
+    let materials = materials.unwrap_or_default();
+    // Size checks before building the f64 arrays.
+    let (mut nv, mut nt) = (0usize, 0usize);
+    for m in &models {
+        nv += m.mesh.positions.len() / 3;
+        nt += m.mesh.indices.len() / 3;
+    }
+    if nt > MAX_TRIANGLES || nv > MAX_VERTICES {
+        return Err(LoadError::new(
+            path,
+            format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
+        ));
+    }
+    Ok((models, materials, log))
+}
+
+/// Reads material library `mtl` (named in OBJ file `path`, resolved against its folder `dir`)
+/// for tobj, noting it in `log`; a missing library is tolerated with
+/// `options.allow_missing_mtl`, any other failure is logged (the first one) and fails the load.
+fn load_mtl(
+    mtl: &Path,
+    dir: &Path,
+    path: &Path,
+    options: &LoadOptions,
+    log: &mut MtlLog,
+) -> tobj::MTLLoadResult {
+    let full = mtl
+        .to_str()
+        .and_then(|s| resolve_reference(dir, s, false))
+        .unwrap_or_else(|| dir.join(mtl));
+    let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
+    match opened {
+        Err(e) => {
+            // Only a library that does not exist is tolerated: a folder, FIFO, device or
+            // broken file in its place is an error even then.
+            let missing =
+                std::fs::metadata(&full).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
+            if options.allow_missing_mtl && missing {
+                return Ok((Vec::new(), Default::default()));
+            }
+            if log.error.is_none() {
+                log.error = Some(LoadError::new(
+                    &e.path,
+                    format!(
+                        "cannot open material library (used by {}): {}",
+                        file_name(path),
+                        e.message
+                    ),
+                ));
+            }
+            Err(tobj::LoadError::OpenFileFailed)
+        }
+        Ok(text) => {
+            let r = tobj::load_mtl_buf(&mut text.as_bytes());
+            match &r {
+                Ok((mats, _)) => log.loaded.push((full, mats.len())),
+                Err(e) => {
+                    if log.error.is_none() {
+                        log.error = Some(LoadError::new(
+                            &full,
+                            format!("not a readable material library ({e})"),
+                        ));
+                    }
+                }
+            }
+            r
+        }
+    }
+}
+
+/// One OBJ model's mesh with material `mat_id`, in mm (`unit` mm per OBJ unit): unit normals
+/// where the model has one per vertex (else computed), v flipped to the texture's rows.
+fn obj_part(m: &tobj::Mesh, mat_id: u32, unit: f64) -> Mesh {
+    let n = m.positions.len() / 3;
+    let positions_mm = m
+        .positions
+        .chunks_exact(3)
+        .map(|p| DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * unit)
+        .collect();
+    let normals: Vec<DVec3> = if m.normals.len() == 3 * n {
+        m.normals
+            .chunks_exact(3)
+            .map(|p| {
+                let v = DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                let len = v.length();
+                if len > 0.0 && len.is_finite() {
+                    v / len
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let uvs = if m.texcoords.len() == 2 * n {
+        m.texcoords
+            .chunks_exact(2)
+            .map(|t| DVec2::new(f64::from(t[0]), 1.0 - f64::from(t[1])))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let triangles: Vec<[u32; 3]> = m
+        .indices
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    let mut part = Mesh {
+        positions_mm,
+        normals,
+        uvs,
+        material_ids: vec![mat_id; triangles.len()],
+        triangles,
+        colors: super::obj_features::vertex_colours(m),
+        alphas: Vec::new(),
+        tangents: Vec::new(),
+    };
+    if part.normals.is_empty() {
+        part.compute_normals();
+    }
+    part
 }
 
 /// Largest material library read, bytes.
