@@ -377,6 +377,8 @@ struct GltfCtx<'a> {
     normal_plans: super::gltf_features::NormalPlans,
 }
 
+/// Reads a glTF / GLB file: the document checked, its buffers read ([`gltf_buffers`]), then
+/// the meshes of the scene's node tree ([`gltf_scene_mesh`]) with the skins' default poses.
 fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     let bytes = read_file(path)?;
     super::gltf_features::check_required_extensions(&bytes).map_err(|m| LoadError::new(path, m))?;
@@ -386,6 +388,43 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     super::gltf_features::check_document(&document, &normal_plans)
         .map_err(|m| LoadError::new(path, m))?;
     drop(bytes);
+    let buffers = gltf_buffers(path, &document, blob.take())?;
+    let mut ctx = GltfCtx {
+        path,
+        buffers,
+        textures: HashMap::new(),
+        materials: Vec::new(),
+        material_ids: HashMap::new(),
+        triangles: 0,
+        vertices: 0,
+        normal_plans,
+    };
+    // Skins: their joint matrices in the default pose.
+    let skin_poses = if document.skins().len() == 0 {
+        Vec::new()
+    } else {
+        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
+            .map_err(|m| LoadError::new(path, m))?;
+        document
+            .skins()
+            .map(|s| skin_pose(&ctx, &s, &globals))
+            .collect::<Result<Vec<_>, _>>()?
+    };
+    let mesh = gltf_scene_mesh(&mut ctx, &document, &skin_poses)?;
+    Ok(Asset {
+        mesh,
+        materials: ctx.materials,
+    })
+}
+
+/// The data of every buffer of `document` (GLB's binary chunk `blob`, data URIs, files beside
+/// `path`), each cut to its declared `byteLength`; the declared lengths are summed and checked
+/// before any is read.
+fn gltf_buffers(
+    path: &Path,
+    document: &gltf::Document,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<Vec<u8>>, LoadError> {
     // Every buffer's byteLength is summed before any is read.
     let declared_total = document
         .buffers()
@@ -438,17 +477,13 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         data.truncate(declared);
         buffers.push(data);
     }
-    let mut ctx = GltfCtx {
-        path,
-        buffers,
-        textures: HashMap::new(),
-        materials: Vec::new(),
-        material_ids: HashMap::new(),
-        triangles: 0,
-        vertices: 0,
-        normal_plans,
-    };
-    let roots: Vec<gltf::Node> = match document
+    Ok(buffers)
+}
+
+/// The root nodes of the default scene (else the first scene, else every node that is no
+/// node's child).
+fn gltf_roots(document: &gltf::Document) -> Vec<gltf::Node<'_>> {
+    match document
         .default_scene()
         .or_else(|| document.scenes().next())
     {
@@ -464,20 +499,20 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             }
             document.nodes().filter(|n| !is_child[n.index()]).collect()
         }
-    };
-    // Skins: their joint matrices in the default pose.
-    let skin_poses = if document.skins().len() == 0 {
-        Vec::new()
-    } else {
-        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
-            .map_err(|m| LoadError::new(path, m))?;
-        document
-            .skins()
-            .map(|s| skin_pose(&ctx, &s, &globals))
-            .collect::<Result<Vec<_>, _>>()?
-    };
+    }
+}
+
+/// Every primitive of every mesh in the node tree under [`gltf_roots`], placed by its node's
+/// global transform (a skinned mesh by its joints) in mm, as one mesh; the walk is bounded in
+/// depth and in node instances.
+fn gltf_scene_mesh(
+    ctx: &mut GltfCtx,
+    document: &gltf::Document,
+    skin_poses: &[super::gltf_shape::SkinPose],
+) -> Result<Mesh, LoadError> {
+    let path = ctx.path;
     let mut mesh = Mesh::default();
-    let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots
+    let mut stack: Vec<(gltf::Node, DMat4, usize)> = gltf_roots(document)
         .into_iter()
         .rev()
         .map(|n| (n, DMat4::IDENTITY, 0))
@@ -509,7 +544,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             };
             let weights = super::gltf_shape::morph_weights(&node, &m);
             for prim in m.primitives() {
-                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights, skin)? {
+                if let Some(part) = read_primitive(ctx, &prim, &to_mm, &weights, skin)? {
                     mesh.append(&part, 0);
                 }
             }
@@ -519,10 +554,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             stack.push((c, world, depth + 1));
         }
     }
-    Ok(Asset {
-        mesh,
-        materials: ctx.materials,
-    })
+    Ok(mesh)
 }
 
 /// The joint matrices of a skin in the default pose (`globals`: every node's global
