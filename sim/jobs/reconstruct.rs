@@ -90,9 +90,10 @@ impl ValueEnum for MethodArg {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// `stscam reconstruct`: options checked, the method chosen for the matrix (one H or a depth
+/// stack), then one H's reconstruction with its metrics and files.
 fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure> {
-    use crate::recon::{Method, Problem, Solution, SolveOptions};
+    use crate::recon::{Problem, Solution, SolveOptions};
     let ReconstructOptions {
         matrix,
         capture,
@@ -111,46 +112,8 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     let (matrix, capture, out) = (matrix.as_path(), capture.as_path(), out.as_path());
     let (iters, tau, gamma) = (*iters, *tau, *gamma);
     let (object, offset, truth) = (object.as_deref(), offset.as_deref(), truth.as_deref());
-    if !(tau.is_finite() && tau >= 0.0) {
-        return Err(bad_input(format!(
-            "--tau {tau}: must be a non-negative number"
-        )));
-    }
-    if !(mu.is_finite() && *mu >= 0.0) {
-        return Err(bad_input(format!(
-            "--mu {mu}: must be a non-negative number"
-        )));
-    }
-    if !(gamma.is_finite() && gamma > 0.0) {
-        return Err(bad_input(format!("--gamma {gamma}: must be positive")));
-    }
-    if let Some(n) = iters
-        && !(1..=MAX_ITERS).contains(&n)
-    {
-        return Err(bad_input(format!(
-            "--iters: must be in 1..={MAX_ITERS}, got {n}"
-        )));
-    }
-    let stack = crate::stack::is_stack(matrix);
-    let method = match (method, stack) {
-        (None, false) => MethodArg::One(Method::AdmmTv),
-        (None, true) => MethodArg::Stack(crate::recon::layered::StackMethod::Joint),
-        (Some(m @ MethodArg::Stack(_)), false) => {
-            return Err(bad_input(format!(
-                "{}: --method {}: needs a depth stack (H_stack.npz from matrix --depth-mm D1,D2,...)",
-                matrix.display(),
-                m.name()
-            )));
-        }
-        (Some(m @ MethodArg::One(_)), true) => {
-            return Err(bad_input(format!(
-                "{}: --method {}: a depth stack takes --method joint or depth (or pass one depth's H_<D>mm.npz)",
-                matrix.display(),
-                m.name()
-            )));
-        }
-        (Some(m), _) => *m,
-    };
+    check_numbers(a)?;
+    let method = resolve_method(*method, matrix)?;
     let tv = *tv;
     let method = match method {
         MethodArg::Stack(method) => {
@@ -171,23 +134,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
     let pool = thread_pool(*threads)?;
-    let lm =
-        crate::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
-    let mut g = load_capture(capture)?;
-    if g.len() != lm.h.rows {
-        return Err(bad_input(format!(
-            "{}: the capture has {} values but {} has {} rows (crop pixels x channels); they must match",
-            capture.display(),
-            g.len(),
-            matrix.display(),
-            lm.h.rows
-        )));
-    }
-    if let Some(o) = &lm.offset {
-        for (x, &v) in g.iter_mut().zip(o) {
-            *x -= f64::from(v);
-        }
-    }
+    let (lm, g) = load_problem(matrix, capture, object, offset)?;
     let (w, h) = lm.object;
     let planes = lm.planes;
     let truth_v = truth
@@ -214,23 +161,9 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     let solve_s = t0.elapsed().as_secs_f64();
     // Computed in f64; stored as float32, which must hold every value.
     check_f32_range(&f, capture, matrix)?;
-    let metrics = truth_v.as_ref().map(|t| {
-        let mut m = serde_json::json!({
-            "psnr_db": crate::recon::metrics::psnr(&f, t),
-            "ssim": crate::recon::metrics::ssim(&f, t, w, planes * h),
-            "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
-        });
-        if planes == 3 {
-            let xyz = colour_matrix(gamma);
-            let e = crate::recon::colour::colour_errors(&f, t, &xyz);
-            m["ssim_note"] = "SSIM of the three planes stacked vertically".into();
-            m["ciede2000_mean"] = e.ciede2000_mean.into();
-            m["ciede2000_p95"] = e.ciede2000_p95.into();
-            m["energy_share_rgb"] = serde_json::json!(e.energy_share);
-            m["colour_space"] = crate::recon::colour::LAB_NOTE.into();
-        }
-        m
-    });
+    let metrics = truth_v
+        .as_ref()
+        .map(|t| recon_metrics(&f, t, w, h, planes, gamma));
     let json = serde_json::json!({
         "stscam_version": crate::VERSION,
         "command": "reconstruct",
@@ -246,27 +179,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         "metrics": metrics,
         "units": "linear object intensity (0 = black, 1 = white display pixel)",
     });
-    let (exr, png) = if planes == 3 {
-        (
-            crate::output::encode_colour_object_exr(&f, w, h).map_err(write_failure)?,
-            crate::output::encode_colour_object_png(&f, w, h, gamma).map_err(write_failure)?,
-        )
-    } else {
-        (
-            crate::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?,
-            crate::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?,
-        )
-    };
-    let jb = serde_json::to_vec_pretty(&json).map_err(write_failure)?;
-    crate::io::write_all_atomic(
-        out,
-        &[
-            ("recon.exr", &exr),
-            ("recon.png", &png),
-            ("recon.json", &jb),
-        ],
-    )
-    .map_err(write_failure)?;
+    write_recon(out, &f, (w, h, planes), gamma, &json)?;
     let m = metrics
         .map(|m| {
             format!(
@@ -285,6 +198,146 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         solve_s * 1e3
     ));
     Ok(())
+}
+
+/// Checks `--tau`, `--mu`, `--gamma` and `--iters`.
+fn check_numbers(a: &ReconstructOptions) -> Result<(), Failure> {
+    let (tau, mu, gamma, iters) = (a.tau, &a.mu, a.gamma, a.iters);
+    if !(tau.is_finite() && tau >= 0.0) {
+        return Err(bad_input(format!(
+            "--tau {tau}: must be a non-negative number"
+        )));
+    }
+    if !(mu.is_finite() && *mu >= 0.0) {
+        return Err(bad_input(format!(
+            "--mu {mu}: must be a non-negative number"
+        )));
+    }
+    if !(gamma.is_finite() && gamma > 0.0) {
+        return Err(bad_input(format!("--gamma {gamma}: must be positive")));
+    }
+    if let Some(n) = iters
+        && !(1..=MAX_ITERS).contains(&n)
+    {
+        return Err(bad_input(format!(
+            "--iters: must be in 1..={MAX_ITERS}, got {n}"
+        )));
+    }
+    Ok(())
+}
+
+/// The method of `--method` (default: ADMM-TV with one H, joint with a depth stack), checked
+/// against the kind of `matrix`.
+fn resolve_method(
+    method: Option<MethodArg>,
+    matrix: &std::path::Path,
+) -> Result<MethodArg, Failure> {
+    use crate::recon::Method;
+    let stack = crate::stack::is_stack(matrix);
+    Ok(match (method, stack) {
+        (None, false) => MethodArg::One(Method::AdmmTv),
+        (None, true) => MethodArg::Stack(crate::recon::layered::StackMethod::Joint),
+        (Some(m @ MethodArg::Stack(_)), false) => {
+            return Err(bad_input(format!(
+                "{}: --method {}: needs a depth stack (H_stack.npz from matrix --depth-mm D1,D2,...)",
+                matrix.display(),
+                m.name()
+            )));
+        }
+        (Some(m @ MethodArg::One(_)), true) => {
+            return Err(bad_input(format!(
+                "{}: --method {}: a depth stack takes --method joint or depth (or pass one depth's H_<D>mm.npz)",
+                matrix.display(),
+                m.name()
+            )));
+        }
+        (Some(m), _) => m,
+    })
+}
+
+/// The matrix (with its offset) and the capture minus that offset, their sizes checked.
+fn load_problem(
+    matrix: &std::path::Path,
+    capture: &std::path::Path,
+    object: Option<(usize, usize)>,
+    offset: Option<&std::path::Path>,
+) -> Result<(crate::matrix::LoadedMatrix, Vec<f64>), Failure> {
+    let lm =
+        crate::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
+    let mut g = load_capture(capture)?;
+    if g.len() != lm.h.rows {
+        return Err(bad_input(format!(
+            "{}: the capture has {} values but {} has {} rows (crop pixels x channels); they must match",
+            capture.display(),
+            g.len(),
+            matrix.display(),
+            lm.h.rows
+        )));
+    }
+    if let Some(o) = &lm.offset {
+        for (x, &v) in g.iter_mut().zip(o) {
+            *x -= f64::from(v);
+        }
+    }
+    Ok((lm, g))
+}
+
+/// PSNR and SSIM of the reconstruction `f` against the truth `t` (linear, `w`×`h`×`planes`),
+/// and for colour the CIEDE2000 errors and energy shares.
+fn recon_metrics(
+    f: &[f64],
+    t: &[f64],
+    w: usize,
+    h: usize,
+    planes: usize,
+    gamma: f64,
+) -> serde_json::Value {
+    let mut m = serde_json::json!({
+        "psnr_db": crate::recon::metrics::psnr(f, t),
+        "ssim": crate::recon::metrics::ssim(f, t, w, planes * h),
+        "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
+    });
+    if planes == 3 {
+        let xyz = colour_matrix(gamma);
+        let e = crate::recon::colour::colour_errors(f, t, &xyz);
+        m["ssim_note"] = "SSIM of the three planes stacked vertically".into();
+        m["ciede2000_mean"] = e.ciede2000_mean.into();
+        m["ciede2000_p95"] = e.ciede2000_p95.into();
+        m["energy_share_rgb"] = serde_json::json!(e.energy_share);
+        m["colour_space"] = crate::recon::colour::LAB_NOTE.into();
+    }
+    m
+}
+
+/// Writes recon.exr, recon.png (grey or colour by `planes`) and recon.json into `out`.
+fn write_recon(
+    out: &std::path::Path,
+    f: &[f64],
+    (w, h, planes): (usize, usize, usize),
+    gamma: f64,
+    json: &serde_json::Value,
+) -> Result<(), Failure> {
+    let (exr, png) = if planes == 3 {
+        (
+            crate::output::encode_colour_object_exr(f, w, h).map_err(write_failure)?,
+            crate::output::encode_colour_object_png(f, w, h, gamma).map_err(write_failure)?,
+        )
+    } else {
+        (
+            crate::output::encode_object_exr(f, w, h, &[]).map_err(write_failure)?,
+            crate::output::encode_object_png(f, w, h, gamma).map_err(write_failure)?,
+        )
+    };
+    let jb = serde_json::to_vec_pretty(json).map_err(write_failure)?;
+    crate::io::write_all_atomic(
+        out,
+        &[
+            ("recon.exr", &exr),
+            ("recon.png", &png),
+            ("recon.json", &jb),
+        ],
+    )
+    .map_err(write_failure)
 }
 
 /// The XYZ matrix of the colour display a colour H was made for: the default scene's LCD
