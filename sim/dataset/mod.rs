@@ -945,6 +945,18 @@ fn lock_out(out: &Path) -> Result<crate::io::FolderLock, DatasetError> {
     })
 }
 
+/// Whether `out` is a folder with something in it.
+fn is_nonempty_folder(out: &Path) -> Result<bool, DatasetError> {
+    Ok(out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| IoError::Io {
+                path: out.to_path_buf(),
+                source: e,
+            })?
+            .next()
+            .is_some())
+}
+
 /// Checks and prepares the output folder and locks it for the run.
 fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, DatasetError> {
     let out = &opts.out;
@@ -952,14 +964,7 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, 
         recipe_sha256: plan.recipe_sha256.clone(),
         shard: opts.shard,
     };
-    let nonempty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| IoError::Io {
-                path: out.clone(),
-                source: e,
-            })?
-            .next()
-            .is_some();
+    let nonempty = is_nonempty_folder(out)?;
     if out.exists() && !out.is_dir() {
         return Err(out_err(out, "exists and is not a folder"));
     }
@@ -1834,14 +1839,7 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     let first = &cards[0].1;
     // Verify every file before writing anything.
     let (mut files, origin) = verified_files(&cards)?;
-    let nonempty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| IoError::Io {
-                path: out.to_path_buf(),
-                source: e,
-            })?
-            .next()
-            .is_some();
+    let nonempty = is_nonempty_folder(out)?;
     if nonempty || (out.exists() && !out.is_dir()) {
         return Err(out_err(out, "exists and is not empty"));
     }

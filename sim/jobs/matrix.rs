@@ -322,34 +322,25 @@ impl StackJob<'_> {
         Failure,
     > {
         use crate::stack::{STACK_MATRIX, coverage, depth_file_names};
-        let (ls, scene, sys, settings, pool, depths, out) = (
-            self.ls,
-            self.scene,
-            self.sys,
-            self.settings,
-            self.pool,
-            self.depths,
-            self.out,
-        );
         let mut files: Vec<(String, Vec<u8>)> = Vec::new();
         let mut per_depth = Vec::new();
         let mut failed_check = None;
-        for (&d, m) in depths.iter().zip(stack) {
+        for (&d, m) in self.depths.iter().zip(stack) {
             let names = depth_file_names(d);
             let linearity = check.then(|| {
-                let mut s = sys.clone();
+                let mut s = self.sys.clone();
                 s.display.z_mm = -d;
-                linearity_check(pool, &s, settings, m, con)
+                linearity_check(self.pool, &s, self.settings, m, con)
             });
             if let Some(rel) = linearity {
                 failed_check = failed_check.or(check_linearity(rel).err());
             }
             let cov = coverage(&m.h);
             let mut side = matrix_sidecar(
-                ls,
-                scene,
-                sys,
-                settings,
+                self.ls,
+                self.scene,
+                self.sys,
+                self.settings,
                 m,
                 d,
                 [&names[0], &names[1], &names[2]],
@@ -362,8 +353,12 @@ impl StackJob<'_> {
             files.push((names[0].clone(), Vec::new()));
             files.push((
                 names[1].clone(),
-                crate::io::npz::encode_npy_f32(&out.join(&names[1]), &[m.offset.len()], &m.offset)
-                    .map_err(write_failure)?,
+                crate::io::npz::encode_npy_f32(
+                    &self.out.join(&names[1]),
+                    &[m.offset.len()],
+                    &m.offset,
+                )
+                .map_err(write_failure)?,
             ));
             files.push((
                 names[2].clone(),
@@ -386,25 +381,17 @@ impl StackJob<'_> {
         matrix_s: f64,
     ) -> serde_json::Value {
         use crate::stack::{STACK_MATRIX, STACK_OFFSET};
-        let (ls, scene, sys, settings, pool, depths) = (
-            self.ls,
-            self.scene,
-            self.sys,
-            self.settings,
-            self.pool,
-            self.depths,
-        );
         serde_json::json!({
             "stscam_version": crate::VERSION,
             "command": "matrix",
-            "depths_mm": depths,
-            "scene_source": ls.source,
-            "overrides": scene.set,
-            "scene": sys.scene,
-            "seed": settings.seed,
-            "spp": settings.spp,
-            "sampler": settings.sampler,
-            "focus_distance_mm": sys.camera.focus_distance_mm,
+            "depths_mm": self.depths,
+            "scene_source": self.ls.source,
+            "overrides": self.scene.set,
+            "scene": self.sys.scene,
+            "seed": self.settings.seed,
+            "spp": self.settings.spp,
+            "sampler": self.settings.sampler,
+            "focus_distance_mm": self.sys.camera.focus_distance_mm,
             "shape": [block.rows, block.cols],
             "nnz": block.nnz(),
             "crop_px": [m0.crop.0, m0.crop.1],
@@ -418,7 +405,7 @@ impl StackJob<'_> {
             "files": {STACK_MATRIX: "scipy.sparse CSR block matrix [H_1 ... H_N]", STACK_OFFSET: "float32 vector: sum over depths of the per-depth offsets (the capture with every layer black)"},
             "depths": null,
             "coverage": "capture_filled = fraction of capture pixels some object pixel reaches; object_seen = fraction of object pixels the capture sees",
-            "threads": pool.current_num_threads(),
+            "threads": self.pool.current_num_threads(),
             "matrix_time_s": matrix_s,
             "wall_time_s": null,
             "paths_per_second": m0.stats.camera_paths as f64 / matrix_s,
