@@ -522,7 +522,7 @@ fn object_files(
             images.push(files);
         } else if let Source::Meshes(m) = src {
             let files = match &m.folder {
-                Some(folder) => mesh_files(recipe_path, &base, i, folder, m, &scenes[0].loaded)?,
+                Some(folder) => mesh_files(recipe_path, base, i, folder, m, &scenes[0].loaded)?,
                 None => Vec::new(),
             };
             images.push(files);
@@ -1852,7 +1852,7 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
         .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
             let dst = out.join(rel);
             if let Some(parent) = dst.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
+                std::fs::create_dir_all(parent).map_err(|e| write_err(parent, e))?;
             }
             let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
             put(out, rel, &bytes)

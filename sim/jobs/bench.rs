@@ -536,7 +536,7 @@ fn reference_render(pool: &rayon::ThreadPool, sys: &System, ref_spp: u32) -> Vec
     } else {
         pool.install(|| {
             crate::render::render(
-                &sys,
+                sys,
                 &RenderSettings {
                     spp: ref_spp,
                     seed: 1_000_003,

@@ -787,8 +787,11 @@ struct PrimData {
     indices: Vec<u32>,
     tangents: Vec<DVec4>,
     /// Joints and weights of a skinned primitive.
-    influences: Option<(Vec<[u16; 4]>, Vec<[f64; 4]>)>,
+    influences: Option<Influences>,
 }
+
+/// The joints and weights of each vertex of a skinned primitive.
+type Influences = (Vec<[u16; 4]>, Vec<[f64; 4]>);
 
 /// Checks the accessors of a triangle primitive (positions, normals, tangents, texture
 /// coordinates, indices, skin and non-zero morph targets) against their buffers and counts its
