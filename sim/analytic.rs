@@ -890,14 +890,15 @@ fn multiplex_rows(sys: &System, alone: &System, j: usize) -> Vec<Row> {
     rows
 }
 
-/// [`compare`] with given closed-form inputs (e.g. perturbed, to check the comparison fails).
+/// [`compare`] with given closed-form inputs (e.g. perturbed, to check the comparison fails):
+/// the per-field rows, the sensor rows of a point, the replica count against the bottom vHOE's
+/// height and the field of view, then the summary.
 pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticReport {
-    let n_fields = n_fields.max(50);
-    let tol = DETERMINISTIC_REL_TOL;
+    let fields = field_list(cf, n_fields.max(50));
+    let mut rows = Vec::new();
     // The tracer without its weight cut-off: every contact inside the bottom vHOE is a replica.
     let mut free = sys.clone();
     free.limits.min_weight = 0.0;
-    let lens = sys.camera.lens_center_mm;
     // A weak-grating copy for the throughput-peak search: with n1 → 0 the losses (1 − η) at
     // the contacts before the first replica are ≈ 1, so its throughput is one Bragg lobe
     // η_top·η_in ∝ ν⁴ sinc⁴ξ.
@@ -908,9 +909,26 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
             .iter_mut()
             .for_each(|g| g.index_modulation = WEAK_INDEX_MODULATION);
     });
-    let mut rows = Vec::new();
+    for (i, &hv) in fields.iter().enumerate() {
+        field_rows(&mut rows, &free, &weak, cf, i, hv);
+    }
+    point_rows(&mut rows, sys, cf);
+    height_rows(&mut rows, sys, cf);
+    fov_section(&mut rows, sys, cf);
+    let summary = summarise(&rows);
+    let pass = rows.iter().all(|r| r.pass);
+    AnalyticReport {
+        fields_deg: fields,
+        closed_form: cf.clone(),
+        rows,
+        summary,
+        pass,
+    }
+}
 
-    // Field list spanning the waveguide's field (97 % of the closed-form edges).
+/// The fields (h, v) in degrees compared by [`compare_with`]: `n_fields` spanning 97 % of the
+/// closed-form edges, 3/5 vertical, 1/5 horizontal, the rest conical.
+fn field_list(cf: &ClosedForm, n_fields: usize) -> Vec<[f64; 2]> {
     let (v_lo, _) = cf.fov_edge_deg(true, -1.0, false);
     let (v_hi, _) = cf.fov_edge_deg(true, 1.0, false);
     let (h_lo, _) = cf.fov_edge_deg(false, -1.0, false);
@@ -935,127 +953,157 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
         fields.push([h, v]);
     }
 
-    for (i, &[h, v]) in fields.iter().enumerate() {
-        let f = cf.field(h, v);
-        let dir = DVec3::from_array(f.camera_dir);
-        let hv = [h, v];
-        let Some(p) = probe_direction(&free, lens, dir, [0, 0]) else {
-            let mut r = row(
-                "field",
-                quantity::LAMBDA_B,
-                Some(i),
-                hv,
-                f64::NAN,
-                f.lambda_bragg_nm,
-                f64::NAN,
-                1.0,
-                tol,
-                false,
-            );
-            r.note = "tracer: no Bragg wavelength".into();
-            rows.push(r);
-            continue;
-        };
-        let lb = p.lambda_nm;
-        rows.push(row(
+    fields
+}
+
+/// The rows of field `i` at `[h, v]` degrees: Bragg wavelength, throughput peak (with the
+/// weak-grating copy `weak`), guided angle, replica pitch, first object point and replica
+/// count, traced with `free` (no weight cut-off).
+fn field_rows(
+    rows: &mut Vec<Row>,
+    free: &System,
+    weak: &System,
+    cf: &ClosedForm,
+    i: usize,
+    [h, v]: [f64; 2],
+) {
+    let tol = DETERMINISTIC_REL_TOL;
+    let f = cf.field(h, v);
+    let dir = DVec3::from_array(f.camera_dir);
+    let hv = [h, v];
+    let Some(p) = probe_direction(free, free.camera.lens_center_mm, dir, [0, 0]) else {
+        let mut r = row(
             "field",
             quantity::LAMBDA_B,
             Some(i),
             hv,
             f64::NAN,
             f.lambda_bragg_nm,
-            lb,
-            lb,
+            f64::NAN,
+            1.0,
             tol,
             false,
-        ));
-        let peak = golden_max(|l| throughput(&weak, dir, l), lb - 2.0, lb + 2.0, 1e-9);
+        );
+        r.note = "tracer: no Bragg wavelength".into();
+        rows.push(r);
+        return;
+    };
+    let lb = p.lambda_nm;
+    rows.push(row(
+        "field",
+        quantity::LAMBDA_B,
+        Some(i),
+        hv,
+        f64::NAN,
+        f.lambda_bragg_nm,
+        lb,
+        lb,
+        tol,
+        false,
+    ));
+    let peak = golden_max(|l| throughput(weak, dir, l), lb - 2.0, lb + 2.0, 1e-9);
+    let mut r = row(
+        "field",
+        quantity::LAMBDA_PEAK,
+        Some(i),
+        hv,
+        f64::NAN,
+        0.0,
+        peak - f.lambda_bragg_nm,
+        f.lambda_bragg_nm,
+        peak_tolerance_nm(lb),
+        true,
+    );
+    r.note = format!("peak at {peak:.9} nm");
+    rows.push(r);
+    rows.push(row(
+        "field",
+        quantity::GUIDED,
+        Some(i),
+        hv,
+        f64::NAN,
+        f.guided_angle_deg,
+        p.guided_angle_deg,
+        p.guided_angle_deg,
+        tol,
+        false,
+    ));
+    replica_rows(rows, &f, &p, i, hv);
+}
+
+/// The replica rows of field `i` at `hv`: the worst replica pitch, the first object point and
+/// the replica count of the traced probe `p` against the closed form `f`.
+fn replica_rows(
+    rows: &mut Vec<Row>,
+    f: &FieldGeometry,
+    p: &crate::analysis::ProbeResult,
+    i: usize,
+    hv: [f64; 2],
+) {
+    let tol = DETERMINISTIC_REL_TOL;
+    // Pitch: the worst spacing of consecutive traced display points.
+    let obj: Vec<DVec2> = p
+        .replicas
+        .iter()
+        .map(|r| DVec3::from_array(r.object_point_mm).truncate())
+        .collect();
+    let traced_pitch = obj
+        .windows(2)
+        .map(|w| (w[1] - w[0]).length())
+        .max_by(|a, b| {
+            (a - f.replica_pitch_mm)
+                .abs()
+                .total_cmp(&(b - f.replica_pitch_mm).abs())
+        })
+        // One replica only (edge of the field): the tracer's own 2w·tanΘ'.
+        .unwrap_or(p.replica_pitch_mm);
+    rows.push(row(
+        "field",
+        quantity::PITCH,
+        Some(i),
+        hv,
+        f64::NAN,
+        f.replica_pitch_mm,
+        traced_pitch,
+        traced_pitch,
+        tol,
+        false,
+    ));
+    if let (Some(o), Some(c)) = (obj.first(), f.object_points_mm.first()) {
+        let d = (*o - DVec2::from_array(*c)).length();
         let mut r = row(
             "field",
-            quantity::LAMBDA_PEAK,
+            quantity::OBJECT0,
             Some(i),
             hv,
             f64::NAN,
             0.0,
-            peak - f.lambda_bragg_nm,
-            f.lambda_bragg_nm,
-            peak_tolerance_nm(lb),
-            true,
-        );
-        r.note = format!("peak at {peak:.9} nm");
-        rows.push(r);
-        rows.push(row(
-            "field",
-            quantity::GUIDED,
-            Some(i),
-            hv,
-            f64::NAN,
-            f.guided_angle_deg,
-            p.guided_angle_deg,
-            p.guided_angle_deg,
-            tol,
-            false,
-        ));
-        // Pitch: the worst spacing of consecutive traced display points.
-        let obj: Vec<DVec2> = p
-            .replicas
-            .iter()
-            .map(|r| DVec3::from_array(r.object_point_mm).truncate())
-            .collect();
-        let traced_pitch = obj
-            .windows(2)
-            .map(|w| (w[1] - w[0]).length())
-            .max_by(|a, b| {
-                (a - f.replica_pitch_mm)
-                    .abs()
-                    .total_cmp(&(b - f.replica_pitch_mm).abs())
-            })
-            // One replica only (edge of the field): the tracer's own 2w·tanΘ'.
-            .unwrap_or(p.replica_pitch_mm);
-        rows.push(row(
-            "field",
-            quantity::PITCH,
-            Some(i),
-            hv,
-            f64::NAN,
+            d,
             f.replica_pitch_mm,
-            traced_pitch,
-            traced_pitch,
             tol,
             false,
-        ));
-        if let (Some(o), Some(c)) = (obj.first(), f.object_points_mm.first()) {
-            let d = (*o - DVec2::from_array(*c)).length();
-            let mut r = row(
-                "field",
-                quantity::OBJECT0,
-                Some(i),
-                hv,
-                f64::NAN,
-                0.0,
-                d,
-                f.replica_pitch_mm,
-                tol,
-                false,
-            );
-            r.note = format!("y = {:.6} mm", o.y);
-            rows.push(r);
-        }
-        rows.push(row(
-            "field",
-            quantity::COUNT,
-            Some(i),
-            hv,
-            f64::NAN,
-            f.contacts.len() as f64,
-            p.replicas.len() as f64,
-            1.0,
-            0.0,
-            true,
-        ));
+        );
+        r.note = format!("y = {:.6} mm", o.y);
+        rows.push(r);
     }
+    rows.push(row(
+        "field",
+        quantity::COUNT,
+        Some(i),
+        hv,
+        f64::NAN,
+        f.contacts.len() as f64,
+        p.replicas.len() as f64,
+        1.0,
+        0.0,
+        true,
+    ));
+}
 
-    // Sensor rows of a point at the display centre (deterministic, `analysis::point_replicas`).
+/// The sensor rows of a point at the display centre (deterministic, `analysis::point_replicas`)
+/// and, where their numbers differ, a count row.
+fn point_rows(rows: &mut Vec<Row>, sys: &System, cf: &ClosedForm) {
+    let tol = DETERMINISTIC_REL_TOL;
     let centre = sys.display.center_mm;
     let traced_rows = point_replicas(sys, centre);
     let cf_rows = cf.point_rows(centre.y);
@@ -1093,8 +1141,10 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
         r.note = "number of replica rows".into();
         rows.push(r);
     }
+}
 
-    // Replica count against bottom-vHOE height.
+/// The replica count of seven fields against the bottom vHOE's height (10 to 80 mm).
+fn height_rows(rows: &mut Vec<Row>, sys: &System, cf: &ClosedForm) {
     let (_, half_v) = {
         let d0 = cf.sensor_distance_mm;
         (
@@ -1140,9 +1190,12 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
             ));
         }
     }
+}
 
-    // Field of view: the paper scene and a variant with a tall top vHOE whose vertical field
-    // ends at TIR and at the Bragg band instead of the aperture.
+/// The field of view: critical angles, the paper scene and a variant with a tall top vHOE whose
+/// vertical field ends at TIR and at the Bragg band instead of the aperture.
+fn fov_section(rows: &mut Vec<Row>, sys: &System, cf: &ClosedForm) {
+    let tol = DETERMINISTIC_REL_TOL;
     let crit = info(sys);
     let n0 = cf.n_glass(cf.lambda0_nm);
     rows.push(row(
@@ -1169,7 +1222,7 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
         tol,
         false,
     ));
-    fov_rows(&mut rows, "paper scene", sys, cf, &crit);
+    fov_rows(rows, "paper scene", sys, cf, &crit);
     // Without the weight cut-off: under an 80 mm top vHOE the guided wave loses the
     // out-coupled part at every front contact and would otherwise be truncated (below
     // `min_guided_weight`) before it reaches the bottom vHOE.
@@ -1178,13 +1231,7 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
     let mut cf_tall = cf.clone();
     cf_tall.top_size_mm[1] = 80.0;
     let tall_info = info(&tall);
-    fov_rows(
-        &mut rows,
-        "top vHOE 80 mm tall",
-        &tall,
-        &cf_tall,
-        &tall_info,
-    );
+    fov_rows(rows, "top vHOE 80 mm tall", &tall, &cf_tall, &tall_info);
     // The pure formulas of docs/physics.md §3.4 for the two in-plane edges of the tall variant.
     let tir = cf_tall.tir_edge_vertical_deg();
     let blue = cf_tall.bragg_edge_vertical_deg(cf_tall.band_nm[0])[0];
@@ -1211,16 +1258,6 @@ pub fn compare_with(sys: &System, cf: &ClosedForm, n_fields: usize) -> AnalyticR
         );
         r.note = format!("top vHOE 80 mm tall: {name}");
         rows.push(r);
-    }
-
-    let summary = summarise(&rows);
-    let pass = rows.iter().all(|r| r.pass);
-    AnalyticReport {
-        fields_deg: fields,
-        closed_form: cf.clone(),
-        rows,
-        summary,
-        pass,
     }
 }
 
@@ -1351,6 +1388,16 @@ impl AnalyticReport {
     /// edges, as Markdown tables.
     pub fn to_markdown(&self) -> String {
         let mut s = String::new();
+        self.summary_markdown(&mut s);
+        self.fields_markdown(&mut s);
+        self.point_markdown(&mut s);
+        self.heights_markdown(&mut s);
+        self.fov_markdown(&mut s);
+        s
+    }
+
+    /// The verdict and the maxima per quantity.
+    fn summary_markdown(&self, s: &mut String) {
         s.push_str(&format!(
             "Analytic comparison over {} field angles: {}\n\n",
             self.fields_deg.len(),
@@ -1369,6 +1416,10 @@ impl AnalyticReport {
                 if q.pass { "yes" } else { "NO" }
             ));
         }
+    }
+
+    /// One line per field: the closed form and the largest relative difference.
+    fn fields_markdown(&self, s: &mut String) {
         s.push_str(
             "\n### Per field (closed form; max rel diff of λ_B, Θ', pitch against the tracer)\n\n",
         );
@@ -1405,6 +1456,10 @@ impl AnalyticReport {
                 fmt(maxrel)
             ));
         }
+    }
+
+    /// The sensor rows of the point at the display centre.
+    fn point_markdown(&self, s: &mut String) {
         s.push_str("\n### Sensor rows of a point at the display centre\n\n");
         s.push_str(
             "| contact | row closed form | row traced | abs diff (px) |\n|---:|---:|---:|---:|\n",
@@ -1418,6 +1473,10 @@ impl AnalyticReport {
                 fmt(r.abs_diff)
             ));
         }
+    }
+
+    /// The replica counts, one line per bottom-vHOE height, one column per field.
+    fn heights_markdown(&self, s: &mut String) {
         s.push_str("\n### Replica count against bottom-vHOE height (closed form / traced)\n\n");
         let hv: Vec<[f64; 2]> = {
             let mut v: Vec<[f64; 2]> = Vec::new();
@@ -1458,6 +1517,10 @@ impl AnalyticReport {
             }
             s.push('\n');
         }
+    }
+
+    /// The field-of-view rows.
+    fn fov_markdown(&self, s: &mut String) {
         s.push_str("\n### Field of view\n\n| what | closed form (°) | stscam (°) | abs diff (°) | pass |\n|---|---:|---:|---:|---|\n");
         for r in self.rows.iter().filter(|r| r.section == "fov") {
             let what = if r.note.is_empty() {
@@ -1474,7 +1537,6 @@ impl AnalyticReport {
                 if r.pass { "yes" } else { "NO" }
             ));
         }
-        s
     }
 
     /// Every row as CSV (header line first).

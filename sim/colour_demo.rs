@@ -196,7 +196,8 @@ fn shares(f: &[f64]) -> [f64; 3] {
 }
 
 /// Runs the colour demo over `designs` (name, system with a colour display; the same object
-/// size, square and a power of two in pixels).
+/// size, square and a power of two in pixels): per design ([`colour_design`]) H, its colour
+/// calibration and every target reconstructed; then the figure and the tables.
 pub fn run_colour_demo(
     designs: &[(String, System)],
     set: &DemoSettings,
@@ -211,117 +212,9 @@ pub fn run_colour_demo(
                 "{name}: display.primaries: the colour demo needs a colour display (\"lcd\")"
             ));
         }
-        let (ow, oh) = (sys.display.width_px, sys.display.height_px);
-        let gamma = sys.scene.display.gamma;
-        let t0 = std::time::Instant::now();
-        let m = crate::matrix::compute_matrix(
-            sys,
-            &RenderSettings::lattice(set.spp, set.seed, set.progress),
-        );
-        let matrix_s = t0.elapsed().as_secs_f64();
-        geometry = Some(((ow, oh), m.crop, gamma));
-        let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
-        let (h_est, calibration) = calibrate_colour(
-            &m.h,
-            &m.offset,
-            3,
-            &CalibrationSettings {
-                noise: Some(noise.clone()),
-                seed: set.seed,
-                dark_frame: true,
-                threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
-            },
-        )
-        .map_err(|e| format!("{name}: display.image: {e}"))?;
-        let p_true = Problem::new(&m.h, ow, 3 * oh);
-        let p_est = Problem::new(&h_est, ow, 3 * oh);
-        let xyz = primaries_to_xyz(&primaries_of(sys));
-        let short = if sys.waveguide.gratings.len() > 1 {
-            "RGB"
-        } else {
-            "1G"
-        };
-        for (ti, (tname, spec)) in COLOUR_TARGETS.iter().enumerate() {
-            let spec = sized(spec, ow);
-            let (_, _, truth) = planes_of_spec(&spec, gamma, 3)?;
-            let (noisy, g) = measured_capture(sys, &truth, set, &noise, &dark, ti as u64);
-            let mut recs = Vec::new();
-            let mut caps = Vec::new();
-            for (mname, p) in [("true", &p_true), ("calibrated", &p_est)] {
-                for (method, opts) in [
-                    (
-                        "cgm",
-                        SolveOptions {
-                            method: Method::Cg,
-                            iters: Some(set.cg.iters),
-                            tau_rel: set.admm.tau_rel,
-                            tv: set.admm.tv,
-                        },
-                    ),
-                    (
-                        "admm-tv",
-                        SolveOptions {
-                            method: Method::AdmmTv,
-                            iters: Some(set.admm.iters),
-                            tau_rel: set.admm.tau_rel,
-                            tv: set.admm.tv,
-                        },
-                    ),
-                ] {
-                    let f = solve_planes(p, 3, &g, &opts).f;
-                    let e = colour_errors(&f, &truth, &xyz);
-                    caps.push(format!("{:.1} DB {:.1}", e.psnr_db, e.ciede2000_mean));
-                    rows.push(ColourRow {
-                        design: name.clone(),
-                        target: tname.to_string(),
-                        spec: spec.clone(),
-                        matrix: mname.into(),
-                        method: method.into(),
-                        psnr_db: e.psnr_db,
-                        ciede2000_mean: e.ciede2000_mean,
-                        ciede2000_p95: e.ciede2000_p95,
-                        energy_share: e.energy_share,
-                        truth_share: shares(&truth),
-                    });
-                    recs.push(f);
-                }
-            }
-            fig.push((
-                format!("{short} {}", tname.to_ascii_uppercase()),
-                truth,
-                noisy,
-                recs,
-                caps,
-            ));
-        }
-        let bands = field_bands(sys, crate::analysis::COLOUR_BAND_ROWS);
-        let field_deg_without_band = std::array::from_fn(|p| {
-            bands
-                .iter()
-                .filter(|b| !b.has_band(p))
-                .map(|b| b.field_deg)
-                .collect()
-        });
-        let grating_shares = if sys.waveguide.gratings.len() > 1 {
-            grating_shares(
-                sys,
-                set.spp.clamp(1, 16),
-                set.seed.wrapping_add(2 + di as u64),
-                4,
-            )
-        } else {
-            Vec::new()
-        };
-        reports.push(DesignReport {
-            design: name.clone(),
-            gratings: sys.waveguide.gratings.len(),
-            bands,
-            field_deg_without_band,
-            calibration,
-            grating_shares,
-            h_nnz: m.h.nnz(),
-            matrix_s,
-        });
+        let (report, geo) = colour_design(di, name, sys, set, &mut rows, &mut fig)?;
+        geometry = Some(geo);
+        reports.push(report);
     }
     let mut files = Vec::new();
     if let Some(((ow, oh), crop, gamma)) = geometry {
@@ -351,6 +244,161 @@ pub fn run_colour_demo(
         rows,
         designs: reports,
     })
+}
+
+/// Design `di` of the colour demo: H, its colour calibration and each target's row of the
+/// figure (its table rows appended to `rows`); returns its report and its geometry (object
+/// size, crop, display gamma).
+#[allow(clippy::type_complexity)]
+fn colour_design(
+    di: usize,
+    name: &str,
+    sys: &System,
+    set: &DemoSettings,
+    rows: &mut Vec<ColourRow>,
+    fig: &mut Vec<FigRow>,
+) -> Result<(DesignReport, ((usize, usize), (usize, usize), f64)), String> {
+    let (ow, oh) = (sys.display.width_px, sys.display.height_px);
+    let gamma = sys.scene.display.gamma;
+    let t0 = std::time::Instant::now();
+    let m = crate::matrix::compute_matrix(
+        sys,
+        &RenderSettings::lattice(set.spp, set.seed, set.progress),
+    );
+    let matrix_s = t0.elapsed().as_secs_f64();
+    let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
+    let (h_est, calibration) = calibrate_colour(
+        &m.h,
+        &m.offset,
+        3,
+        &CalibrationSettings {
+            noise: Some(noise.clone()),
+            seed: set.seed,
+            dark_frame: true,
+            threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
+        },
+    )
+    .map_err(|e| format!("{name}: display.image: {e}"))?;
+    let p_true = Problem::new(&m.h, ow, 3 * oh);
+    let p_est = Problem::new(&h_est, ow, 3 * oh);
+    let xyz = primaries_to_xyz(&primaries_of(sys));
+    let short = if sys.waveguide.gratings.len() > 1 {
+        "RGB"
+    } else {
+        "1G"
+    };
+    for (ti, (tname, spec)) in COLOUR_TARGETS.iter().enumerate() {
+        let spec = sized(spec, ow);
+        let (_, _, truth) = planes_of_spec(&spec, gamma, 3)?;
+        let (noisy, g) = measured_capture(sys, &truth, set, &noise, &dark, ti as u64);
+        fig.push(colour_target(
+            name,
+            short,
+            (tname, &spec),
+            truth,
+            noisy,
+            &g,
+            [&p_true, &p_est],
+            &xyz,
+            set,
+            rows,
+        ));
+    }
+    let bands = field_bands(sys, crate::analysis::COLOUR_BAND_ROWS);
+    let field_deg_without_band = std::array::from_fn(|p| {
+        bands
+            .iter()
+            .filter(|b| !b.has_band(p))
+            .map(|b| b.field_deg)
+            .collect()
+    });
+    let grating_shares = if sys.waveguide.gratings.len() > 1 {
+        grating_shares(
+            sys,
+            set.spp.clamp(1, 16),
+            set.seed.wrapping_add(2 + di as u64),
+            4,
+        )
+    } else {
+        Vec::new()
+    };
+    let report = DesignReport {
+        design: name.to_string(),
+        gratings: sys.waveguide.gratings.len(),
+        bands,
+        field_deg_without_band,
+        calibration,
+        grating_shares,
+        h_nnz: m.h.nnz(),
+        matrix_s,
+    };
+    Ok((report, ((ow, oh), m.crop, gamma)))
+}
+
+/// One target of a design (`short`: "RGB" or "1G"): reconstructed by CGM and ADMM-TV with H
+/// true and H calibrated (`problems`), each scored (PSNR, CIEDE2000 with the display's `xyz`)
+/// in a table row appended to `rows`; returns its row of the figure.
+#[allow(clippy::too_many_arguments)]
+fn colour_target(
+    design: &str,
+    short: &str,
+    (tname, spec): (&str, &str),
+    truth: Vec<f64>,
+    noisy: Vec<f64>,
+    g: &[f64],
+    [p_true, p_est]: [&Problem; 2],
+    xyz: &[[f64; 3]; 3],
+    set: &DemoSettings,
+    rows: &mut Vec<ColourRow>,
+) -> FigRow {
+    let mut recs = Vec::new();
+    let mut caps = Vec::new();
+    for (mname, p) in [("true", p_true), ("calibrated", p_est)] {
+        for (method, opts) in [
+            (
+                "cgm",
+                SolveOptions {
+                    method: Method::Cg,
+                    iters: Some(set.cg.iters),
+                    tau_rel: set.admm.tau_rel,
+                    tv: set.admm.tv,
+                },
+            ),
+            (
+                "admm-tv",
+                SolveOptions {
+                    method: Method::AdmmTv,
+                    iters: Some(set.admm.iters),
+                    tau_rel: set.admm.tau_rel,
+                    tv: set.admm.tv,
+                },
+            ),
+        ] {
+            let f = solve_planes(p, 3, g, &opts).f;
+            let e = colour_errors(&f, &truth, xyz);
+            caps.push(format!("{:.1} DB {:.1}", e.psnr_db, e.ciede2000_mean));
+            rows.push(ColourRow {
+                design: design.to_string(),
+                target: tname.to_string(),
+                spec: spec.to_string(),
+                matrix: mname.into(),
+                method: method.into(),
+                psnr_db: e.psnr_db,
+                ciede2000_mean: e.ciede2000_mean,
+                ciede2000_p95: e.ciede2000_p95,
+                energy_share: e.energy_share,
+                truth_share: shares(&truth),
+            });
+            recs.push(f);
+        }
+    }
+    (
+        format!("{short} {}", tname.to_ascii_uppercase()),
+        truth,
+        noisy,
+        recs,
+        caps,
+    )
 }
 
 /// `spec` at `size` pixels: each part of an `rgb:` spec gets `@size`.

@@ -270,7 +270,76 @@ fn measure_frame(
         .collect()
 }
 
-/// Runs the demo on `sys` (its display target fixes the object size, which must be square).
+/// One demo target and its simulated capture.
+struct Shot {
+    /// Target name.
+    name: &'static str,
+    /// "binary" or "grayscale".
+    kind: &'static str,
+    /// Built-in spec at the object size.
+    spec: String,
+    /// Linear object intensities.
+    truth: Vec<f64>,
+    /// The capture minus the measured dark frame (what the solvers get).
+    g: Vec<f64>,
+    /// The noisy capture as measured.
+    noisy: Vec<f64>,
+}
+
+/// What the demo's steps share: the scene, the settings, the depth stack with the nominal H
+/// and the sensor model calibrated on it.
+struct DemoRun<'a> {
+    sys: &'a System,
+    set: &'a DemoSettings,
+    /// Object size (square), pixels.
+    obj: (usize, usize),
+    /// Display gamma of the targets.
+    gamma: f64,
+    /// The scene's own object distance, mm.
+    d0: f64,
+    /// The depth grid ([`demo_depth_grid`]) and H at each of its depths.
+    grid: Vec<f64>,
+    stack: Vec<SystemMatrix>,
+    /// H at the scene's distance (`stack[NOMINAL]`).
+    m: SystemMatrix,
+    /// Sensor model and measured dark frame.
+    noise: SensorNoise,
+    dark: Vec<f64>,
+}
+
+/// The several-depths part: the objects moved to the near plane, reconstructed with the
+/// nominal H and with the H of the estimated depth.
+struct DepthPart {
+    /// Where the objects are, mm.
+    near: f64,
+    /// Their noisy captures.
+    frames: Vec<Vec<f64>>,
+    rows: Vec<DepthRow>,
+    /// ADMM-TV reconstructions per target: [nominal H, estimated H].
+    recons: Vec<Vec<Vec<f64>>>,
+}
+
+/// Wall times of the demo's steps, s.
+struct DemoTimings {
+    matrix: f64,
+    captures: f64,
+    calibration: f64,
+    setup: f64,
+    recon: f64,
+    depth: f64,
+}
+
+/// The CGM / ADMM-TV columns of the table and figure, in the order of [`DemoRun::table`].
+const RECON_NAMES: [&str; 4] = [
+    "cgm_true",
+    "admm-tv_true",
+    "cgm_calibrated",
+    "admm-tv_calibrated",
+];
+
+/// Runs the demo on `sys` (its display target fixes the object size, which must be square):
+/// H as part of a depth stack, captures, calibration, the reconstruction table, several depths,
+/// then the files.
 pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> {
     let t_all = Instant::now();
     let (ow, oh) = (sys.display.width_px, sys.display.height_px);
@@ -279,8 +348,6 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
             "display.image: the demo needs a square object, got {ow}x{oh}"
         ));
     }
-    let gamma = sys.scene.display.gamma;
-    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     // 1. H, as part of the depth stack (5.).
     let t0 = Instant::now();
     let d0 = -sys.display.z_mm;
@@ -291,320 +358,434 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
         &grid,
     );
     let m: SystemMatrix = stack[NOMINAL].clone();
-    let matrix_s = t0.elapsed().as_secs_f64();
-    let rows_per_channel = m.crop.0 * m.crop.1;
+    let matrix = t0.elapsed().as_secs_f64();
     let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
+    let run = DemoRun {
+        sys,
+        set,
+        obj: (ow, oh),
+        gamma: sys.scene.display.gamma,
+        d0,
+        grid,
+        stack,
+        m,
+        noise,
+        dark,
+    };
     // 2. Captures.
     let t0 = Instant::now();
-    struct Shot {
-        name: &'static str,
-        kind: &'static str,
-        spec: String,
-        truth: Vec<f64>,
-        g: Vec<f64>,
-        noisy: Vec<f64>,
-    }
-    let mut shots = Vec::new();
-    for (ti, (name, kind, spec)) in DEMO_TARGETS.iter().enumerate() {
-        let spec = format!("{spec}@{ow}");
-        let (_, _, truth) = intensity_of_spec(&spec, gamma)?;
-        let (noisy, g) = measured_capture(sys, &truth, set, &noise, &dark, ti as u64);
-        shots.push(Shot {
-            name,
-            kind,
-            spec,
-            truth,
-            g,
-            noisy,
-        });
-    }
-    let capture_s = t0.elapsed().as_secs_f64();
+    let shots = run.captures()?;
+    let captures = t0.elapsed().as_secs_f64();
     // 3. Calibration.
     let t0 = Instant::now();
-    let cal = calibrate(
-        &m.h,
-        &m.offset,
-        FrameSource::Matrix,
-        &CalibrationSettings {
-            noise: Some(noise.clone()),
-            seed: set.seed,
-            dark_frame: true,
-            threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
-        },
-    )
-    .map_err(|e| format!("display.image: {e}"))?;
-    let calibration_s = t0.elapsed().as_secs_f64();
+    let cal = run.calibrate()?;
+    let calibration = t0.elapsed().as_secs_f64();
     // 4. Reconstructions.
     let t0 = Instant::now();
-    let p_true = Problem::new(&m.h, ow, oh);
+    let p_true = Problem::new(&run.m.h, ow, oh);
     let p_est = Problem::new(&cal.h_est, ow, oh);
-    let setup_s = t0.elapsed().as_secs_f64();
-    let mut table = Vec::new();
-    let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
-    // Both methods regularise by the discrepancy principle on the sensor model
-    // (`recon::discrepancy`); the black level each pixel sits at comes from the measured dark
-    // frame (a camera knows its dark frame, not the simulator's offset).
-    let dark_level = black_level_of(&dark, &noise);
-    for shot in &shots {
-        let mut per = Vec::new();
-        for (mname, p) in [("true", &p_true), ("calibrated", &p_est)] {
-            let t_level = Instant::now();
-            let level = NoiseLevel::of_capture(p, &shot.g, &dark_level, true, &noise);
-            let level_ms = 1e3 * t_level.elapsed().as_secs_f64();
-            for method in ["cgm", "admm-tv"] {
-                let t = Instant::now();
-                let htg = p.back_project(&shot.g);
-                let (f, iterations, tau_rel, target_met) = if method == "cgm" {
-                    let r = cg_discrepancy(p, &htg, &level, DEMO_CG_MAX_ITERS);
-                    let met = r.iterations < DEMO_CG_MAX_ITERS;
-                    (r.f, r.iterations, None, met)
-                } else {
-                    let c = admm_tv_discrepancy(p, &htg, &level, &set.admm);
-                    (c.result.f, set.admm.iters, Some(c.tau_rel), c.reached)
-                };
-                let frame_ms = level_ms + 1e3 * t.elapsed().as_secs_f64();
-                table.push(DemoRow {
-                    target: shot.name.to_string(),
-                    kind: shot.kind.to_string(),
-                    spec: shot.spec.clone(),
-                    matrix: mname.to_string(),
-                    method: method.to_string(),
-                    psnr_db: psnr(&f, &shot.truth),
-                    ssim: ssim(&f, &shot.truth, ow, oh),
-                    frame_ms,
-                    iterations,
-                    tau_rel,
-                    target_met,
-                });
-                per.push(f);
-            }
-        }
-        recons.push(per);
-    }
-    let recon_s = t0.elapsed().as_secs_f64();
+    let setup = t0.elapsed().as_secs_f64();
+    let (table, recons) = run.table(&shots, &p_true, &p_est);
+    let recon = t0.elapsed().as_secs_f64();
     // 5. Several depths.
     let t0 = Instant::now();
-    let near = grid[NEAR];
-    let near_m = compute_matrix_stack(
-        sys,
-        &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
-        &[near],
-    )
-    .swap_remove(0);
-    let frames: Vec<Vec<f64>> = shots
-        .iter()
-        .enumerate()
-        .map(|(ti, shot)| noisy_capture_of(&near_m, &shot.truth, &noise, set.seed, 16 + ti as u64))
-        .collect();
-    let blocks: Vec<&crate::sparse::CsrMatrix> = stack.iter().map(|m| &m.h).collect();
-    let offsets: Vec<Option<&[f32]>> = stack.iter().map(|m| Some(&m.offset[..])).collect();
-    let estimates = crate::recon::depth::estimate_depths(
-        &blocks,
-        &offsets,
-        (ow, oh),
-        &frames,
-        &grid,
-        crate::recon::depth::DEFAULT_DEPTH_CG_ITERS,
-    );
-    let mut depth_rows = Vec::new();
-    let mut depth_recons: Vec<Vec<Vec<f64>>> = Vec::new();
-    let mut problems: Vec<Option<Problem>> = vec![None; grid.len()];
-    for ((shot, frame), est) in shots.iter().zip(&frames).zip(estimates) {
-        let mut scores = [[(0.0, 0.0); 2]; 2];
-        let mut per = Vec::new();
-        for (k, d) in [NOMINAL, est.best].into_iter().enumerate() {
-            let p = problems[d].get_or_insert_with(|| Problem::new(&stack[d].h, ow, oh));
-            let g: Vec<f64> = frame
-                .iter()
-                .zip(&stack[d].offset)
-                .map(|(a, &o)| a - f64::from(o))
-                .collect();
-            let htg = p.back_project(&g);
-            for (j, f) in [cg_normal(p, &htg, &set.cg).f, admm_tv(p, &htg, &set.admm).f]
-                .into_iter()
-                .enumerate()
-            {
-                scores[k][j] = (psnr(&f, &shot.truth), ssim(&f, &shot.truth, ow, oh));
-                if j == 1 {
-                    per.push(f);
-                }
-            }
-        }
-        depth_rows.push(DepthRow {
-            target: shot.name.to_string(),
-            true_depth_mm: near,
-            nominal_depth_mm: d0,
-            estimate: est,
-            nominal: scores[0],
-            estimated: scores[1],
-        });
-        depth_recons.push(per);
-    }
-    let depth_s = t0.elapsed().as_secs_f64();
-    let depth_coverage = {
-        let mut moved = sys.clone();
-        crate::matrix::place_object(&mut moved, near);
-        crate::analysis::object_coverage(&moved)
+    let depth = run.several_depths(&shots);
+    let times = DemoTimings {
+        matrix,
+        captures,
+        calibration,
+        setup,
+        recon,
+        depth: t0.elapsed().as_secs_f64(),
     };
+    let coverage = run.coverage_at(depth.near);
     // Files.
-    let png = |f: &[f64]| crate::output::encode_object_png(f, ow, oh, gamma);
-    for (shot, per) in shots.iter().zip(&recons) {
-        files.push((format!("object_{}.png", shot.name), png(&shot.truth)?));
-        let cap_png = crate::io::encode_png16(
-            m.crop.0,
-            m.crop.1,
-            1,
-            &crate::io::preview_u16(
-                &[&shot.noisy[..rows_per_channel]
-                    .iter()
-                    .map(|&v| v as f32)
-                    .collect::<Vec<f32>>()],
-                0.999,
-            ),
-            crate::io::PngTransfer::Srgb,
-        )?;
-        files.push((format!("capture_{}.png", shot.name), cap_png));
-        let names = [
-            "cgm_true",
-            "admm-tv_true",
-            "cgm_calibrated",
-            "admm-tv_calibrated",
-        ];
-        for (f, n) in per.iter().zip(names) {
-            files.push((format!("recon_{}_{n}.png", shot.name), png(f)?));
-        }
-    }
-    let captions = |rec: &[Vec<Vec<f64>>]| -> Vec<Vec<String>> {
-        shots
-            .iter()
-            .zip(rec)
-            .map(|(s, per)| {
-                per.iter()
-                    .map(|f| format!("{:.2} DB", psnr(f, &s.truth)))
-                    .collect()
-            })
-            .collect()
-    };
-    files.push((
-        "figure.png".to_string(),
-        figure(
-            &[
-                "OBJECT",
-                "CAPTURE",
-                "CGM H TRUE",
-                "ADMM TV H TRUE",
-                "CGM H CAL",
-                "ADMM TV H CAL",
-            ],
-            &shots
-                .iter()
-                .map(|s| (s.name, &s.truth[..], &s.noisy[..rows_per_channel]))
-                .collect::<Vec<_>>(),
-            &recons,
-            &captions(&recons),
-            (ow, oh),
-            m.crop,
-            gamma,
-        )?,
-    ));
-    let mm = crate::numfmt::sig6;
-    let mut depth_captions = captions(&depth_recons);
-    for (c, r) in depth_captions.iter_mut().zip(&depth_rows) {
-        c[1] += &format!(" AT {}", mm(r.estimate.depth_mm));
-    }
-    files.push((
-        "figure_depth.png".to_string(),
-        figure(
-            &[
-                "OBJECT",
-                &format!("CAPTURE {} MM", mm(near)),
-                &format!("ADMM H {} MM", mm(d0)),
-                "ADMM H EST",
-            ],
-            &shots
-                .iter()
-                .zip(&frames)
-                .map(|(s, f)| (s.name, &s.truth[..], &f[..rows_per_channel]))
-                .collect::<Vec<_>>(),
-            &depth_recons,
-            &depth_captions,
-            (ow, oh),
-            m.crop,
-            gamma,
-        )?,
-    ));
-    let markdown =
-        table_markdown(&table) + "\n" + &depth_table_markdown(&depth_rows, &depth_coverage);
+    let mut files = run.image_files(&shots, &recons, &depth)?;
+    let markdown = table_markdown(&table) + "\n" + &depth_table_markdown(&depth.rows, &coverage);
     files.push(("table.md".to_string(), markdown.into_bytes()));
-    files.push((
-        "table.json".to_string(),
-        serde_json::to_vec_pretty(&table).map_err(|e| e.to_string())?,
-    ));
-    files.push((
-        "table_depth.json".to_string(),
-        serde_json::to_vec_pretty(&depth_rows).map_err(|e| e.to_string())?,
-    ));
-    let summary = serde_json::json!({
-        "stscam_version": crate::VERSION,
-        "command": "demo",
-        "spp": set.spp,
-        "seed": set.seed,
-        "capture_seed": set.seed.wrapping_add(1),
-        "object_px": [ow, oh],
-        "crop_px": [m.crop.0, m.crop.1],
-        "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),
-        "noise": sys.scene.noise,
-        "exposure_electrons_per_unit": noise.electrons_per_unit,
-        "cgm": {"table": {"stopping": "discrepancy principle in the range of H (recon::discrepancy)", "max_iters": DEMO_CG_MAX_ITERS}, "several_depths": {"iters": set.cg.iters, "tol": set.cg.tol}},
-        "admm_tv": {"iters": set.admm.iters, "table": {"tau": "discrepancy principle in the range of H (recon::discrepancy), bisection in log tau_rel", "tau_rel_bracket": [crate::recon::discrepancy::TAU_REL_MIN, crate::recon::discrepancy::TAU_REL_MAX]}, "several_depths": {"tau_rel": set.admm.tau_rel}, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
-        "noise_conditions": noise_conditions(&sys.scene.noise, &noise),
-        "metrics": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM of Wang et al. 2004 (Gaussian sigma 1.5, 11x11, K1 0.01, K2 0.03), mean over the pixels where the window fits",
-        "matrix_nnz": m.h.nnz(),
-        "h_est_nnz": cal.h_est.nnz(),
-        "gram_layout": {"true": p_true.gram_layout(), "calibrated": p_est.gram_layout()},
-        "timings_s": {"matrix": matrix_s, "captures": capture_s, "calibration": calibration_s, "reconstruction_setup": setup_s, "reconstructions": recon_s, "several_depths": depth_s, "total": t_all.elapsed().as_secs_f64()},
-        "calibration": cal.report,
-        "several_depths": {"grid_mm": grid, "nominal_mm": d0, "object_mm": near, "capture_seed": set.seed.wrapping_add(1), "noise_streams": "16 + target index", "criterion": "smallest relative residual after a short CGM per depth (recon::depth)", "cg_iterations": crate::recon::depth::DEFAULT_DEPTH_CG_ITERS, "object_coverage_at_object_mm": depth_coverage},
-    });
-    files.push((
-        "calibration.json".to_string(),
-        serde_json::to_vec_pretty(&cal.report).map_err(|e| e.to_string())?,
-    ));
-    let h_npz =
-        m.h.encode_npz(std::path::Path::new("H.npz"))
-            .map_err(|e| e.to_string())?;
-    files.push(("H.npz".to_string(), h_npz));
-    let npy = |name: &str, v: &[f64]| {
-        let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();
-        crate::io::npz::encode_npy_f32(std::path::Path::new(name), &[v32.len()], &v32)
-            .map_err(|e| e.to_string())
-    };
-    files.push(("dark.npy".to_string(), npy("dark.npy", &dark)?));
-    for shot in &shots {
-        let name = format!("capture_{}.npy", shot.name);
-        files.push((name.clone(), npy(&name, &shot.noisy)?));
-    }
-    let est = cal
-        .h_est
-        .encode_npz(std::path::Path::new("H_est.npz"))
-        .map_err(|e| e.to_string())?;
-    files.push(("H_est.npz".to_string(), est));
-    let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS});
-    let sc = serde_json::to_vec_pretty(&sidecar).map_err(|e| e.to_string())?;
-    files.push(("H.json".to_string(), sc.clone()));
-    files.push(("H_est.json".to_string(), sc));
-    files.push((
-        "demo.json".to_string(),
-        serde_json::to_vec_pretty(&summary).map_err(|e| e.to_string())?,
-    ));
+    files.push(("table.json".to_string(), json_bytes(&table)?));
+    files.push(("table_depth.json".to_string(), json_bytes(&depth.rows)?));
+    let mut summary = run.summary(&cal, (&p_true, &p_est), &depth, &coverage);
+    summary["timings_s"] = serde_json::json!({"matrix": times.matrix, "captures": times.captures, "calibration": times.calibration, "reconstruction_setup": times.setup, "reconstructions": times.recon, "several_depths": times.depth, "total": t_all.elapsed().as_secs_f64()});
+    run.data_files(&mut files, &cal, &shots)?;
+    files.push(("demo.json".to_string(), json_bytes(&summary)?));
     Ok(DemoOutput {
         files,
         rows: table,
-        depth_rows,
-        depth_coverage: depth_coverage.clone(),
+        depth_rows: depth.rows,
+        depth_coverage: coverage,
         calibration: cal.report,
         summary,
     })
+}
+
+/// `v` as pretty JSON.
+fn json_bytes<T: serde::Serialize + ?Sized>(v: &T) -> Result<Vec<u8>, String> {
+    serde_json::to_vec_pretty(v).map_err(|e| e.to_string())
+}
+
+/// Each caption row of a figure: the PSNR of each reconstruction of a target.
+fn psnr_captions(shots: &[Shot], rec: &[Vec<Vec<f64>>]) -> Vec<Vec<String>> {
+    shots
+        .iter()
+        .zip(rec)
+        .map(|(s, per)| {
+            per.iter()
+                .map(|f| format!("{:.2} DB", psnr(f, &s.truth)))
+                .collect()
+        })
+        .collect()
+}
+
+impl DemoRun<'_> {
+    /// The first channel's rows of a capture (the figures show it).
+    fn rows_per_channel(&self) -> usize {
+        self.m.crop.0 * self.m.crop.1
+    }
+
+    /// Step 2: each demo target at the object size and its noisy capture with H.
+    fn captures(&self) -> Result<Vec<Shot>, String> {
+        let mut shots = Vec::new();
+        for (ti, (name, kind, spec)) in DEMO_TARGETS.iter().enumerate() {
+            let spec = format!("{spec}@{}", self.obj.0);
+            let (_, _, truth) = intensity_of_spec(&spec, self.gamma)?;
+            let (noisy, g) = measured_capture(
+                self.sys,
+                &truth,
+                self.set,
+                &self.noise,
+                &self.dark,
+                ti as u64,
+            );
+            shots.push(Shot {
+                name,
+                kind,
+                spec,
+                truth,
+                g,
+                noisy,
+            });
+        }
+        Ok(shots)
+    }
+
+    /// Step 3: the Hadamard calibration of H with the sensor model, dark frame subtracted.
+    fn calibrate(&self) -> Result<crate::hadamard::Calibration, String> {
+        calibrate(
+            &self.m.h,
+            &self.m.offset,
+            FrameSource::Matrix,
+            &CalibrationSettings {
+                noise: Some(self.noise.clone()),
+                seed: self.set.seed,
+                dark_frame: true,
+                threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
+            },
+        )
+        .map_err(|e| format!("display.image: {e}"))
+    }
+
+    /// Step 4: every target reconstructed by CGM and ADMM-TV with H true and H calibrated: the
+    /// table rows and per target the reconstructions in [`RECON_NAMES`]' order.
+    ///
+    /// Both methods regularise by the discrepancy principle on the sensor model
+    /// (`recon::discrepancy`); the black level each pixel sits at comes from the measured dark
+    /// frame (a camera knows its dark frame, not the simulator's offset).
+    fn table(
+        &self,
+        shots: &[Shot],
+        p_true: &Problem,
+        p_est: &Problem,
+    ) -> (Vec<DemoRow>, Vec<Vec<Vec<f64>>>) {
+        let mut table = Vec::new();
+        let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
+        let dark_level = black_level_of(&self.dark, &self.noise);
+        for shot in shots {
+            let mut per = Vec::new();
+            for (mname, p) in [("true", p_true), ("calibrated", p_est)] {
+                let t_level = Instant::now();
+                let level = NoiseLevel::of_capture(p, &shot.g, &dark_level, true, &self.noise);
+                let level_ms = 1e3 * t_level.elapsed().as_secs_f64();
+                for method in ["cgm", "admm-tv"] {
+                    let (row, f) = self.table_cell(shot, p, &level, method, level_ms);
+                    table.push(DemoRow {
+                        matrix: mname.to_string(),
+                        ..row
+                    });
+                    per.push(f);
+                }
+            }
+            recons.push(per);
+        }
+        (table, recons)
+    }
+
+    /// One reconstruction of the table (`method` "cgm" or "admm-tv") with its row (`matrix`
+    /// left empty); `level_ms` is the time the noise level took, counted in the frame time.
+    fn table_cell(
+        &self,
+        shot: &Shot,
+        p: &Problem,
+        level: &NoiseLevel,
+        method: &str,
+        level_ms: f64,
+    ) -> (DemoRow, Vec<f64>) {
+        let (ow, oh) = self.obj;
+        let t = Instant::now();
+        let htg = p.back_project(&shot.g);
+        let (f, iterations, tau_rel, target_met) = if method == "cgm" {
+            let r = cg_discrepancy(p, &htg, level, DEMO_CG_MAX_ITERS);
+            let met = r.iterations < DEMO_CG_MAX_ITERS;
+            (r.f, r.iterations, None, met)
+        } else {
+            let c = admm_tv_discrepancy(p, &htg, level, &self.set.admm);
+            (c.result.f, self.set.admm.iters, Some(c.tau_rel), c.reached)
+        };
+        let frame_ms = level_ms + 1e3 * t.elapsed().as_secs_f64();
+        let row = DemoRow {
+            target: shot.name.to_string(),
+            kind: shot.kind.to_string(),
+            spec: shot.spec.clone(),
+            matrix: String::new(),
+            method: method.to_string(),
+            psnr_db: psnr(&f, &shot.truth),
+            ssim: ssim(&f, &shot.truth, ow, oh),
+            frame_ms,
+            iterations,
+            tau_rel,
+            target_met,
+        };
+        (row, f)
+    }
+
+    /// Step 5: the targets moved to the near plane (H of a second seed), their depth estimated
+    /// over the stack, and each reconstructed with the nominal H and with the estimated depth's.
+    fn several_depths(&self, shots: &[Shot]) -> DepthPart {
+        let (set, (ow, oh), grid) = (self.set, self.obj, &self.grid);
+        let near = grid[NEAR];
+        let near_m = compute_matrix_stack(
+            self.sys,
+            &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
+            &[near],
+        )
+        .swap_remove(0);
+        let frames: Vec<Vec<f64>> = shots
+            .iter()
+            .enumerate()
+            .map(|(ti, shot)| {
+                noisy_capture_of(&near_m, &shot.truth, &self.noise, set.seed, 16 + ti as u64)
+            })
+            .collect();
+        let blocks: Vec<&crate::sparse::CsrMatrix> = self.stack.iter().map(|m| &m.h).collect();
+        let offsets: Vec<Option<&[f32]>> = self.stack.iter().map(|m| Some(&m.offset[..])).collect();
+        let estimates = crate::recon::depth::estimate_depths(
+            &blocks,
+            &offsets,
+            (ow, oh),
+            &frames,
+            grid,
+            crate::recon::depth::DEFAULT_DEPTH_CG_ITERS,
+        );
+        let mut rows = Vec::new();
+        let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
+        let mut problems: Vec<Option<Problem>> = vec![None; grid.len()];
+        for ((shot, frame), est) in shots.iter().zip(&frames).zip(estimates) {
+            let mut scores = [[(0.0, 0.0); 2]; 2];
+            let mut per = Vec::new();
+            for (k, d) in [NOMINAL, est.best].into_iter().enumerate() {
+                let p = problems[d].get_or_insert_with(|| Problem::new(&self.stack[d].h, ow, oh));
+                let g: Vec<f64> = frame
+                    .iter()
+                    .zip(&self.stack[d].offset)
+                    .map(|(a, &o)| a - f64::from(o))
+                    .collect();
+                let htg = p.back_project(&g);
+                for (j, f) in [cg_normal(p, &htg, &set.cg).f, admm_tv(p, &htg, &set.admm).f]
+                    .into_iter()
+                    .enumerate()
+                {
+                    scores[k][j] = (psnr(&f, &shot.truth), ssim(&f, &shot.truth, ow, oh));
+                    if j == 1 {
+                        per.push(f);
+                    }
+                }
+            }
+            rows.push(DepthRow {
+                target: shot.name.to_string(),
+                true_depth_mm: near,
+                nominal_depth_mm: self.d0,
+                estimate: est,
+                nominal: scores[0],
+                estimated: scores[1],
+            });
+            recons.push(per);
+        }
+        DepthPart {
+            near,
+            frames,
+            rows,
+            recons,
+        }
+    }
+
+    /// What the crop sees of an object moved to `near` mm.
+    fn coverage_at(&self, near: f64) -> crate::analysis::ObjectCoverage {
+        let mut moved = self.sys.clone();
+        crate::matrix::place_object(&mut moved, near);
+        crate::analysis::object_coverage(&moved)
+    }
+
+    /// The pictures: each target, its capture and reconstructions, and the two figures.
+    fn image_files(
+        &self,
+        shots: &[Shot],
+        recons: &[Vec<Vec<f64>>],
+        depth: &DepthPart,
+    ) -> Result<Vec<(String, Vec<u8>)>, String> {
+        let ((ow, oh), gamma, m) = (self.obj, self.gamma, &self.m);
+        let rows_per_channel = self.rows_per_channel();
+        let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+        let png = |f: &[f64]| crate::output::encode_object_png(f, ow, oh, gamma);
+        for (shot, per) in shots.iter().zip(recons) {
+            files.push((format!("object_{}.png", shot.name), png(&shot.truth)?));
+            let cap_png = crate::io::encode_png16(
+                m.crop.0,
+                m.crop.1,
+                1,
+                &crate::io::preview_u16(
+                    &[&shot.noisy[..rows_per_channel]
+                        .iter()
+                        .map(|&v| v as f32)
+                        .collect::<Vec<f32>>()],
+                    0.999,
+                ),
+                crate::io::PngTransfer::Srgb,
+            )?;
+            files.push((format!("capture_{}.png", shot.name), cap_png));
+            for (f, n) in per.iter().zip(RECON_NAMES) {
+                files.push((format!("recon_{}_{n}.png", shot.name), png(f)?));
+            }
+        }
+        files.push((
+            "figure.png".to_string(),
+            figure(
+                &[
+                    "OBJECT",
+                    "CAPTURE",
+                    "CGM H TRUE",
+                    "ADMM TV H TRUE",
+                    "CGM H CAL",
+                    "ADMM TV H CAL",
+                ],
+                &shots
+                    .iter()
+                    .map(|s| (s.name, &s.truth[..], &s.noisy[..rows_per_channel]))
+                    .collect::<Vec<_>>(),
+                recons,
+                &psnr_captions(shots, recons),
+                (ow, oh),
+                m.crop,
+                gamma,
+            )?,
+        ));
+        let mm = crate::numfmt::sig6;
+        let mut depth_captions = psnr_captions(shots, &depth.recons);
+        for (c, r) in depth_captions.iter_mut().zip(&depth.rows) {
+            c[1] += &format!(" AT {}", mm(r.estimate.depth_mm));
+        }
+        files.push((
+            "figure_depth.png".to_string(),
+            figure(
+                &[
+                    "OBJECT",
+                    &format!("CAPTURE {} MM", mm(depth.near)),
+                    &format!("ADMM H {} MM", mm(self.d0)),
+                    "ADMM H EST",
+                ],
+                &shots
+                    .iter()
+                    .zip(&depth.frames)
+                    .map(|(s, f)| (s.name, &s.truth[..], &f[..rows_per_channel]))
+                    .collect::<Vec<_>>(),
+                &depth.recons,
+                &depth_captions,
+                (ow, oh),
+                m.crop,
+                gamma,
+            )?,
+        ));
+        Ok(files)
+    }
+
+    /// `demo.json` without its `timings_s` (the caller adds them): settings, noise, matrix
+    /// sizes, the calibration report and the several-depths set-up.
+    fn summary(
+        &self,
+        cal: &crate::hadamard::Calibration,
+        (p_true, p_est): (&Problem, &Problem),
+        depth: &DepthPart,
+        coverage: &crate::analysis::ObjectCoverage,
+    ) -> serde_json::Value {
+        let (set, (ow, oh), m, sys) = (self.set, self.obj, &self.m, self.sys);
+        serde_json::json!({
+            "stscam_version": crate::VERSION,
+            "command": "demo",
+            "spp": set.spp,
+            "seed": set.seed,
+            "capture_seed": set.seed.wrapping_add(1),
+            "object_px": [ow, oh],
+            "crop_px": [m.crop.0, m.crop.1],
+            "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),
+            "noise": sys.scene.noise,
+            "exposure_electrons_per_unit": self.noise.electrons_per_unit,
+            "cgm": {"table": {"stopping": "discrepancy principle in the range of H (recon::discrepancy)", "max_iters": DEMO_CG_MAX_ITERS}, "several_depths": {"iters": set.cg.iters, "tol": set.cg.tol}},
+            "admm_tv": {"iters": set.admm.iters, "table": {"tau": "discrepancy principle in the range of H (recon::discrepancy), bisection in log tau_rel", "tau_rel_bracket": [crate::recon::discrepancy::TAU_REL_MIN, crate::recon::discrepancy::TAU_REL_MAX]}, "several_depths": {"tau_rel": set.admm.tau_rel}, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
+            "noise_conditions": noise_conditions(&sys.scene.noise, &self.noise),
+            "metrics": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM of Wang et al. 2004 (Gaussian sigma 1.5, 11x11, K1 0.01, K2 0.03), mean over the pixels where the window fits",
+            "matrix_nnz": m.h.nnz(),
+            "h_est_nnz": cal.h_est.nnz(),
+            "gram_layout": {"true": p_true.gram_layout(), "calibrated": p_est.gram_layout()},
+            "timings_s": null,
+            "calibration": cal.report,
+            "several_depths": {"grid_mm": self.grid, "nominal_mm": self.d0, "object_mm": depth.near, "capture_seed": set.seed.wrapping_add(1), "noise_streams": "16 + target index", "criterion": "smallest relative residual after a short CGM per depth (recon::depth)", "cg_iterations": crate::recon::depth::DEFAULT_DEPTH_CG_ITERS, "object_coverage_at_object_mm": coverage},
+        })
+    }
+
+    /// The data files: the calibration report, H and H_est with their sidecars, the dark
+    /// frame and the captures (float32 .npy).
+    fn data_files(
+        &self,
+        files: &mut Vec<(String, Vec<u8>)>,
+        cal: &crate::hadamard::Calibration,
+        shots: &[Shot],
+    ) -> Result<(), String> {
+        let ((ow, oh), m) = (self.obj, &self.m);
+        files.push(("calibration.json".to_string(), json_bytes(&cal.report)?));
+        let h_npz =
+            m.h.encode_npz(std::path::Path::new("H.npz"))
+                .map_err(|e| e.to_string())?;
+        files.push(("H.npz".to_string(), h_npz));
+        let npy = |name: &str, v: &[f64]| {
+            let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+            crate::io::npz::encode_npy_f32(std::path::Path::new(name), &[v32.len()], &v32)
+                .map_err(|e| e.to_string())
+        };
+        files.push(("dark.npy".to_string(), npy("dark.npy", &self.dark)?));
+        for shot in shots {
+            let name = format!("capture_{}.npy", shot.name);
+            files.push((name.clone(), npy(&name, &shot.noisy)?));
+        }
+        let est = cal
+            .h_est
+            .encode_npz(std::path::Path::new("H_est.npz"))
+            .map_err(|e| e.to_string())?;
+        files.push(("H_est.npz".to_string(), est));
+        let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS});
+        let sc = json_bytes(&sidecar)?;
+        files.push(("H.json".to_string(), sc.clone()));
+        files.push(("H_est.json".to_string(), sc));
+        Ok(())
+    }
 }
 
 /// The table as Markdown: one row per target, PSNR / SSIM per method and matrix.

@@ -250,7 +250,9 @@ struct RowOut {
 /// Rows per task.
 const CHUNK: usize = 64;
 
-/// Simulates the calibration of `h_true` (with `offset`, the all-black capture per row).
+/// Simulates the calibration of `h_true` (with `offset`, the all-black capture per row): per
+/// row its frames ([`row_frames`]), measured ([`measure_row`]) and transformed back
+/// ([`estimate_row`]), in parallel; then H_est and the report ([`assemble`]).
 pub fn calibrate(
     h_true: &CsrMatrix,
     offset: &[f32],
@@ -270,7 +272,6 @@ pub fn calibrate(
             got: fr.len(),
         });
     }
-    let inv_n = 1.0 / n as f64;
     let rows: Vec<RowOut> = (0..h_true.rows)
         .into_par_iter()
         .with_min_len(CHUNK)
@@ -279,117 +280,170 @@ pub fn calibrate(
             |(truth, v), m| {
                 h_true.row_dense_into(m, truth);
                 let o = f64::from(offset[m]);
-                // Noiseless frames v_i and dark frame d.
-                let mut d = o;
-                match &source {
-                    FrameSource::Matrix => {
-                        v.copy_from_slice(truth);
-                        fwht(v);
-                        let s = v[0];
-                        for x in v.iter_mut() {
-                            *x = 0.5 * (*x + s) + o;
-                        }
-                    }
-                    FrameSource::Rendered(fr) => {
-                        for (i, x) in v.iter_mut().enumerate() {
-                            *x = f64::from(fr[i][m]);
-                        }
-                        d = f64::from(fr[n][m]);
-                    }
-                }
-                // Camera.
-                let mut var_sum = 0.0;
-                let mut var0 = 0.0;
-                let mut var_dark = 0.0;
-                let mut saturated = false;
-                if let Some(nz) = &set.noise {
-                    // One random stream per row, frames in order (dark frame last).
-                    let mut rng = NoiseRng::new(&[set.seed, 0x4841, m as u64]);
-                    let inv_g = 1.0 / nz.electrons_per_unit;
-                    let read2 = nz.read_noise_e * nz.read_noise_e;
-                    let q = 1.0 / (12.0 * nz.dn_per_unit().powi(2));
-                    let sat = (nz.full_scale_dn - nz.dark_offset_dn) / nz.dn_per_unit();
-                    let var_of =
-                        |x: f64| (x.max(0.0) * nz.electrons_per_unit + read2) * inv_g * inv_g + q;
-                    let mut e_sum = 0.0;
-                    var0 = var_of(v[0]);
-                    var_dark = var_of(d);
-                    for x in v.iter_mut() {
-                        saturated |= *x > sat;
-                        e_sum += x.max(0.0);
-                        *x = nz.measure(*x, &mut rng);
-                    }
-                    var_sum = (e_sum * nz.electrons_per_unit + n as f64 * read2) * inv_g * inv_g
-                        + n as f64 * q;
-                    d = nz.measure(d, &mut rng);
-                }
-                // Element k ≠ 0: v_0 enters with coefficient 2/N like every other frame, so
-                // Var = (4/N²)ΣVar(v_i). Column 0 is not multiplexed: H_est[m,0] =
-                // (2/N)Σ_{i≥1}v_i − ((N − 2)/N)v_0 (− d with the dark frame).
-                let sigma = (4.0 * var_sum).sqrt() * inv_n;
-                let nn = n as f64;
-                let sigma0 = (((nn - 2.0) * inv_n).powi(2) * var0
-                    + 4.0 * inv_n * inv_n * (var_sum - var0)
-                    + if set.dark_frame { var_dark } else { 0.0 })
-                .max(0.0)
-                .sqrt();
-                // v' and the inverse transform.
-                let v0 = v[0];
-                for x in v.iter_mut().skip(1) {
-                    *x = 2.0 * *x - v0;
-                }
-                fwht(v);
-                v.iter_mut().for_each(|x| *x *= inv_n);
-                // Errors: columns other than 0 are the same in both variants.
-                let mut e_rest = 0.0;
-                let mut t_rest = 0.0;
-                for k in 1..n {
-                    let e = v[k] - truth[k];
-                    e_rest += e * e;
-                    t_rest += truth[k] * truth[k];
-                }
-                let e0_nodark = (v[0] - truth[0]).powi(2);
-                let e0_dark = (v[0] - d - truth[0]).powi(2);
-                if set.dark_frame {
-                    v[0] -= d;
-                }
-                let peak = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
-                let thr = (set.threshold_sigma * sigma).max(1e-9 * peak);
-                let thr0 = (set.threshold_sigma * sigma0).max(1e-9 * peak);
-                let mut cols = Vec::new();
-                let mut vals = Vec::new();
-                let mut e_stored = 0.0;
-                for k in 0..n {
-                    let kept = v[k].abs() > if k == 0 { thr0 } else { thr };
-                    let est = if kept { v[k] as f32 } else { 0.0 };
-                    if kept && est != 0.0 {
-                        cols.push(k as u32);
-                        vals.push(est);
-                    }
-                    let e = f64::from(est) - truth[k];
-                    e_stored += e * e;
-                }
-                let c = o + set.noise.as_ref().map_or(0.0, |nz| nz.dark_offset_units());
-                RowOut {
-                    cols,
-                    vals,
-                    e0_nodark,
-                    e_rest,
-                    e0_dark,
-                    t0: truth[0] * truth[0],
-                    t_rest,
-                    e_stored,
-                    c2: c * c,
-                    saturated,
-                    sigma,
-                }
+                let mut d = row_frames(truth, v, o, m, &source);
+                let noise = measure_row(v, &mut d, set, m);
+                estimate_row(truth, v, d, o, &noise, set)
             },
         )
         .collect();
+    Ok(assemble(&rows, h_true.rows, n))
+}
+
+/// What the camera did to one row's frames: the summed variance of the frames (electrons and
+/// read noise converted to units, plus quantisation), that of frame 0 and of the dark frame,
+/// and whether a frame saturated (all 0 without noise).
+struct RowNoise {
+    var_sum: f64,
+    var0: f64,
+    var_dark: f64,
+    saturated: bool,
+}
+
+/// Row `m`'s noiseless frames v_i (Sylvester patterns applied to its `truth`, or the rendered
+/// frames) into `v`; returns its dark frame d (the offset `o`, or the rendered dark frame).
+fn row_frames(truth: &[f64], v: &mut [f64], o: f64, m: usize, source: &FrameSource<'_>) -> f64 {
+    let n = v.len();
+    let mut d = o;
+    match source {
+        FrameSource::Matrix => {
+            v.copy_from_slice(truth);
+            fwht(v);
+            let s = v[0];
+            for x in v.iter_mut() {
+                *x = 0.5 * (*x + s) + o;
+            }
+        }
+        FrameSource::Rendered(fr) => {
+            for (i, x) in v.iter_mut().enumerate() {
+                *x = f64::from(fr[i][m]);
+            }
+            d = f64::from(fr[n][m]);
+        }
+    }
+    d
+}
+
+/// The camera: row `m`'s frames `v` and dark frame `d` measured with the sensor model (one
+/// random stream per row, frames in order, dark frame last), or left as they are.
+fn measure_row(v: &mut [f64], d: &mut f64, set: &CalibrationSettings, m: usize) -> RowNoise {
+    let n = v.len();
+    let mut var_sum = 0.0;
+    let mut var0 = 0.0;
+    let mut var_dark = 0.0;
+    let mut saturated = false;
+    if let Some(nz) = &set.noise {
+        // One random stream per row, frames in order (dark frame last).
+        let mut rng = NoiseRng::new(&[set.seed, 0x4841, m as u64]);
+        let inv_g = 1.0 / nz.electrons_per_unit;
+        let read2 = nz.read_noise_e * nz.read_noise_e;
+        let q = 1.0 / (12.0 * nz.dn_per_unit().powi(2));
+        let sat = (nz.full_scale_dn - nz.dark_offset_dn) / nz.dn_per_unit();
+        let var_of = |x: f64| (x.max(0.0) * nz.electrons_per_unit + read2) * inv_g * inv_g + q;
+        let mut e_sum = 0.0;
+        var0 = var_of(v[0]);
+        var_dark = var_of(*d);
+        for x in v.iter_mut() {
+            saturated |= *x > sat;
+            e_sum += x.max(0.0);
+            *x = nz.measure(*x, &mut rng);
+        }
+        var_sum = (e_sum * nz.electrons_per_unit + n as f64 * read2) * inv_g * inv_g + n as f64 * q;
+        *d = nz.measure(*d, &mut rng);
+    }
+    RowNoise {
+        var_sum,
+        var0,
+        var_dark,
+        saturated,
+    }
+}
+
+/// One row of H_est from its measured frames `v` (transformed back in place), with its
+/// predicted noise, thresholded, and its squared errors against `truth`.
+fn estimate_row(
+    truth: &[f64],
+    v: &mut [f64],
+    d: f64,
+    o: f64,
+    noise: &RowNoise,
+    set: &CalibrationSettings,
+) -> RowOut {
+    let n = v.len();
+    let inv_n = 1.0 / n as f64;
+    let RowNoise {
+        var_sum,
+        var0,
+        var_dark,
+        saturated,
+    } = *noise;
+    // Element k ≠ 0: v_0 enters with coefficient 2/N like every other frame, so
+    // Var = (4/N²)ΣVar(v_i). Column 0 is not multiplexed: H_est[m,0] =
+    // (2/N)Σ_{i≥1}v_i − ((N − 2)/N)v_0 (− d with the dark frame).
+    let sigma = (4.0 * var_sum).sqrt() * inv_n;
+    let nn = n as f64;
+    let sigma0 = (((nn - 2.0) * inv_n).powi(2) * var0
+        + 4.0 * inv_n * inv_n * (var_sum - var0)
+        + if set.dark_frame { var_dark } else { 0.0 })
+    .max(0.0)
+    .sqrt();
+    // v' and the inverse transform.
+    let v0 = v[0];
+    for x in v.iter_mut().skip(1) {
+        *x = 2.0 * *x - v0;
+    }
+    fwht(v);
+    v.iter_mut().for_each(|x| *x *= inv_n);
+    // Errors: columns other than 0 are the same in both variants.
+    let mut e_rest = 0.0;
+    let mut t_rest = 0.0;
+    for k in 1..n {
+        let e = v[k] - truth[k];
+        e_rest += e * e;
+        t_rest += truth[k] * truth[k];
+    }
+    let e0_nodark = (v[0] - truth[0]).powi(2);
+    let e0_dark = (v[0] - d - truth[0]).powi(2);
+    if set.dark_frame {
+        v[0] -= d;
+    }
+    let peak = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    let thr = (set.threshold_sigma * sigma).max(1e-9 * peak);
+    let thr0 = (set.threshold_sigma * sigma0).max(1e-9 * peak);
+    let mut cols = Vec::new();
+    let mut vals = Vec::new();
+    let mut e_stored = 0.0;
+    for k in 0..n {
+        let kept = v[k].abs() > if k == 0 { thr0 } else { thr };
+        let est = if kept { v[k] as f32 } else { 0.0 };
+        if kept && est != 0.0 {
+            cols.push(k as u32);
+            vals.push(est);
+        }
+        let e = f64::from(est) - truth[k];
+        e_stored += e * e;
+    }
+    let c = o + set.noise.as_ref().map_or(0.0, |nz| nz.dark_offset_units());
+    RowOut {
+        cols,
+        vals,
+        e0_nodark,
+        e_rest,
+        e0_dark,
+        t0: truth[0] * truth[0],
+        t_rest,
+        e_stored,
+        c2: c * c,
+        saturated,
+        sigma,
+    }
+}
+
+/// H_est (`rows`×`n`) from the rows in order and the report of their summed errors.
+fn assemble(rows: &[RowOut], n_rows: usize, n: usize) -> Calibration {
     let mut h_est = CsrMatrix {
-        rows: h_true.rows,
+        rows: n_rows,
         cols: n,
-        indptr: Vec::with_capacity(h_true.rows + 1),
+        indptr: Vec::with_capacity(n_rows + 1),
         indices: Vec::new(),
         data: Vec::new(),
     };
@@ -398,7 +452,7 @@ pub fn calibrate(
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut saturated_rows = 0;
     let mut sigmas = Vec::with_capacity(rows.len());
-    for r in &rows {
+    for r in rows {
         h_est.indices.extend_from_slice(&r.cols);
         h_est.data.extend_from_slice(&r.vals);
         h_est.indptr.push(h_est.indices.len() as u64);
@@ -418,7 +472,7 @@ pub fn calibrate(
     let report = CalibrationReport {
         patterns: n,
         frames: n + 1,
-        rows: h_true.rows,
+        rows: n_rows,
         without_dark_frame: ErrorPair {
             overall: rel(e0n + er, t0 + tr),
             column0: rel(e0n, t0),
@@ -436,12 +490,30 @@ pub fn calibrate(
         predicted_column0: rel(c2, t0),
         predicted_noise_other_columns: rel(noise_sq, tr),
     };
-    Ok(Calibration { h_est, report })
+    Calibration { h_est, report }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn capture_noise_has_one_name_for_clap_serde_and_python() {
+        use clap::ValueEnum;
+        for v in CaptureNoise::value_variants() {
+            let clap_name = v.to_possible_value().unwrap().get_name().to_string();
+            assert_eq!(
+                serde_json::to_value(v).unwrap(),
+                serde_json::Value::String(clap_name)
+            );
+        }
+        let parse = crate::options::parse::<CaptureNoise>;
+        assert_eq!(parse("noise", "none"), Ok(CaptureNoise::None));
+        assert_eq!(
+            parse("noise", "loud"),
+            Err(r#"noise "loud": expected "sensor" or "none""#.into())
+        );
+    }
 
     #[test]
     fn colour_calibration_recovers_each_primary_within_the_noise_prediction() {
@@ -592,6 +664,18 @@ impl TrueMatrix {
     }
 }
 
+/// The noise of the simulated captures (`calibrate --noise`; Python's `noise=`): one definition
+/// for clap and the Python module, the first paragraph of each variant's comment its `--help`
+/// line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CaptureNoise {
+    /// The scene's [noise] section.
+    Sensor,
+    /// An ideal camera.
+    None,
+}
+
 /// A whole simulated calibration of a scene (`stscam calibrate`).
 pub struct CalibrationJob {
     /// H_true from disk, or `None` to compute it from the scene at `spp` and `seed`.
@@ -600,8 +684,8 @@ pub struct CalibrationJob {
     pub spp: u32,
     /// Seed of the tracer and of the noise.
     pub seed: u64,
-    /// Apply the scene's sensor noise model (exposure from the all-white frame), else none.
-    pub sensor_noise: bool,
+    /// The scene's sensor noise model (exposure from the all-white frame), or none.
+    pub noise: CaptureNoise,
     /// Store the dark-frame-subtracted estimate.
     pub dark_frame: bool,
     /// Render every pattern with the tracer instead of taking frames from H_true.
@@ -695,7 +779,7 @@ pub fn calibrate_scene(
             "{source_desc}: the object has {n} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k"
         ));
     }
-    let sensor_noise = if job.sensor_noise {
+    let sensor_noise = if job.noise == CaptureNoise::Sensor {
         let white = h_true.mul_vec(&vec![1.0; n]);
         let peak = white
             .iter()

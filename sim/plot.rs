@@ -57,6 +57,45 @@ enum Marker {
     Diamond,
 }
 
+/// A series' marker at (`px`, `py`) in colour `(r, g, b)`.
+fn svg_marker(s: &mut String, marker: Marker, (r, g, b): (u8, u8, u8), px: f64, py: f64) {
+    let fill = format!("rgb({r},{g},{b})");
+    let _ = match marker {
+        Marker::Disc => write!(
+            s,
+            r#"<circle cx="{px:.1}" cy="{py:.1}" r="3.5" fill="{fill}"/>"#
+        ),
+        Marker::Square => write!(
+            s,
+            r#"<rect x="{:.1}" y="{:.1}" width="7" height="7" fill="{fill}"/>"#,
+            px - 3.5,
+            py - 3.5
+        ),
+        Marker::Triangle => write!(
+            s,
+            r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
+            px,
+            py - 4.5,
+            px - 4.0,
+            py + 3.5,
+            px + 4.0,
+            py + 3.5
+        ),
+        Marker::Diamond => write!(
+            s,
+            r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
+            px,
+            py - 4.5,
+            px + 4.5,
+            py,
+            px,
+            py + 4.5,
+            px - 4.5,
+            py
+        ),
+    };
+}
+
 fn series_style(i: usize, n: usize) -> ((u8, u8, u8), &'static [f64], Marker, f64) {
     let marker = [
         Marker::Disc,
@@ -223,17 +262,31 @@ impl LinePlot {
         Some((LEFT + tx * pw, TOP + (1.0 - ty) * ph))
     }
 
-    /// The plot as an SVG document.
+    /// The plot as an SVG document: title, grid, frame with labels and reference line, then
+    /// each series with its legend entry.
     pub fn to_svg(&self) -> String {
         let (ax, ay) = self.axes();
-        let (x0, x1, y0, y1) = (LEFT, W as f64 - RIGHT, TOP, H as f64 - BOTTOM);
         let mut s = String::new();
         let _ = write!(
             s,
             r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="13">"#
         );
         let _ = write!(s, r#"<rect width="{W}" height="{H}" fill="white"/>"#);
-        // Title: 16 px when it fits (about 0.55 em per character), else 12 px, wrapped.
+        self.svg_title(&mut s);
+        Self::svg_grid(&mut s, &ax, &ay);
+        self.svg_frame(&mut s, &ax, &ay);
+        let n = self.series.len();
+        let mut ly = TOP + 10.0;
+        for (i, ser) in self.series.iter().enumerate() {
+            Self::svg_series(&mut s, &ax, &ay, ser, series_style(i, n), ly);
+            ly += 20.0;
+        }
+        s.push_str("</svg>\n");
+        s
+    }
+
+    /// The title: 16 px when it fits (about 0.55 em per character), else 12 px, wrapped.
+    fn svg_title(&self, s: &mut String) {
         let fit16 = ((W as f64 - 20.0) / (0.55 * 16.0)) as usize;
         if self.title.chars().count() <= fit16 {
             let _ = write!(
@@ -254,12 +307,15 @@ impl LinePlot {
                 );
             }
         }
+    }
+
+    /// The grid lines and tick labels of both axes.
+    fn svg_grid(s: &mut String, ax: &Axis, ay: &Axis) {
+        let (x0, x1, y0, y1) = (LEFT, W as f64 - RIGHT, TOP, H as f64 - BOTTOM);
         for v in ax.ticks() {
-            if let Some((px, _)) = Self::to_px(
-                &ax,
-                &ay,
-                (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo }),
-            ) {
+            if let Some((px, _)) =
+                Self::to_px(ax, ay, (v, if ay.log { 10f64.powf(ay.lo) } else { ay.lo }))
+            {
                 let _ = write!(
                     s,
                     r##"<line x1="{px:.1}" y1="{y0}" x2="{px:.1}" y2="{y1}" stroke="#ddd"/>"##
@@ -273,11 +329,9 @@ impl LinePlot {
             }
         }
         for v in ay.ticks() {
-            if let Some((_, py)) = Self::to_px(
-                &ax,
-                &ay,
-                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v),
-            ) {
+            if let Some((_, py)) =
+                Self::to_px(ax, ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, v))
+            {
                 let _ = write!(
                     s,
                     r##"<line x1="{x0}" y1="{py:.1}" x2="{x1}" y2="{py:.1}" stroke="#ddd"/>"##
@@ -291,6 +345,11 @@ impl LinePlot {
                 );
             }
         }
+    }
+
+    /// The frame, the axis labels and the horizontal reference line with its label.
+    fn svg_frame(&self, s: &mut String, ax: &Axis, ay: &Axis) {
+        let (x0, x1, y0, y1) = (LEFT, W as f64 - RIGHT, TOP, H as f64 - BOTTOM);
         let _ = write!(
             s,
             r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/>"#,
@@ -312,11 +371,8 @@ impl LinePlot {
             esc(&self.y_label)
         );
         if let Some((v, label)) = &self.h_line
-            && let Some((_, py)) = Self::to_px(
-                &ax,
-                &ay,
-                (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v),
-            )
+            && let Some((_, py)) =
+                Self::to_px(ax, ay, (if ax.log { 10f64.powf(ax.lo) } else { ax.lo }, *v))
         {
             let _ = write!(
                 s,
@@ -330,102 +386,71 @@ impl LinePlot {
                 esc(label)
             );
         }
-        let n = self.series.len();
-        let mut ly = y0 + 10.0;
-        for (i, ser) in self.series.iter().enumerate() {
-            let ((r, g, b), dash, marker, width) = series_style(i, n);
-            let dash_attr = if dash.is_empty() {
-                String::new()
-            } else {
-                let d: Vec<String> = dash.iter().map(|v| v.to_string()).collect();
-                format!(r#" stroke-dasharray="{}""#, d.join(" "))
-            };
-            let mark = |s: &mut String, px: f64, py: f64| {
-                let fill = format!("rgb({r},{g},{b})");
-                let _ = match marker {
-                    Marker::Disc => write!(
-                        s,
-                        r#"<circle cx="{px:.1}" cy="{py:.1}" r="3.5" fill="{fill}"/>"#
-                    ),
-                    Marker::Square => write!(
-                        s,
-                        r#"<rect x="{:.1}" y="{:.1}" width="7" height="7" fill="{fill}"/>"#,
-                        px - 3.5,
-                        py - 3.5
-                    ),
-                    Marker::Triangle => write!(
-                        s,
-                        r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
-                        px,
-                        py - 4.5,
-                        px - 4.0,
-                        py + 3.5,
-                        px + 4.0,
-                        py + 3.5
-                    ),
-                    Marker::Diamond => write!(
-                        s,
-                        r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{fill}"/>"#,
-                        px,
-                        py - 4.5,
-                        px + 4.5,
-                        py,
-                        px,
-                        py + 4.5,
-                        px - 4.5,
-                        py
-                    ),
-                };
-            };
-            let mut d = String::new();
-            let mut pen_up = true;
-            let mut marks = String::new();
-            for &p in &ser.points {
-                match Self::to_px(&ax, &ay, p) {
-                    Some((px, py)) => {
-                        let _ = write!(d, "{}{px:.1},{py:.1} ", if pen_up { "M" } else { "L" });
-                        pen_up = false;
-                        mark(&mut marks, px, py);
-                    }
-                    None => pen_up = true,
-                }
-            }
-            let _ = write!(
-                s,
-                r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="{width}"{dash_attr}/>"#,
-                d.trim_end()
-            );
-            s.push_str(&marks);
-            let _ = write!(
-                s,
-                r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"{dash_attr}/>"#,
-                x1 + 8.0,
-                x1 + 32.0
-            );
-            mark(&mut s, x1 + 20.0, ly);
-            // A name longer than the margin is squeezed to fit it (one element, still
-            // searchable text), never clipped.
-            let fit = if ser.name.chars().count() > LEGEND_CHARS {
-                format!(
-                    r#" textLength="{}" lengthAdjust="spacingAndGlyphs""#,
-                    RIGHT - 44.0
-                )
-            } else {
-                String::new()
-            };
-            let _ = write!(
-                s,
-                r#"<text x="{}" y="{}" font-size="11"{fit}>{}</text>"#,
-                x1 + 36.0,
-                ly + 4.0,
-                esc(&ser.name)
-            );
-            ly += 20.0;
-        }
-        s.push_str("</svg>\n");
-        s
     }
 
+    /// One series (`style` from [`series_style`]): its path and markers, and its legend entry
+    /// at height `ly`.
+    fn svg_series(
+        s: &mut String,
+        ax: &Axis,
+        ay: &Axis,
+        ser: &Series,
+        style: ((u8, u8, u8), &[f64], Marker, f64),
+        ly: f64,
+    ) {
+        let (x1, (r, g, b)) = (W as f64 - RIGHT, style.0);
+        let (dash, marker, width) = (style.1, style.2, style.3);
+        let dash_attr = if dash.is_empty() {
+            String::new()
+        } else {
+            let d: Vec<String> = dash.iter().map(|v| v.to_string()).collect();
+            format!(r#" stroke-dasharray="{}""#, d.join(" "))
+        };
+        let mark = |s: &mut String, px: f64, py: f64| svg_marker(s, marker, (r, g, b), px, py);
+        let mut d = String::new();
+        let mut pen_up = true;
+        let mut marks = String::new();
+        for &p in &ser.points {
+            match Self::to_px(ax, ay, p) {
+                Some((px, py)) => {
+                    let _ = write!(d, "{}{px:.1},{py:.1} ", if pen_up { "M" } else { "L" });
+                    pen_up = false;
+                    mark(&mut marks, px, py);
+                }
+                None => pen_up = true,
+            }
+        }
+        let _ = write!(
+            s,
+            r#"<path d="{}" fill="none" stroke="rgb({r},{g},{b})" stroke-width="{width}"{dash_attr}/>"#,
+            d.trim_end()
+        );
+        s.push_str(&marks);
+        let _ = write!(
+            s,
+            r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="rgb({r},{g},{b})" stroke-width="3"{dash_attr}/>"#,
+            x1 + 8.0,
+            x1 + 32.0
+        );
+        mark(s, x1 + 20.0, ly);
+        // A name longer than the margin is squeezed to fit it (one element, still
+        // searchable text), never clipped.
+        let fit = if ser.name.chars().count() > LEGEND_CHARS {
+            format!(
+                r#" textLength="{}" lengthAdjust="spacingAndGlyphs""#,
+                RIGHT - 44.0
+            )
+        } else {
+            String::new()
+        };
+        let _ = write!(
+            s,
+            r#"<text x="{}" y="{}" font-size="11"{fit}>{}</text>"#,
+            x1 + 36.0,
+            ly + 4.0,
+            esc(&ser.name)
+        );
+    }
     /// The plot as an 8-bit RGB PNG (labels drawn in the 5×7 font, upper case).
     pub fn to_png(&self) -> Result<Vec<u8>, String> {
         let (ax, ay) = self.axes();

@@ -1005,8 +1005,31 @@ fn in_range(ls: &LoadedScene, v: f64, lo: f64, hi: f64, key: &str) -> Result<(),
     })
 }
 
-/// Checks ranges and names; every failure names its key.
+/// Checks ranges and names; every failure names its key. The sections are checked in the
+/// order of the scene file; the first failure is reported.
 pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
+    validate_plate(ls)?;
+    validate_hoe(ls)?;
+    validate_hoe_areas(ls)?;
+    validate_camera(ls)?;
+    validate_sensor(ls)?;
+    validate_display(ls)?;
+    validate_sampling(ls)?;
+    validate_noise(ls)?;
+    let sm = &ls.scene.sampling;
+    check(
+        ls,
+        (1..=64).contains(&sm.max_depth),
+        "sampling.max_depth",
+        || format!("must be in [1, 64], got {}", sm.max_depth),
+    )?;
+    crate::world::desc::validate_world(&ls.scene.object, &ls.scene.light)
+        .map_err(|p| ls.key_error(&p.key, p.message))?;
+    Ok(())
+}
+
+/// `[plate]`: thickness, glass and absorption.
+fn validate_plate(ls: &LoadedScene) -> Result<(), SceneError> {
     let s = &ls.scene;
     positive(ls, s.plate.thickness_mm, "plate.thickness_mm")?;
     match &s.plate.glass {
@@ -1024,12 +1047,23 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             format!("expected \"auto\" or a number, got {w:?}")
         })?,
     }
-    validate_hoe(ls)?;
+    Ok(())
+}
+
+/// The sizes of the bottom and top vHOEs and the gap between them.
+fn validate_hoe_areas(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     positive(ls, s.bottom_hoe.width_mm, "bottom_hoe.width_mm")?;
     positive(ls, s.bottom_hoe.height_mm, "bottom_hoe.height_mm")?;
     positive(ls, s.top_hoe.width_mm, "top_hoe.width_mm")?;
     positive(ls, s.top_hoe.height_mm, "top_hoe.height_mm")?;
     in_range(ls, s.top_hoe.gap_mm, 0.0, 1e4, "top_hoe.gap_mm")?;
+    Ok(())
+}
+
+/// `[camera]`: distance, lens and focus.
+fn validate_camera(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     positive(ls, s.camera.distance_mm, "camera.distance_mm")?;
     positive(ls, s.camera.focal_length_mm, "camera.focal_length_mm")?;
     positive(ls, s.camera.f_number, "camera.f_number")?;
@@ -1050,6 +1084,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             format!("expected \"auto\" or a number, got {w:?}")
         })?,
     }
+    Ok(())
+}
+
+/// `[sensor]`: size, pitch, the crop within the sensor and the response.
+fn validate_sensor(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     check(
         ls,
         s.sensor.width_px > 0 && s.sensor.height_px > 0,
@@ -1098,6 +1138,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
+    Ok(())
+}
+
+/// `[display]`: geometry, spectrum, primaries, polarisation, gamma, black level and image.
+fn validate_display(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     positive(ls, s.display.distance_mm, "display.distance_mm")?;
     positive(ls, s.display.pixel_pitch_mm, "display.pixel_pitch_mm")?;
     check(
@@ -1158,6 +1204,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(ls, s.display.image.trim() != "", "display.image", || {
         "must name a file or a built-in target".into()
     })?;
+    Ok(())
+}
+
+/// `[sampling]`: the wavelength band, the sampling fractions and the contact limit (`max_depth` is checked last, after `[noise]`).
+fn validate_sampling(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     let sm = &s.sampling;
     in_range(
         ls,
@@ -1194,6 +1246,12 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     check(ls, sm.max_contacts >= 1, "sampling.max_contacts", || {
         "must be at least 1".into()
     })?;
+    Ok(())
+}
+
+/// `[noise]`: full well, exposure, read noise, bit depth and the dark offset within the ADC range.
+fn validate_noise(ls: &LoadedScene) -> Result<(), SceneError> {
+    let s = &ls.scene;
     let nz = &s.noise;
     positive(ls, nz.full_well_e, "noise.full_well_e")?;
     check(
@@ -1222,14 +1280,6 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
-    check(
-        ls,
-        (1..=64).contains(&sm.max_depth),
-        "sampling.max_depth",
-        || format!("must be in [1, 64], got {}", sm.max_depth),
-    )?;
-    crate::world::desc::validate_world(&ls.scene.object, &ls.scene.light)
-        .map_err(|p| ls.key_error(&p.key, p.message))?;
     Ok(())
 }
 

@@ -1074,6 +1074,56 @@ pub fn run_sweep_from(
     axes: &[VaryAxis],
     set: &SweepSettings,
 ) -> Result<SweepOutput, SweepError> {
+    let total = check_sweep(axes, set)?;
+    // The base scene on its own (an error here is not the grid's).
+    scene.load(base_overrides)?;
+    let points = grid_points(axes);
+    debug_assert_eq!(points.len(), total);
+    let grid = Grid {
+        scene,
+        base_overrides,
+        axes,
+    };
+    // Validate every point before computing anything expensive. The systems are built again
+    // one at a time below, so memory does not grow with the number of grid points.
+    for p in &points {
+        grid.check_point(p, set.psnr.as_ref())?;
+    }
+    // The base scene's H for the stale-calibration PSNR (module header).
+    let nominal = match &set.psnr {
+        Some(ps) => {
+            let base = scene
+                .load(base_overrides)
+                .and_then(|ls| System::build(&ls))?;
+            Some(psnr_problem(&base, ps, false))
+        }
+        None => None,
+    };
+    let pb = crate::render::row_progress(set.progress, points.len(), "sweep points");
+    let mut rows = Vec::with_capacity(points.len());
+    let mut point_seconds = Vec::with_capacity(points.len());
+    let cancel = crate::cancel::current();
+    for p in &points {
+        if cancel.is_cancelled() {
+            break;
+        }
+        let (row, seconds) = grid.row(p, set, nominal.as_ref())?;
+        point_seconds.push(seconds);
+        rows.push(row);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let files = encode_outputs(scene, base_overrides, axes, set, &rows)?;
+    Ok(SweepOutput {
+        rows,
+        files,
+        point_seconds,
+    })
+}
+
+/// Checks the axes (some, each key once) and settings of a sweep; returns its number of grid
+/// points (at most [`MAX_POINTS`]).
+fn check_sweep(axes: &[VaryAxis], set: &SweepSettings) -> Result<usize, SweepError> {
     if axes.is_empty() {
         return Err(SweepError::Settings(
             "nothing to sweep: give at least one --vary KEY=START:STOP:STEPS".into(),
@@ -1099,36 +1149,46 @@ pub fn run_sweep_from(
         ));
     }
     set.grid.check()?;
-    let total = axes
-        .iter()
+    axes.iter()
         .try_fold(1usize, |acc, a| acc.checked_mul(a.steps))
         .filter(|&n| n <= MAX_POINTS)
         .ok_or_else(|| {
             SweepError::Settings(format!("the sweep has more than {MAX_POINTS} grid points"))
-        })?;
-    // The base scene on its own (an error here is not the grid's).
-    scene.load(base_overrides)?;
-    let points = grid_points(axes);
-    debug_assert_eq!(points.len(), total);
-    let label = |p: &[f64]| point_overrides(axes, p).join(", ");
-    let build = |p: &[f64]| -> Result<System, SweepError> {
-        let mut ov = base_overrides.to_vec();
-        ov.extend(point_overrides(axes, p));
-        scene
+        })
+}
+
+/// The scene of a sweep, its base overrides and its axes: the system at each grid point.
+struct Grid<'a> {
+    scene: SceneSource<'a>,
+    base_overrides: &'a [String],
+    axes: &'a [VaryAxis],
+}
+
+impl Grid<'_> {
+    /// Grid point `p` as `KEY=VALUE, ...`.
+    fn label(&self, p: &[f64]) -> String {
+        point_overrides(self.axes, p).join(", ")
+    }
+
+    /// The system at grid point `p`; an error names the point and blames `--vary KEY`.
+    fn build(&self, p: &[f64]) -> Result<System, SweepError> {
+        let mut ov = self.base_overrides.to_vec();
+        ov.extend(point_overrides(self.axes, p));
+        self.scene
             .load(&ov)
             .and_then(|ls| System::build(&ls))
             .map_err(|source| SweepError::GridPoint {
-                point: label(p),
-                source: blame_vary(source, axes),
+                point: self.label(p),
+                source: blame_vary(source, self.axes),
             })
-    };
-    // Validate every point before computing anything expensive. The systems are built again
-    // one at a time below, so memory does not grow with the number of grid points.
-    for p in &points {
-        let sys = build(p)?;
-        if let Some(ps) = &set.psnr {
+    }
+
+    /// Checks grid point `p`'s scene and, with `psnr`, its target and render limits.
+    fn check_point(&self, p: &[f64], psnr: Option<&PsnrSettings>) -> Result<(), SweepError> {
+        let sys = self.build(p)?;
+        if let Some(ps) = psnr {
             psnr_target(&sys, ps).map_err(|message| SweepError::Psnr {
-                point: label(p),
+                point: self.label(p),
                 message,
             })?;
             // H and one capture per point.
@@ -1139,45 +1199,36 @@ pub fn run_sweep_from(
                 "--psnr-spp",
             )
             .map_err(|e| SweepError::Psnr {
-                point: label(p),
+                point: self.label(p),
                 message: e.to_string(),
             })?;
         }
+        Ok(())
     }
-    // The base scene's H for the stale-calibration PSNR (module header).
-    let nominal = match &set.psnr {
-        Some(ps) => {
-            let base = scene
-                .load(base_overrides)
-                .and_then(|ls| System::build(&ls))?;
-            Some(psnr_problem(&base, ps, false))
-        }
-        None => None,
-    };
-    let pb = crate::render::row_progress(set.progress, points.len(), "sweep points");
-    let mut rows = Vec::with_capacity(points.len());
-    let mut point_seconds = Vec::with_capacity(points.len());
-    let cancel = crate::cancel::current();
-    for p in &points {
-        if cancel.is_cancelled() {
-            break;
-        }
-        let sys = &build(p)?;
+
+    /// The row of grid point `p` (its figures, with `set.psnr` the PSNR against the base H
+    /// `nominal`) and the seconds it took.
+    fn row(
+        &self,
+        p: &[f64],
+        set: &SweepSettings,
+        nominal: Option<&crate::recon::Problem>,
+    ) -> Result<(SweepRow, f64), SweepError> {
+        let sys = &self.build(p)?;
         let t0 = Instant::now();
         let mut figures = design_figures(sys, set);
         if let Some(ps) = &set.psnr {
-            let (v, stale) = psnr_figures(sys, ps, nominal.as_ref(), false).map_err(|message| {
-                SweepError::Psnr {
-                    point: label(p),
+            let (v, stale) =
+                psnr_figures(sys, ps, nominal, false).map_err(|message| SweepError::Psnr {
+                    point: self.label(p),
                     message,
-                }
-            })?;
+                })?;
             figures.psnr_db = Some(v);
             figures.psnr_nominal_h_db = Some(stale.unwrap_or(f64::NAN));
         }
-        point_seconds.push(t0.elapsed().as_secs_f64());
-        rows.push(SweepRow {
-            varied: axes
+        let row = SweepRow {
+            varied: self
+                .axes
                 .iter()
                 .zip(p)
                 .map(|(a, &value)| VariedValue {
@@ -1186,16 +1237,9 @@ pub fn run_sweep_from(
                 })
                 .collect(),
             figures,
-        });
-        pb.inc(1);
+        };
+        Ok((row, t0.elapsed().as_secs_f64()))
     }
-    pb.finish_and_clear();
-    let files = encode_outputs(scene, base_overrides, axes, set, &rows)?;
-    Ok(SweepOutput {
-        rows,
-        files,
-        point_seconds,
-    })
 }
 
 /// A grid point's scene error blamed on `--vary KEY` where the key is a swept one (the

@@ -354,9 +354,8 @@ impl StaleCalibration {
 }
 
 impl Context<'_> {
-    /// The system of draw `draw` with `values` (the nominal one's display, sensor and
-    /// wavelength tables, the drawn film).
-    fn system(&self, values: &[f64]) -> Result<System, ToleranceError> {
+    /// The scene's overrides with a draw's `values` of the drawn keys.
+    fn overrides_of(&self, values: &[f64]) -> Vec<String> {
         let mut ov = self.overrides.to_vec();
         ov.extend(
             self.specs
@@ -364,7 +363,60 @@ impl Context<'_> {
                 .zip(values)
                 .map(|(s, v)| format!("{}={v}", s.key)),
         );
-        let ls = load_scene(self.scene, &ov)?;
+        ov
+    }
+
+    /// Checks every draw's scene (draws `range` with `values`) before anything expensive runs.
+    fn check_draws(
+        &self,
+        range: std::ops::Range<usize>,
+        values: &[Vec<f64>],
+    ) -> Result<(), ToleranceError> {
+        for (i, v) in range.zip(values) {
+            load_scene(self.scene, &self.overrides_of(v))
+                .map_err(|e| draw_error(e.into(), i as u64, &self.specs, v))?;
+        }
+        Ok(())
+    }
+
+    /// The figures of draws `range` with `values`, in parallel, stopping when cancelled.
+    fn run_draws(
+        &self,
+        range: std::ops::Range<usize>,
+        values: &[Vec<f64>],
+        field_deg: &[f64],
+        progress: bool,
+    ) -> Result<Vec<DrawRecord>, ToleranceError> {
+        let pb = crate::render::row_progress(progress, values.len(), "tolerance draws");
+        let cancel = crate::cancel::current();
+        let draws: Vec<DrawRecord> = range
+            .zip(values)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(i, v)| -> Result<DrawRecord, ToleranceError> {
+                if cancel.is_cancelled() {
+                    return Err(input("cancelled"));
+                }
+                let sys = self
+                    .system(v)
+                    .map_err(|e| draw_error(e, i as u64, &self.specs, v))?;
+                let figures = self.evaluate(&sys, field_deg);
+                pb.inc(1);
+                Ok(DrawRecord {
+                    draw: i as u64,
+                    values: v.clone(),
+                    figures,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        pb.finish_and_clear();
+        Ok(draws)
+    }
+
+    /// The system of draw `draw` with `values` (the nominal one's display, sensor and
+    /// wavelength tables, the drawn film).
+    fn system(&self, values: &[f64]) -> Result<System, ToleranceError> {
+        let ls = load_scene(self.scene, &self.overrides_of(values))?;
         let mut sys = self.nominal.clone();
         sys.waveguide = build_waveguide(&ls.scene);
         sys.camera = build_camera(&ls.scene, &sys.waveguide);
@@ -436,6 +488,45 @@ pub fn run_tolerance(
     shard: Option<Shard>,
     progress: bool,
 ) -> Result<ToleranceOutput, ToleranceError> {
+    let specs = checked_specs(set)?;
+    let ls = load_scene(scene, overrides)?;
+    let origin = Origin {
+        scene: ls.source.clone(),
+        overrides: overrides.to_vec(),
+    };
+    let nominal = System::build(&ls)?;
+    let weight = SpectralWeight::new(&nominal, &ResponseGrid::default());
+    let psnr = match &set.psnr {
+        Some(p) => Some(StaleCalibration::new(&nominal, p)?),
+        None => None,
+    };
+    let ctx = Context {
+        scene,
+        overrides,
+        specs,
+        nominal,
+        weight,
+        psnr,
+    };
+    let range = shard.map_or(0..set.samples, |s| s.range(set.samples));
+    let values: Vec<Vec<f64>> = range
+        .clone()
+        .map(|i| {
+            ctx.specs
+                .iter()
+                .enumerate()
+                .map(|(k, s)| s.sample(set.seed, i as u64, k))
+                .collect()
+        })
+        .collect();
+    ctx.check_draws(range.clone(), &values)?;
+    let nominal_figures = ctx.evaluate(&ctx.nominal, &set.field_deg);
+    let draws = ctx.run_draws(range.clone(), &values, &set.field_deg, progress)?;
+    tolerance_output(&origin, set, shard, range, nominal_figures, draws)
+}
+
+/// The draw specifications of `set`, checked with its sample count, fields and PSNR samples.
+fn checked_specs(set: &ToleranceSettings) -> Result<Vec<DrawSpec>, ToleranceError> {
     let specs = set
         .draws
         .iter()
@@ -461,82 +552,25 @@ pub fn run_tolerance(
     if set.psnr.as_ref().is_some_and(|p| p.spp == 0) {
         return Err(input("--psnr-spp: must be at least 1"));
     }
-    let ls = load_scene(scene, overrides)?;
-    let origin = Origin {
-        scene: ls.source.clone(),
-        overrides: overrides.to_vec(),
-    };
-    let nominal = System::build(&ls)?;
-    let weight = SpectralWeight::new(&nominal, &ResponseGrid::default());
-    let psnr = match &set.psnr {
-        Some(p) => Some(StaleCalibration::new(&nominal, p)?),
-        None => None,
-    };
-    let ctx = Context {
-        scene,
-        overrides,
-        specs,
-        nominal,
-        weight,
-        psnr,
-    };
-    let range = shard.map_or(0..set.samples, |s| s.range(set.samples));
-    // Every draw's scene is checked before anything expensive runs.
-    let values: Vec<Vec<f64>> = range
-        .clone()
-        .map(|i| {
-            ctx.specs
-                .iter()
-                .enumerate()
-                .map(|(k, s)| s.sample(set.seed, i as u64, k))
-                .collect()
-        })
-        .collect();
-    for (i, v) in range.clone().zip(&values) {
-        load_scene(scene, &{
-            let mut ov = overrides.to_vec();
-            ov.extend(
-                ctx.specs
-                    .iter()
-                    .zip(v)
-                    .map(|(s, x)| format!("{}={x}", s.key)),
-            );
-            ov
-        })
-        .map_err(|e| draw_error(e.into(), i as u64, &ctx.specs, v))?;
-    }
-    let nominal_figures = ctx.evaluate(&ctx.nominal, &set.field_deg);
-    let pb = crate::render::row_progress(progress, values.len(), "tolerance draws");
-    let cancel = crate::cancel::current();
-    let draws: Vec<DrawRecord> = range
-        .clone()
-        .zip(&values)
-        .collect::<Vec<_>>()
-        .into_par_iter()
-        .map(|(i, v)| -> Result<DrawRecord, ToleranceError> {
-            if cancel.is_cancelled() {
-                return Err(input("cancelled"));
-            }
-            let sys = ctx
-                .system(v)
-                .map_err(|e| draw_error(e, i as u64, &ctx.specs, v))?;
-            let figures = ctx.evaluate(&sys, &set.field_deg);
-            pb.inc(1);
-            Ok(DrawRecord {
-                draw: i as u64,
-                values: v.clone(),
-                figures,
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    pb.finish_and_clear();
+    Ok(specs)
+}
+
+/// The files of a run: a shard's draws and manifest, or the whole analysis ([`finish`]).
+fn tolerance_output(
+    origin: &Origin,
+    set: &ToleranceSettings,
+    shard: Option<Shard>,
+    range: std::ops::Range<usize>,
+    nominal_figures: Figures,
+    draws: Vec<DrawRecord>,
+) -> Result<ToleranceOutput, ToleranceError> {
     let lines: Vec<String> = draws.iter().map(json_line).collect::<Result<_, _>>()?;
     let nominal_line = json_line(&nominal_figures)?;
     match shard {
         Some(sh) => {
             let manifest = ShardManifest {
                 stscam_version: env!("CARGO_PKG_VERSION").to_string(),
-                origin,
+                origin: origin.clone(),
                 settings: set.clone(),
                 shard: sh,
                 draws: [range.start, range.end],
@@ -554,7 +588,7 @@ pub fn run_tolerance(
             })
         }
         None => {
-            let (files, summary) = finish(&origin, set, &nominal_line, &lines)?;
+            let (files, summary) = finish(origin, set, &nominal_line, &lines)?;
             Ok(ToleranceOutput {
                 files,
                 nominal: nominal_figures,
@@ -837,6 +871,9 @@ pub fn spearman(x: &[f64], y: &[f64]) -> f64 {
 }
 
 /// The outputs of a whole run from the nominal figures' and the draws' JSON lines.
+/// The whole analysis from the nominal figures and every draw's line: each figure's
+/// statistics, the sensitivity ranking ([`sensitivity_ranking`]), the yield ([`yield_of`]),
+/// then the files with their plots.
 fn finish(
     origin: &Origin,
     set: &ToleranceSettings,
@@ -859,17 +896,54 @@ fn finish(
         .iter()
         .map(|d| scalars(&d.figures, &nominal, with_psnr))
         .collect();
-    let column = |i: usize| -> Vec<f64> { per_draw.iter().map(|s| s[i].1).collect() };
+    let column = |i: usize| column_of(&per_draw, i);
     let figures: Vec<(String, Stats)> = nominal_scalars
         .iter()
         .enumerate()
         .map(|(i, (name, nom))| (name.to_string(), stats(*nom, &column(i))))
         .collect();
-    let ranking: Vec<(String, Vec<Sensitivity>)> = nominal_scalars
+    let ranking = sensitivity_ranking(&nominal_scalars, &keys, &draws, &per_draw);
+    let yield_ = yield_of(&set.thresholds, &per_draw);
+    let summary = Summary {
+        stscam_version: env!("CARGO_PKG_VERSION").to_string(),
+        origin: origin.clone(),
+        settings: set.clone(),
+        nominal: nominal.clone(),
+        figures,
+        yield_,
+        ranking,
+        definitions: DEFINITIONS
+            .iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect(),
+    };
+    let mut files = vec![
+        ("draws.csv".to_string(), csv(&keys, &nominal, &draws)),
+        ("draws.jsonl".to_string(), jsonl(lines)),
+        ("summary.json".to_string(), pretty(&summary)?.into_bytes()),
+    ];
+    tolerance_plots(&mut files, &summary, &keys, &per_draw)?;
+    Ok((files, summary))
+}
+
+/// Figure `i` of every draw.
+fn column_of(per_draw: &[Vec<(&str, f64)>], i: usize) -> Vec<f64> {
+    per_draw.iter().map(|s| s[i].1).collect()
+}
+
+/// For each figure, the drawn keys ranked by their share of the squared Spearman
+/// correlations with it.
+fn sensitivity_ranking(
+    nominal_scalars: &[(&str, f64)],
+    keys: &[String],
+    draws: &[DrawRecord],
+    per_draw: &[Vec<(&str, f64)>],
+) -> Vec<(String, Vec<Sensitivity>)> {
+    nominal_scalars
         .iter()
         .enumerate()
         .map(|(i, (name, _))| {
-            let y = column(i);
+            let y = column_of(per_draw, i);
             let rhos: Vec<f64> = (0..keys.len())
                 .map(|k| {
                     let x: Vec<f64> = draws.iter().map(|d| d.values[k]).collect();
@@ -889,14 +963,18 @@ fn finish(
             s.sort_by(|a, b| b.share.total_cmp(&a.share));
             (name.to_string(), s)
         })
-        .collect();
+        .collect()
+}
+
+/// The fraction of draws meeting every given threshold (with its binomial standard error) and
+/// each threshold's own pass fraction.
+fn yield_of(t: &Thresholds, per_draw: &[Vec<(&str, f64)>]) -> Yield {
     let value = |d: usize, name: &str| {
         per_draw[d]
             .iter()
             .find(|(n, _)| *n == name)
             .map_or(f64::NAN, |x| x.1)
     };
-    let t = &set.thresholds;
     let checks: Vec<(String, Box<dyn Fn(usize) -> bool>)> = [
         ("min_fov_deg", "fov_vertical_deg", t.min_fov_deg, true),
         ("min_efficiency", "efficiency_min", t.min_efficiency, true),
@@ -918,12 +996,12 @@ fn finish(
         Some((flag.to_string(), f))
     })
     .collect();
-    let total = draws.len();
+    let total = per_draw.len();
     let passed = (0..total)
         .filter(|&d| checks.iter().all(|(_, c)| c(d)))
         .count();
     let fraction = passed as f64 / total.max(1) as f64;
-    let yield_ = Yield {
+    Yield {
         passed,
         total,
         fraction,
@@ -937,36 +1015,27 @@ fn finish(
                 )
             })
             .collect(),
-    };
-    let summary = Summary {
-        stscam_version: env!("CARGO_PKG_VERSION").to_string(),
-        origin: origin.clone(),
-        settings: set.clone(),
-        nominal: nominal.clone(),
-        figures,
-        yield_,
-        ranking,
-        definitions: DEFINITIONS
-            .iter()
-            .map(|(a, b)| (a.to_string(), b.to_string()))
-            .collect(),
-    };
-    let mut files = vec![
-        ("draws.csv".to_string(), csv(&keys, &nominal, &draws)),
-        ("draws.jsonl".to_string(), jsonl(lines)),
-        ("summary.json".to_string(), pretty(&summary)?.into_bytes()),
-    ];
+    }
+}
+
+/// Each figure's histogram and sensitivity ranking plots, appended to `files`.
+fn tolerance_plots(
+    files: &mut Vec<(String, Vec<u8>)>,
+    summary: &Summary,
+    keys: &[String],
+    per_draw: &[Vec<(&str, f64)>],
+) -> Result<(), ToleranceError> {
     for (i, (name, st)) in summary.figures.iter().enumerate() {
-        let png = histogram(name, &column(i), st.nominal)
+        let png = histogram(name, &column_of(per_draw, i), st.nominal)
             .to_png()
             .map_err(|e| input(format!("plot {name}: {e}")))?;
         files.push((format!("hist_{name}.png"), png));
-        let png = ranking_plot(name, &summary.ranking[i].1, &keys)
+        let png = ranking_plot(name, &summary.ranking[i].1, keys)
             .to_png()
             .map_err(|e| input(format!("plot {name}: {e}")))?;
         files.push((format!("ranking_{name}.png"), png));
     }
-    Ok((files, summary))
+    Ok(())
 }
 
 /// Definitions recorded in `summary.json`.

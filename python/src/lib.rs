@@ -558,15 +558,7 @@ fn reconstruct_stack<'py>(
     threads: Option<usize>,
 ) -> PyResult<(Vec<(f64, Bound<'py, PyBytes>)>, Option<String>, String)> {
     use stscam::recon::layered::{StackMethod, StackOptions, solve_stack, stack_setup_bytes};
-    let method = match method {
-        "joint" => StackMethod::Joint,
-        "depth" => StackMethod::Depth,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"joint\" or \"depth\""
-            )));
-        }
-    };
+    let method: StackMethod = stscam::options::parse("method", method).map_err(value_error)?;
     let tv = tv_kind(tv)?;
     for (name, v) in [("--tau", tau), ("--mu", mu)] {
         if !(v.is_finite() && v >= 0.0) {
@@ -581,10 +573,59 @@ fn reconstruct_stack<'py>(
     if blocks.is_empty() {
         return Err(value_error("stack: no depths"));
     }
+    let (depths_mm, hs, offsets) = stack_blocks(&blocks, object)?;
+    let rows = hs[0].rows;
+    let g = stack_capture(capture, rows)?;
+    let joint_offset = stack_joint_offset(joint_offset, &offsets, rows)?;
+    let ls = stscam::stack::LoadedStack {
+        depths_mm,
+        blocks: hs,
+        object,
+        offsets,
+        joint_offset,
+        joint_offset_path: None,
+    };
+    let opts = StackOptions {
+        method,
+        iters,
+        tau_rel: tau,
+        mu_rel: mu,
+        tv,
+        ..StackOptions::default()
+    };
+    let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
+    stscam::limits::check_bytes(
+        "stack",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        stack_setup_bytes(&ls, method, threads_n),
+    )
+    .map_err(value_error)?;
+    let sol = run_job(py, threads, || solve_stack(&ls, &g, &opts))?.map_err(value_error)?;
+    let planes = sol
+        .planes
+        .iter()
+        .map(|(d, f)| (*d, f64_bytes(py, f)))
+        .collect();
+    let estimate = sol.estimate.as_ref().map(json).transpose()?;
+    Ok((planes, estimate, json(&sol.info)?))
+}
+
+/// Each depth's H and offset of `reconstruct_stack`'s `blocks`, checked: depths positive and
+/// ascending, every H of the object's columns and the same rows, offsets finite and of H's
+/// length.
+#[allow(clippy::type_complexity)]
+fn stack_blocks(
+    blocks: &[StackBlock<'_>],
+    object: (usize, usize),
+) -> PyResult<(
+    Vec<f64>,
+    Vec<stscam::sparse::CsrMatrix>,
+    Vec<Option<Vec<f32>>>,
+)> {
     let mut depths_mm = Vec::with_capacity(blocks.len());
     let mut hs = Vec::with_capacity(blocks.len());
     let mut offsets = Vec::with_capacity(blocks.len());
-    for (d, rows, cols, ip, ix, data, off) in &blocks {
+    for (d, rows, cols, ip, ix, data, off) in blocks {
         let what = format!("H at {d} mm");
         if !(d.is_finite() && *d > 0.0) || depths_mm.last().is_some_and(|p| p >= d) {
             return Err(value_error(format!(
@@ -631,7 +672,11 @@ fn reconstruct_stack<'py>(
         hs.push(h);
         offsets.push(off);
     }
-    let rows = hs[0].rows;
+    Ok((depths_mm, hs, offsets))
+}
+
+/// The capture of `reconstruct_stack` (little-endian f64), `rows` finite values.
+fn stack_capture(capture: &[u8], rows: usize) -> PyResult<Vec<f64>> {
     let g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
     if g.len() != rows {
         return Err(value_error(format!(
@@ -644,6 +689,16 @@ fn reconstruct_stack<'py>(
             "capture: value {i} is not a finite number"
         )));
     }
+    Ok(g)
+}
+
+/// The offset of the layered capture: `joint_offset` (little-endian f32), else the sum of the
+/// depths' offsets where each has one; `rows` finite values.
+fn stack_joint_offset(
+    joint_offset: Option<&[u8]>,
+    offsets: &[Option<Vec<f32>>],
+    rows: usize,
+) -> PyResult<Option<Vec<f32>>> {
     // Default: Σ_d o_d summed as `offset_stack.npy` is (f64 over the depths, then f32).
     let joint_offset = match joint_offset {
         Some(o) => Some(decode(o, "offset", f32::from_le_bytes)?),
@@ -671,37 +726,7 @@ fn reconstruct_stack<'py>(
             "offset: value {i} is not a finite number"
         )));
     }
-    let ls = stscam::stack::LoadedStack {
-        depths_mm,
-        blocks: hs,
-        object,
-        offsets,
-        joint_offset,
-        joint_offset_path: None,
-    };
-    let opts = StackOptions {
-        method,
-        iters,
-        tau_rel: tau,
-        mu_rel: mu,
-        tv,
-        ..StackOptions::default()
-    };
-    let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
-    stscam::limits::check_bytes(
-        "stack",
-        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
-        stack_setup_bytes(&ls, method, threads_n),
-    )
-    .map_err(value_error)?;
-    let sol = run_job(py, threads, || solve_stack(&ls, &g, &opts))?.map_err(value_error)?;
-    let planes = sol
-        .planes
-        .iter()
-        .map(|(d, f)| (*d, f64_bytes(py, f)))
-        .collect();
-    let estimate = sol.estimate.as_ref().map(json).transpose()?;
-    Ok((planes, estimate, json(&sol.info)?))
+    Ok(joint_offset)
 }
 
 /// Little-endian values of `N` bytes each from `b`, converted by `f`.
@@ -900,15 +925,7 @@ fn solve_options(
     tv: &str,
 ) -> PyResult<stscam::recon::SolveOptions> {
     use stscam::recon::{Method, SolveOptions};
-    let method = match method {
-        "cg" => Method::Cg,
-        "admm-tv" => Method::AdmmTv,
-        m => {
-            return Err(value_error(format!(
-                "method {m:?}: expected \"cg\" or \"admm-tv\""
-            )));
-        }
-    };
+    let method: Method = stscam::options::parse("method", method).map_err(value_error)?;
     let tv = tv_kind(tv)?;
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(value_error(format!(
@@ -944,7 +961,7 @@ fn calibrate<'py>(
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use stscam::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
+    use stscam::hadamard::{CalibrationJob, CaptureNoise, TrueMatrix, calibrate_scene};
     check_spp(spp)?;
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(value_error(
@@ -959,7 +976,11 @@ fn calibrate<'py>(
         matrix,
         spp,
         seed,
-        sensor_noise: noise,
+        noise: if noise {
+            CaptureNoise::Sensor
+        } else {
+            CaptureNoise::None
+        },
         dark_frame,
         render_frames: render,
         threshold_sigma,

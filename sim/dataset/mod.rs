@@ -369,30 +369,7 @@ pub fn plan_with_objects(
     let text = crate::io::read_text(recipe_path)?;
     let mut recipe = parse_recipe(&text).map_err(|(k, m)| recipe_err(recipe_path, k, m))?;
     if let Some(a) = &arrays {
-        if recipe.is_meshes() {
-            return Err(recipe_err(
-                recipe_path,
-                "objects.sources",
-                "objects given as arrays replace 2-D sources; a `meshes` recipe has 3-D objects",
-            ));
-        }
-        if a.size != recipe.objects.size_px {
-            return Err(recipe_err(
-                recipe_path,
-                "objects.size_px",
-                format!(
-                    "the recipe's objects are {0}x{0} pixels but the arrays are {1}x{1}",
-                    recipe.objects.size_px, a.size
-                ),
-            ));
-        }
-        if a.n > recipe::MAX_SAMPLES {
-            return Err(recipe_err(
-                recipe_path,
-                "samples",
-                format!("{} arrays: at most {} samples", a.n, recipe::MAX_SAMPLES),
-            ));
-        }
+        check_arrays(recipe_path, &recipe, a)?;
         recipe.samples = a.n;
     }
     let base = recipe_path
@@ -419,6 +396,82 @@ pub fn plan_with_objects(
             key,
         )
     };
+    let scenes = planned_scenes(&recipe, &load)?;
+    // Ranged keys: both ends must give valid scenes.
+    for (i, v) in recipe.vary.iter().enumerate() {
+        if let Some([lo, hi]) = v.range {
+            for x in [lo, hi] {
+                load(
+                    &[format!("{}={}", v.key, fmt_value(x))],
+                    &format!("vary[{i}].range"),
+                )?;
+            }
+        }
+    }
+    let images = object_files(recipe_path, &base, &recipe, &scenes)?;
+    // 3-D datasets have no H (the display's H says nothing of a mesh).
+    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
+    check_run_limits(recipe_path, &recipe, &scenes)?;
+    let counts = recipe.split_counts();
+    let id_width = (recipe.samples - 1).to_string().len().max(6);
+    let depths_mm = match &recipe.depth {
+        Some(d) => d
+            .depths_mm()
+            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
+        None => Vec::new(),
+    };
+    Ok(Plan {
+        recipe,
+        recipe_path: recipe_path.to_path_buf(),
+        recipe_sha256,
+        scene_file,
+        base_overrides,
+        scenes,
+        images,
+        depths_mm,
+        has_matrix,
+        counts,
+        id_width,
+        arrays,
+    })
+}
+
+/// Checks object arrays `a` against the recipe: a 2-D recipe, the objects' size, at most
+/// [`recipe::MAX_SAMPLES`] of them.
+fn check_arrays(recipe_path: &Path, recipe: &Recipe, a: &ObjectArrays) -> Result<(), DatasetError> {
+    if recipe.is_meshes() {
+        return Err(recipe_err(
+            recipe_path,
+            "objects.sources",
+            "objects given as arrays replace 2-D sources; a `meshes` recipe has 3-D objects",
+        ));
+    }
+    if a.size != recipe.objects.size_px {
+        return Err(recipe_err(
+            recipe_path,
+            "objects.size_px",
+            format!(
+                "the recipe's objects are {0}x{0} pixels but the arrays are {1}x{1}",
+                recipe.objects.size_px, a.size
+            ),
+        ));
+    }
+    if a.n > recipe::MAX_SAMPLES {
+        return Err(recipe_err(
+            recipe_path,
+            "samples",
+            format!("{} arrays: at most {} samples", a.n, recipe::MAX_SAMPLES),
+        ));
+    }
+    Ok(())
+}
+
+/// The recipe's distinct scenes (one per combination of listed `vary` values), each loaded by
+/// `load(overrides, key)` and moved to its `[depth]` distance.
+fn planned_scenes(
+    recipe: &Recipe,
+    load: &impl Fn(&[String], &str) -> Result<(LoadedScene, System), DatasetError>,
+) -> Result<Vec<PlannedScene>, DatasetError> {
     let mut scenes = Vec::new();
     for (k, (overrides, params)) in recipe.discrete_scenes().into_iter().enumerate() {
         let key = if params.is_empty() { "scene" } else { "vary" };
@@ -434,17 +487,18 @@ pub fn plan_with_objects(
             system,
         });
     }
-    // Ranged keys: both ends must give valid scenes.
-    for (i, v) in recipe.vary.iter().enumerate() {
-        if let Some([lo, hi]) = v.range {
-            for x in [lo, hi] {
-                load(
-                    &[format!("{}={}", v.key, fmt_value(x))],
-                    &format!("vary[{i}].range"),
-                )?;
-            }
-        }
-    }
+    Ok(scenes)
+}
+
+/// The files of each object source (none for built-in targets): image folders listed with
+/// every header read (so a file that is not an image stops the run before anything is
+/// written), mesh folders listed.
+fn object_files(
+    recipe_path: &Path,
+    base: &Path,
+    recipe: &Recipe,
+    scenes: &[PlannedScene],
+) -> Result<Vec<Vec<(PathBuf, String)>>, DatasetError> {
     let mut images = Vec::new();
     for (i, src) in recipe.objects.sources.iter().enumerate() {
         if let Source::Images {
@@ -468,7 +522,7 @@ pub fn plan_with_objects(
             images.push(files);
         } else if let Source::Meshes(m) = src {
             let files = match &m.folder {
-                Some(folder) => mesh_files(recipe_path, &base, i, folder, m, &scenes[0].loaded)?,
+                Some(folder) => mesh_files(recipe_path, base, i, folder, m, &scenes[0].loaded)?,
                 None => Vec::new(),
             };
             images.push(files);
@@ -476,9 +530,16 @@ pub fn plan_with_objects(
             images.push(Vec::new());
         }
     }
-    // 3-D datasets have no H (the display's H says nothing of a mesh).
-    let has_matrix = !recipe.is_meshes() && recipe.vary.iter().all(|v| v.values.is_some());
-    // Run time: one H per scene, the white capture and, in render mode, one render per sample.
+    Ok(images)
+}
+
+/// The render limits of every scene for the run's renders: one H per scene, the white capture
+/// and, in render mode, one render per sample.
+fn check_run_limits(
+    recipe_path: &Path,
+    recipe: &Recipe,
+    scenes: &[PlannedScene],
+) -> Result<(), DatasetError> {
     let renders = scenes.len() as u64
         + 1
         + if recipe.mode == CaptureMode::Render {
@@ -486,7 +547,7 @@ pub fn plan_with_objects(
         } else {
             0
         };
-    for ps in &scenes {
+    for ps in scenes {
         crate::render::check_limits(
             &ps.system,
             &RenderSettings::lattice(recipe.spp, 0, false),
@@ -495,28 +556,7 @@ pub fn plan_with_objects(
         )
         .map_err(|e| recipe_err(recipe_path, "spp", e.message))?;
     }
-    let counts = recipe.split_counts();
-    let id_width = (recipe.samples - 1).to_string().len().max(6);
-    let depths_mm = match &recipe.depth {
-        Some(d) => d
-            .depths_mm()
-            .map_err(|(k, m)| recipe_err(recipe_path, k, m))?,
-        None => Vec::new(),
-    };
-    Ok(Plan {
-        recipe,
-        recipe_path: recipe_path.to_path_buf(),
-        recipe_sha256,
-        scene_file,
-        base_overrides,
-        scenes,
-        images,
-        depths_mm,
-        has_matrix,
-        counts,
-        id_width,
-        arrays,
-    })
+    Ok(())
 }
 
 impl Plan {
@@ -905,6 +945,18 @@ fn lock_out(out: &Path) -> Result<crate::io::FolderLock, DatasetError> {
     })
 }
 
+/// Whether `out` is a folder with something in it.
+fn is_nonempty_folder(out: &Path) -> Result<bool, DatasetError> {
+    Ok(out.is_dir()
+        && std::fs::read_dir(out)
+            .map_err(|e| IoError::Io {
+                path: out.to_path_buf(),
+                source: e,
+            })?
+            .next()
+            .is_some())
+}
+
 /// Checks and prepares the output folder and locks it for the run.
 fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, DatasetError> {
     let out = &opts.out;
@@ -912,14 +964,7 @@ fn prepare_out(plan: &Plan, opts: &RunOptions) -> Result<crate::io::FolderLock, 
         recipe_sha256: plan.recipe_sha256.clone(),
         shard: opts.shard,
     };
-    let nonempty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| IoError::Io {
-                path: out.clone(),
-                source: e,
-            })?
-            .next()
-            .is_some();
+    let nonempty = is_nonempty_folder(out)?;
     if out.exists() && !out.is_dir() {
         return Err(out_err(out, "exists and is not a folder"));
     }
@@ -1039,7 +1084,8 @@ fn depth_stack(
     out
 }
 
-/// Generates a dataset (or one shard of it) into `opts.out`.
+/// Generates a dataset (or one shard of it) into `opts.out`: the scenes (H, scene.json), the
+/// exposure, the samples, then the metadata and card ([`Generation`]'s steps).
 pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
     let recipe = &plan.recipe;
     let ids = opts
@@ -1047,18 +1093,19 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         .map_or(0..recipe.samples, |s| s.range(recipe.samples));
     // Held until the run ends (dropped on return, also on an error).
     let _lock = prepare_out(plan, opts)?;
-    let root = &opts.out;
-    let cancel = crate::cancel::current();
-    let check_cancel = || {
-        if cancel.is_cancelled() {
-            Err(DatasetError::Cancelled)
-        } else {
-            Ok(())
-        }
+    let run = Generation {
+        plan,
+        opts,
+        root: &opts.out,
+        cancel: crate::cancel::current(),
     };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
-    let done = |s: &SampleSpec| plan.sample_files(s).iter().all(|f| root.join(f).is_file());
+    let done = |s: &SampleSpec| {
+        plan.sample_files(s)
+            .iter()
+            .all(|f| run.root.join(f).is_file())
+    };
     let todo: Vec<&SampleSpec> = specs.iter().filter(|s| !done(s)).collect();
     // Scenes: the reference scene 0 and every scene a sample of this run uses.
     let used: BTreeSet<usize> = std::iter::once(0)
@@ -1071,231 +1118,14 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
                 .map(|s| s.scene),
         )
         .collect();
-    let mut matrices: BTreeMap<usize, SceneMatrix> = BTreeMap::new();
-    let object = (recipe.objects.size_px, recipe.objects.size_px);
-    let mut crop = (0, 0);
-    let mut channel_names: Vec<String> = Vec::new();
-    let mut stack = depth_stack(plan, root, &used, opts.progress);
-    for &k in &used {
-        let ps = &plan.scenes[k];
-        let sys = &ps.system;
-        crop = (sys.camera.width_px, sys.camera.height_px);
-        channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
-        let dir = root.join(&ps.id);
-        let files = plan.scene_files(k);
-        let complete = files.iter().all(|f| root.join(f).is_file());
-        if plan.has_matrix && complete && need_h.contains(&k) {
-            let m = crate::matrix::load_matrix(&dir.join("H.npz"), Some(object), None)?;
-            let offset = m.offset.ok_or_else(|| {
-                out_err(
-                    &dir.join("offset.npy"),
-                    "missing; delete the scene folder and --resume",
-                )
-            })?;
-            matrices.insert(k, SceneMatrix { h: m.h, offset });
-        } else if !complete {
-            let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
-                .map_err(|e| out_err(&dir, e.to_string()))?;
-            if plan.has_matrix {
-                let m: SystemMatrix = stack.remove(&k).unwrap_or_else(|| {
-                    compute_matrix(
-                        sys,
-                        &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), opts.progress),
-                    )
-                });
-                check_cancel()?;
-                let sidecar = serde_json::json!({
-                    "object_px": [object.0, object.1],
-                    "crop_px": [m.crop.0, m.crop.1],
-                    "shape": [m.h.rows, m.h.cols],
-                    "nnz": m.h.nnz(),
-                    "channels": m.channels,
-                    "spp": recipe.spp,
-                    "seed": plan.scene_seed(k),
-                    "overrides": ps.overrides,
-                    "depth_mm": ps.params.get(DEPTH_KEY),
-                    "units": crate::matrix::MATRIX_UNITS,
-                    "stscam_version": crate::VERSION,
-                });
-                crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
-                    .map_err(DatasetError::Write)?;
-                matrices.insert(
-                    k,
-                    SceneMatrix {
-                        h: m.h,
-                        offset: m.offset,
-                    },
-                );
-            } else {
-                std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
-                crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
-                    .map_err(DatasetError::Write)?;
-            }
-        }
-    }
-    // Exposure from the reference scene's all-white capture.
-    let ref_sys = &plan.scenes[0].system;
-    let white_peak = if let Some(m) = matrices.get(&0) {
-        let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
-        g.iter()
-            .zip(&m.offset)
-            .map(|(a, &b)| a + f64::from(b))
-            .fold(0.0, f64::max)
-    } else {
-        let white = vec![1.0; object.0 * object.1];
-        let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
-        // 3-D datasets: display white on the scene's display plane, without the scene's objects.
-        let mut flat = ref_sys.clone();
-        if recipe.is_meshes() {
-            flat.world = None;
-        }
-        render_object(&flat, &white, recipe.spp, seed)
-            .into_iter()
-            .fold(0.0f64, f64::max)
-    };
-    check_cancel()?;
-    let noise_desc = &ref_sys.scene.noise;
-    let exposure = Exposure {
-        white_peak,
-        full_scale: white_peak / noise_desc.exposure_fraction,
-        noise: (recipe.noise == NoiseModel::Sensor)
-            .then(|| SensorNoise::new(noise_desc, white_peak)),
-    };
+    let scenes = run.scenes(&used, &need_h)?;
+    let exposure = run.exposure(&scenes.matrices)?;
     let scenes_s = t0.elapsed().as_secs_f64();
-    // Samples.
     let t1 = Instant::now();
-    let bar = progress_bar(opts.progress, todo.len());
-    let counter = AtomicUsize::new(0);
-    let one = |s: &SampleSpec, sys: &System| -> Result<(), DatasetError> {
-        let gamma = sys.scene.display.gamma;
-        let f = plan.object_of(s, gamma)?;
-        let clean: Vec<f64> = match recipe.mode {
-            CaptureMode::Matrix => {
-                let m = &matrices[&s.scene];
-                let g = m.h.mul_vec(&f);
-                g.iter()
-                    .zip(&m.offset)
-                    .map(|(a, &b)| a + f64::from(b))
-                    .collect()
-            }
-            CaptureMode::Render => render_object(sys, &f, recipe.spp, s.seed),
-        };
-        check_cancel()?;
-        let capture = exposure.measure(&clean, s.seed);
-        write_sample(
-            plan,
-            root,
-            s,
-            &f,
-            &capture,
-            crop,
-            channel_names.len(),
-            gamma,
-            exposure.full_scale,
-        )?;
-        counter.fetch_add(1, Ordering::Relaxed);
-        bar.inc(1);
-        Ok(())
-    };
-    match recipe.mode {
-        CaptureMode::Matrix => {
-            todo.par_iter()
-                .try_for_each(|s| one(s, &plan.scenes[s.scene].system))?;
-        }
-        CaptureMode::Render if recipe.is_meshes() => {
-            for s in &todo {
-                let (ls, sys) = plan.sample_scene(s)?;
-                let Some((src, files)) = plan.mesh_source(s) else {
-                    continue;
-                };
-                let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
-                let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
-                    .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
-                let space = recipe.objects.frontal_space();
-                let band = &sys.scene.sampling;
-                if space != crate::world::colour::FrontalSpace::Sensor
-                    && crate::world::colour::ColourWeights::new(
-                        space,
-                        band.lambda_min_nm,
-                        band.lambda_max_nm,
-                    )
-                    .is_none()
-                {
-                    return Err(recipe_err(
-                        &plan.recipe_path,
-                        "objects.frontal_space",
-                        format!(
-                            "{}: the CIE luminance function is 0 over the sampling band",
-                            space.name()
-                        ),
-                    ));
-                }
-                let (clean, frontal) =
-                    meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
-                let capture = exposure.measure(&clean, s.seed);
-                write_mesh_sample(plan, root, s, &capture, &frontal, crop, exposure.full_scale)?;
-                counter.fetch_add(1, Ordering::Relaxed);
-                bar.inc(1);
-            }
-        }
-        CaptureMode::Render => {
-            for s in &todo {
-                let (_, sys) = plan.sample_scene(s)?;
-                one(s, &sys)?;
-            }
-        }
-    }
-    bar.finish_and_clear();
-    check_cancel()?;
+    let generated = run.samples(&todo, &scenes, &exposure)?;
     let samples_s = t1.elapsed().as_secs_f64();
-    let generated = counter.load(Ordering::Relaxed);
-    // Finish: metadata, checksums, card.
     let t2 = Instant::now();
-    let capture_shape = if channel_names.len() == 1 {
-        vec![crop.1, crop.0]
-    } else {
-        vec![channel_names.len(), crop.1, crop.0]
-    };
-    let ctx = CardContext {
-        plan,
-        capture_shape,
-        channels: channel_names,
-        exposure: serde_json::json!({
-            "rule": "fixed once for the whole dataset from the reference scene's all-white capture (scene_000)",
-            "white_peak": exposure.white_peak,
-            "capture_full_scale": exposure.full_scale,
-            "noise_model": recipe.noise,
-            "sensor": noise_desc,
-            "electrons_per_unit": exposure.noise.as_ref().map(|n| n.electrons_per_unit),
-        }),
-    };
-    let metadata: Vec<(usize, String)> = specs
-        .par_iter()
-        .map(|s| Ok((s.split, metadata_line(plan, s)?)))
-        .collect::<Result<_, DatasetError>>()?;
-    let scene_ids: Vec<usize> = used.into_iter().collect();
-    let card = finish(root, &ctx, &metadata, &scene_ids, &specs)?;
-    match opts.shard {
-        Some(shard) => {
-            let sc = ShardCard {
-                shard,
-                ids: [ids.start, ids.end],
-                card,
-            };
-            let bytes = serde_json::to_vec_pretty(&sc).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("shard.json"), &bytes)
-                .map_err(DatasetError::Write)?;
-        }
-        None => {
-            let bytes =
-                serde_json::to_vec_pretty(&card).map_err(|e| out_err(root, e.to_string()))?;
-            crate::io::write_atomic(&root.join("dataset.json"), &bytes)
-                .map_err(DatasetError::Write)?;
-        }
-    }
-    std::fs::remove_file(root.join(RUN_MARKER))
-        .map_err(|e| write_err(&root.join(RUN_MARKER), e))?;
+    run.finish(ids, &specs, used, scenes, &exposure)?;
     let finish_s = t2.elapsed().as_secs_f64();
     Ok(RunSummary {
         samples: specs.len(),
@@ -1309,6 +1139,344 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         },
         finish_s,
     })
+}
+
+/// What the steps of [`generate`] share: the plan, the run's options and output folder, and
+/// the cancel token of the calling thread (checked between steps and samples).
+struct Generation<'a> {
+    plan: &'a Plan,
+    opts: &'a RunOptions,
+    root: &'a Path,
+    cancel: crate::cancel::Token,
+}
+
+/// The scenes of a run: H and offset of each scene a matrix-mode sample needs, and the
+/// sensor's crop and channel names (the same in every scene).
+struct SceneSetup {
+    matrices: BTreeMap<usize, SceneMatrix>,
+    crop: (usize, usize),
+    channel_names: Vec<String>,
+}
+
+impl Generation<'_> {
+    /// `Err(Cancelled)` once the run was cancelled.
+    fn check_cancel(&self) -> Result<(), DatasetError> {
+        if self.cancel.is_cancelled() {
+            Err(DatasetError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// The object size of the recipe, pixels.
+    fn object(&self) -> (usize, usize) {
+        let n = self.plan.recipe.objects.size_px;
+        (n, n)
+    }
+
+    /// Step 1: every scene of `used` written (scene.json, and H with its sidecar where the
+    /// recipe has H) unless complete; H loaded or kept for the scenes of `need_h`.
+    fn scenes(
+        &self,
+        used: &BTreeSet<usize>,
+        need_h: &BTreeSet<usize>,
+    ) -> Result<SceneSetup, DatasetError> {
+        let (plan, root, object) = (self.plan, self.root, self.object());
+        let mut matrices: BTreeMap<usize, SceneMatrix> = BTreeMap::new();
+        let mut crop = (0, 0);
+        let mut channel_names: Vec<String> = Vec::new();
+        let mut stack = depth_stack(plan, root, used, self.opts.progress);
+        for &k in used {
+            let ps = &plan.scenes[k];
+            let sys = &ps.system;
+            crop = (sys.camera.width_px, sys.camera.height_px);
+            channel_names = sys.response.names.iter().map(|s| s.to_string()).collect();
+            let dir = root.join(&ps.id);
+            let files = plan.scene_files(k);
+            let complete = files.iter().all(|f| root.join(f).is_file());
+            if plan.has_matrix && complete && need_h.contains(&k) {
+                let m = crate::matrix::load_matrix(&dir.join("H.npz"), Some(object), None)?;
+                let offset = m.offset.ok_or_else(|| {
+                    out_err(
+                        &dir.join("offset.npy"),
+                        "missing; delete the scene folder and --resume",
+                    )
+                })?;
+                matrices.insert(k, SceneMatrix { h: m.h, offset });
+            } else if !complete && let Some(m) = self.write_scene(k, stack.remove(&k))? {
+                matrices.insert(k, m);
+            }
+        }
+        Ok(SceneSetup {
+            matrices,
+            crop,
+            channel_names,
+        })
+    }
+
+    /// Writes scene `k`'s folder: scene.json, and where the recipe has H, H (from the depth
+    /// stack's `stacked`, else computed here) with its sidecar, which it returns.
+    fn write_scene(
+        &self,
+        k: usize,
+        stacked: Option<SystemMatrix>,
+    ) -> Result<Option<SceneMatrix>, DatasetError> {
+        let (plan, recipe, object) = (self.plan, &self.plan.recipe, self.object());
+        let ps = &plan.scenes[k];
+        let dir = self.root.join(&ps.id);
+        let scene_json = serde_json::to_vec_pretty(&ps.loaded.scene)
+            .map_err(|e| out_err(&dir, e.to_string()))?;
+        if !plan.has_matrix {
+            std::fs::create_dir_all(&dir).map_err(|e| write_err(&dir, e))?;
+            crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+                .map_err(DatasetError::Write)?;
+            return Ok(None);
+        }
+        let m: SystemMatrix = stacked.unwrap_or_else(|| {
+            compute_matrix(
+                &ps.system,
+                &RenderSettings::lattice(recipe.spp, plan.scene_seed(k), self.opts.progress),
+            )
+        });
+        self.check_cancel()?;
+        let sidecar = serde_json::json!({
+            "object_px": [object.0, object.1],
+            "crop_px": [m.crop.0, m.crop.1],
+            "shape": [m.h.rows, m.h.cols],
+            "nnz": m.h.nnz(),
+            "channels": m.channels,
+            "spp": recipe.spp,
+            "seed": plan.scene_seed(k),
+            "overrides": ps.overrides,
+            "depth_mm": ps.params.get(DEPTH_KEY),
+            "units": crate::matrix::MATRIX_UNITS,
+            "stscam_version": crate::VERSION,
+        });
+        crate::output::write_matrix(&dir, &m, &sidecar).map_err(DatasetError::Write)?;
+        crate::io::write_atomic(&dir.join("scene.json"), &scene_json)
+            .map_err(DatasetError::Write)?;
+        Ok(Some(SceneMatrix {
+            h: m.h,
+            offset: m.offset,
+        }))
+    }
+
+    /// Step 2: the exposure, from the reference scene's all-white capture (H's where it has
+    /// one, else rendered).
+    fn exposure(&self, matrices: &BTreeMap<usize, SceneMatrix>) -> Result<Exposure, DatasetError> {
+        let (recipe, object) = (&self.plan.recipe, self.object());
+        let ref_sys = &self.plan.scenes[0].system;
+        let white_peak = if let Some(m) = matrices.get(&0) {
+            let g = m.h.mul_vec(&vec![1.0; m.h.cols]);
+            g.iter()
+                .zip(&m.offset)
+                .map(|(a, &b)| a + f64::from(b))
+                .fold(0.0, f64::max)
+        } else {
+            let white = vec![1.0; object.0 * object.1];
+            let seed = NoiseRng::new(&[recipe.seed, WHITE_TAG]).next_u64() >> 11;
+            // 3-D datasets: display white on the scene's display plane, without the scene's
+            // objects.
+            let mut flat = ref_sys.clone();
+            if recipe.is_meshes() {
+                flat.world = None;
+            }
+            render_object(&flat, &white, recipe.spp, seed)
+                .into_iter()
+                .fold(0.0f64, f64::max)
+        };
+        self.check_cancel()?;
+        let noise_desc = &ref_sys.scene.noise;
+        Ok(Exposure {
+            white_peak,
+            full_scale: white_peak / noise_desc.exposure_fraction,
+            noise: (recipe.noise == NoiseModel::Sensor)
+                .then(|| SensorNoise::new(noise_desc, white_peak)),
+        })
+    }
+
+    /// Step 3: the samples of `todo` (in parallel with H, one by one when rendered); returns
+    /// how many were made.
+    fn samples(
+        &self,
+        todo: &[&SampleSpec],
+        scenes: &SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<usize, DatasetError> {
+        let (plan, recipe) = (self.plan, &self.plan.recipe);
+        let bar = progress_bar(self.opts.progress, todo.len());
+        let counter = AtomicUsize::new(0);
+        let made = || {
+            counter.fetch_add(1, Ordering::Relaxed);
+            bar.inc(1);
+        };
+        match recipe.mode {
+            CaptureMode::Matrix => {
+                todo.par_iter().try_for_each(|s| {
+                    self.flat_sample(s, &plan.scenes[s.scene].system, scenes, exposure)
+                        .map(|()| made())
+                })?;
+            }
+            CaptureMode::Render if recipe.is_meshes() => {
+                for s in todo {
+                    if self.mesh_sample(s, scenes.crop, exposure)? {
+                        made();
+                    }
+                }
+            }
+            CaptureMode::Render => {
+                for s in todo {
+                    let (_, sys) = plan.sample_scene(s)?;
+                    self.flat_sample(s, &sys, scenes, exposure)?;
+                    made();
+                }
+            }
+        }
+        bar.finish_and_clear();
+        self.check_cancel()?;
+        Ok(counter.load(Ordering::Relaxed))
+    }
+
+    /// A sample of a flat object on the display: its object, its capture (with H or rendered
+    /// in `sys`), measured and written.
+    fn flat_sample(
+        &self,
+        s: &SampleSpec,
+        sys: &System,
+        scenes: &SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<(), DatasetError> {
+        let plan = self.plan;
+        let gamma = sys.scene.display.gamma;
+        let f = plan.object_of(s, gamma)?;
+        let clean: Vec<f64> = match plan.recipe.mode {
+            CaptureMode::Matrix => {
+                let m = &scenes.matrices[&s.scene];
+                let g = m.h.mul_vec(&f);
+                g.iter()
+                    .zip(&m.offset)
+                    .map(|(a, &b)| a + f64::from(b))
+                    .collect()
+            }
+            CaptureMode::Render => render_object(sys, &f, plan.recipe.spp, s.seed),
+        };
+        self.check_cancel()?;
+        let capture = exposure.measure(&clean, s.seed);
+        write_sample(
+            plan,
+            self.root,
+            s,
+            &f,
+            &capture,
+            scenes.crop,
+            scenes.channel_names.len(),
+            gamma,
+            exposure.full_scale,
+        )
+    }
+
+    /// A sample of a 3-D scene: its meshes drawn, rendered with the frontal view, measured and
+    /// written; `false` where the sample has no mesh source.
+    fn mesh_sample(
+        &self,
+        s: &SampleSpec,
+        crop: (usize, usize),
+        exposure: &Exposure,
+    ) -> Result<bool, DatasetError> {
+        let (plan, recipe) = (self.plan, &self.plan.recipe);
+        let (ls, sys) = plan.sample_scene(s)?;
+        let Some((src, files)) = plan.mesh_source(s) else {
+            return Ok(false);
+        };
+        let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
+        let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
+            .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
+        let space = recipe.objects.frontal_space();
+        let band = &sys.scene.sampling;
+        if space != crate::world::colour::FrontalSpace::Sensor
+            && crate::world::colour::ColourWeights::new(
+                space,
+                band.lambda_min_nm,
+                band.lambda_max_nm,
+            )
+            .is_none()
+        {
+            return Err(recipe_err(
+                &plan.recipe_path,
+                "objects.frontal_space",
+                format!(
+                    "{}: the CIE luminance function is 0 over the sampling band",
+                    space.name()
+                ),
+            ));
+        }
+        let (clean, frontal) =
+            meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
+        let capture = exposure.measure(&clean, s.seed);
+        write_mesh_sample(
+            plan,
+            self.root,
+            s,
+            &capture,
+            &frontal,
+            crop,
+            exposure.full_scale,
+        )?;
+        Ok(true)
+    }
+
+    /// Step 4: metadata, checksums and the card (`dataset.json`, or a shard's `shard.json`
+    /// for ids `ids`); then the run marker is removed.
+    fn finish(
+        &self,
+        ids: std::ops::Range<usize>,
+        specs: &[SampleSpec],
+        used: BTreeSet<usize>,
+        scenes: SceneSetup,
+        exposure: &Exposure,
+    ) -> Result<(), DatasetError> {
+        let (plan, root) = (self.plan, self.root);
+        let (crop, channel_names) = (scenes.crop, scenes.channel_names);
+        let capture_shape = if channel_names.len() == 1 {
+            vec![crop.1, crop.0]
+        } else {
+            vec![channel_names.len(), crop.1, crop.0]
+        };
+        let ctx = CardContext {
+            plan,
+            capture_shape,
+            channels: channel_names,
+            exposure: serde_json::json!({
+                "rule": "fixed once for the whole dataset from the reference scene's all-white capture (scene_000)",
+                "white_peak": exposure.white_peak,
+                "capture_full_scale": exposure.full_scale,
+                "noise_model": plan.recipe.noise,
+                "sensor": plan.scenes[0].system.scene.noise,
+                "electrons_per_unit": exposure.noise.as_ref().map(|n| n.electrons_per_unit),
+            }),
+        };
+        let metadata: Vec<(usize, String)> = specs
+            .par_iter()
+            .map(|s| Ok((s.split, metadata_line(plan, s)?)))
+            .collect::<Result<_, DatasetError>>()?;
+        let scene_ids: Vec<usize> = used.into_iter().collect();
+        let card = finish(root, &ctx, &metadata, &scene_ids, specs)?;
+        let (name, bytes) = match self.opts.shard {
+            Some(shard) => {
+                let sc = ShardCard {
+                    shard,
+                    ids: [ids.start, ids.end],
+                    card,
+                };
+                ("shard.json", serde_json::to_vec_pretty(&sc))
+            }
+            None => ("dataset.json", serde_json::to_vec_pretty(&card)),
+        };
+        let bytes = bytes.map_err(|e| out_err(root, e.to_string()))?;
+        crate::io::write_atomic(&root.join(name), &bytes).map_err(DatasetError::Write)?;
+        std::fs::remove_file(root.join(RUN_MARKER))
+            .map_err(|e| write_err(&root.join(RUN_MARKER), e))
+    }
 }
 
 /// The capture of object `f` (linear intensities) rendered by the tracer, channel-major.
@@ -1666,6 +1834,55 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
     if shards.is_empty() {
         return Err(out_err(out, "no shard folders given"));
     }
+    let cards = read_shard_cards(shards)?;
+    check_shards(&cards, out)?;
+    let first = &cards[0].1;
+    // Verify every file before writing anything.
+    let (mut files, origin) = verified_files(&cards)?;
+    let nonempty = is_nonempty_folder(out)?;
+    if nonempty || (out.exists() && !out.is_dir()) {
+        return Err(out_err(out, "exists and is not empty"));
+    }
+    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
+    let _lock = lock_out(out)?;
+    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
+        .map_err(DatasetError::Write)?;
+    origin
+        .par_iter()
+        .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
+            let dst = out.join(rel);
+            if let Some(parent) = dst.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| write_err(parent, e))?;
+            }
+            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
+            put(out, rel, &bytes)
+        })?;
+    let counts = merge_metadata(&cards, out, &mut files)?;
+    let scenes = merged_scenes(&cards);
+    let mut card = first.card.clone();
+    card.samples = counts.values().sum();
+    if card.samples != card.recipe.samples {
+        let _ = std::fs::remove_dir_all(out);
+        return Err(out_err(out, "the shards do not cover every sample"));
+    }
+    card.counts = counts;
+    card.scenes = scenes.into_values().collect();
+    card.files = files;
+    let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
+    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
+    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
+    Ok(RunSummary {
+        samples: card.samples,
+        generated: 0,
+        scenes_s: 0.0,
+        samples_s: 0.0,
+        samples_per_s: 0.0,
+        finish_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The shard cards of `shards` (each folder's shard.json), in shard order.
+fn read_shard_cards(shards: &[PathBuf]) -> Result<Vec<(PathBuf, ShardCard)>, DatasetError> {
     let mut cards: Vec<(PathBuf, ShardCard)> = Vec::new();
     for d in shards {
         let p = d.join("shard.json");
@@ -1681,9 +1898,15 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
         cards.push((d.clone(), c));
     }
     cards.sort_by_key(|c| c.1.shard.index);
+    Ok(cards)
+}
+
+/// Checks that the shards of `cards` (in shard order) come from one recipe, stscam version and
+/// exposure and are shards 0..N−1 each once.
+fn check_shards(cards: &[(PathBuf, ShardCard)], out: &Path) -> Result<(), DatasetError> {
     let first = &cards[0].1;
     let n = first.shard.count;
-    for (d, c) in &cards {
+    for (d, c) in cards {
         if c.card.recipe_sha256 != first.card.recipe_sha256
             || c.card.stscam_version != first.card.stscam_version
         {
@@ -1712,10 +1935,20 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             format!("need shards 0..{n} each exactly once, got {indices:?}"),
         ));
     }
+    Ok(())
+}
+
+/// Every shard's files checked against its card's checksums; the files to copy (all but the
+/// metadata, the same in every shard that has them) with their entries and the shard folder
+/// each is copied from.
+#[allow(clippy::type_complexity)]
+fn verified_files(
+    cards: &[(PathBuf, ShardCard)],
+) -> Result<(BTreeMap<String, FileEntry>, BTreeMap<String, PathBuf>), DatasetError> {
     // Verify every file before writing anything.
     let mut files: BTreeMap<String, FileEntry> = BTreeMap::new();
     let mut origin: BTreeMap<String, PathBuf> = BTreeMap::new();
-    for (d, c) in &cards {
+    for (d, c) in cards {
         let checks: Vec<Result<(), DatasetError>> = c
             .card
             .files
@@ -1746,37 +1979,22 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             }
         }
     }
-    let nonempty = out.is_dir()
-        && std::fs::read_dir(out)
-            .map_err(|e| IoError::Io {
-                path: out.to_path_buf(),
-                source: e,
-            })?
-            .next()
-            .is_some();
-    if nonempty || (out.exists() && !out.is_dir()) {
-        return Err(out_err(out, "exists and is not empty"));
-    }
-    std::fs::create_dir_all(out).map_err(|e| write_err(out, e))?;
-    let _lock = lock_out(out)?;
-    crate::io::write_atomic(&out.join(RUN_MARKER), b"{\"merge\": true}\n")
-        .map_err(DatasetError::Write)?;
-    origin
-        .par_iter()
-        .try_for_each(|(rel, d)| -> Result<(), DatasetError> {
-            let dst = out.join(rel);
-            if let Some(parent) = dst.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| write_err(&parent, e))?;
-            }
-            let bytes = crate::io::read_input(&d.join(rel), crate::io::MAX_BINARY_BYTES)?;
-            put(out, rel, &bytes)
-        })?;
+    Ok((files, origin))
+}
+
+/// The metadata of each split, the shards' concatenated in shard (= id) order, written to
+/// `out` and entered in `files`; returns the sample count of each split.
+fn merge_metadata(
+    cards: &[(PathBuf, ShardCard)],
+    out: &Path,
+    files: &mut BTreeMap<String, FileEntry>,
+) -> Result<BTreeMap<String, usize>, DatasetError> {
     // Metadata: concatenate per split in shard (= id) order.
     let mut counts = BTreeMap::new();
     for split in SPLITS {
         let rel = format!("{split}/metadata.jsonl");
         let mut text = String::new();
-        for (d, c) in &cards {
+        for (d, c) in cards {
             if c.card.files.contains_key(&rel) {
                 text.push_str(
                     &std::fs::read_to_string(d.join(&rel)).map_err(|e| IoError::Io {
@@ -1793,9 +2011,14 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             files.insert(rel.clone(), file_entry(out, &rel)?);
         }
     }
+    Ok(counts)
+}
+
+/// The union of the shards' scenes, in index order (ids sort as indices).
+fn merged_scenes(cards: &[(PathBuf, ShardCard)]) -> BTreeMap<String, serde_json::Value> {
     // Scenes: union, in index order (ids sort as indices).
     let mut scenes: BTreeMap<String, serde_json::Value> = BTreeMap::new();
-    for (_, c) in &cards {
+    for (_, c) in cards {
         for s in &c.card.scenes {
             let id = s
                 .get("id")
@@ -1805,26 +2028,7 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<RunSummary, DatasetError>
             scenes.entry(id).or_insert_with(|| s.clone());
         }
     }
-    let mut card = first.card.clone();
-    card.samples = counts.values().sum();
-    if card.samples != card.recipe.samples {
-        let _ = std::fs::remove_dir_all(out);
-        return Err(out_err(out, "the shards do not cover every sample"));
-    }
-    card.counts = counts;
-    card.scenes = scenes.into_values().collect();
-    card.files = files;
-    let bytes = serde_json::to_vec_pretty(&card).map_err(|e| out_err(out, e.to_string()))?;
-    crate::io::write_atomic(&out.join("dataset.json"), &bytes).map_err(DatasetError::Write)?;
-    std::fs::remove_file(out.join(RUN_MARKER)).map_err(|e| write_err(&out.join(RUN_MARKER), e))?;
-    Ok(RunSummary {
-        samples: card.samples,
-        generated: 0,
-        scenes_s: 0.0,
-        samples_s: 0.0,
-        samples_per_s: 0.0,
-        finish_s: t0.elapsed().as_secs_f64(),
-    })
+    scenes
 }
 
 #[cfg(test)]

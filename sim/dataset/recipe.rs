@@ -543,7 +543,26 @@ pub fn parse_recipe(text: &str) -> Result<Recipe, (String, String)> {
 }
 
 fn check(r: &Recipe) -> Result<(), (String, String)> {
-    let err = |k: &str, m: String| Err((k.to_string(), m));
+    check_run(r)?;
+    check_objects(r)?;
+    for (i, src) in r.objects.sources.iter().enumerate() {
+        check_source(i, src, r.objects.size_px, r.mode)?;
+    }
+    let meshes = check_kind(r)?;
+    if let Some(d) = &r.depth {
+        check_depth(d, r.mode, meshes)?;
+    }
+    check_vary(r)
+}
+
+/// `Err((key, message))`: a recipe key and what is wrong with it.
+fn key_err<T>(k: &str, m: String) -> Result<T, (String, String)> {
+    Err((k.to_string(), m))
+}
+
+/// The run's keys: name, samples, spp and the split fractions.
+fn check_run(r: &Recipe) -> Result<(), (String, String)> {
+    let err = key_err;
     if r.name.is_empty()
         || !r
             .name
@@ -588,6 +607,12 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             ),
         );
     }
+    Ok(())
+}
+
+/// `objects.size_px`, `objects.frontal_space` and that there are sources.
+fn check_objects(r: &Recipe) -> Result<(), (String, String)> {
+    let err = key_err;
     let o = &r.objects;
     if !(2..=MAX_OBJECT_PX).contains(&o.size_px) {
         return err(
@@ -620,62 +645,76 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             ),
         );
     }
-    for (i, src) in o.sources.iter().enumerate() {
-        let key = |k: &str| format!("objects.sources[{i}].{k}");
-        let w = src.weight();
-        if !(w.is_finite() && w > 0.0) {
+    Ok(())
+}
+
+/// Object source `i` (`objects.sources[i]`) of objects `size_px` square in capture `mode`.
+fn check_source(
+    i: usize,
+    src: &Source,
+    size_px: usize,
+    mode: CaptureMode,
+) -> Result<(), (String, String)> {
+    let err = key_err;
+    let key = |k: &str| format!("objects.sources[{i}].{k}");
+    let w = src.weight();
+    if !(w.is_finite() && w > 0.0) {
+        return err(
+            &key("weight"),
+            format!("must be a positive number, got {w}"),
+        );
+    }
+    match src {
+        Source::Glyphs { chars, max_len, .. } => {
+            if chars.is_empty() || !chars.chars().all(|c| c.is_ascii_alphanumeric()) {
+                return err(
+                    &key("chars"),
+                    format!("{chars:?} must be non-empty and use only A-Z, 0-9"),
+                );
+            }
+            if !(1..=8).contains(max_len) {
+                return err(&key("max_len"), format!("must be in 1..=8, got {max_len}"));
+            }
+        }
+        Source::Siemens {
+            min_spokes,
+            max_spokes,
+            ..
+        } if *min_spokes < 1 || max_spokes < min_spokes || *max_spokes > 256 => {
             return err(
-                &key("weight"),
-                format!("must be a positive number, got {w}"),
+                &key("max_spokes"),
+                format!(
+                    "need 1 <= min_spokes <= max_spokes <= 256, got {min_spokes}..{max_spokes}"
+                ),
             );
         }
-        match src {
-            Source::Glyphs { chars, max_len, .. } => {
-                if chars.is_empty() || !chars.chars().all(|c| c.is_ascii_alphanumeric()) {
-                    return err(
-                        &key("chars"),
-                        format!("{chars:?} must be non-empty and use only A-Z, 0-9"),
-                    );
-                }
-                if !(1..=8).contains(max_len) {
-                    return err(&key("max_len"), format!("must be in 1..=8, got {max_len}"));
-                }
-            }
-            Source::Siemens {
-                min_spokes,
-                max_spokes,
-                ..
-            } if *min_spokes < 1 || max_spokes < min_spokes || *max_spokes > 256 => {
-                return err(
-                    &key("max_spokes"),
-                    format!(
-                        "need 1 <= min_spokes <= max_spokes <= 256, got {min_spokes}..{max_spokes}"
-                    ),
-                );
-            }
-            Source::Bars {
-                min_period_px,
-                max_period_px,
-                ..
-            } if *min_period_px < 1
-                || max_period_px < min_period_px
-                || 5 * max_period_px > o.size_px =>
-            {
-                return err(
-                    &key("max_period_px"),
-                    format!(
-                        "need 1 <= min_period_px <= max_period_px and five bar widths within objects.size_px ({}), got {min_period_px}..{max_period_px}",
-                        o.size_px
-                    ),
-                );
-            }
-            Source::Images { folder, .. } if folder.is_empty() => {
-                return err(&key("folder"), "must name a folder".into());
-            }
-            Source::Meshes(m) => check_meshes(m, r.mode).map_err(|(k, m)| (key(&k), m))?,
-            _ => {}
+        Source::Bars {
+            min_period_px,
+            max_period_px,
+            ..
+        } if *min_period_px < 1 || max_period_px < min_period_px || 5 * max_period_px > size_px => {
+            return err(
+                &key("max_period_px"),
+                format!(
+                    "need 1 <= min_period_px <= max_period_px and five bar widths within objects.size_px ({}), got {min_period_px}..{max_period_px}",
+                    size_px
+                ),
+            );
         }
+        Source::Images { folder, .. } if folder.is_empty() => {
+            return err(&key("folder"), "must name a folder".into());
+        }
+        Source::Meshes(m) => check_meshes(m, mode).map_err(|(k, m)| (key(&k), m))?,
+        _ => {}
     }
+    Ok(())
+}
+
+/// That the sources are all 3-D (`meshes`, with a frontal side of at most
+/// [`MAX_FRONTAL_PX`]) or all 2-D; returns the number of `meshes` sources.
+fn check_kind(r: &Recipe) -> Result<usize, (String, String)> {
+    let err = key_err;
+    let o = &r.objects;
     let meshes = o
         .sources
         .iter()
@@ -708,6 +747,29 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
             return err("depth", "does not apply to `meshes` sources".into());
         }
     }
+    Ok(meshes)
+}
+
+/// The `[depth]` section: its depths, matrix mode and 2-D sources.
+fn check_depth(d: &DepthGrid, mode: CaptureMode, meshes: usize) -> Result<(), (String, String)> {
+    let err = key_err;
+    d.depths_mm()?;
+    if mode != CaptureMode::Matrix {
+        return err(
+            "depth",
+            "planar objects at random depths need mode = \"matrix\" (one H per depth)".into(),
+        );
+    }
+    if meshes > 0 {
+        return err("depth", "does not apply to `meshes` sources".into());
+    }
+    Ok(())
+}
+
+/// The `[[vary]]` keys: each once, exactly one of `values` or `range` (render mode), and at
+/// most [`MAX_SCENES`] distinct scenes.
+fn check_vary(r: &Recipe) -> Result<(), (String, String)> {
+    let err = key_err;
     let mut seen = std::collections::BTreeSet::new();
     for (i, v) in r.vary.iter().enumerate() {
         let key = |k: &str| format!("vary[{i}].{k}");

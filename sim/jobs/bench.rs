@@ -142,6 +142,8 @@ fn cmd_bench_bvh(triangles: usize, rays: usize, runs: u64, con: &Console) -> Res
     Ok(())
 }
 
+/// `stscam bench recon`: the times of H, its calibration, the reconstruction set-up and one
+/// frame's back-projection, CGM and ADMM-TV (medians of `runs`), as JSON or text.
 fn cmd_bench_recon(
     scene: &SceneArgs,
     spp: u32,
@@ -172,9 +174,48 @@ fn cmd_bench_recon(
     let m = pool.install(|| crate::matrix::compute_matrix(&sys, &rs));
     let matrix_s = t0.elapsed().as_secs_f64();
     let matrix_peak = peak_rss_mib();
-    let n = m.h.cols;
     let t0 = Instant::now();
-    let cal = if n.is_power_of_two() {
+    let cal = bench_calibration(&pool, &m);
+    let calibration_s = cal.as_ref().map(|_| t0.elapsed().as_secs_f64());
+    let t0 = Instant::now();
+    let p = pool.install(|| Problem::new(&m.h, m.object.0, m.object.1));
+    let setup_s = t0.elapsed().as_secs_f64();
+    // One frame: the capture H f + o of the scene's target, offset removed.
+    let g = m.h.mul_vec(&sys.display.intensity);
+    let cg_set = cg::CgSettings {
+        iters: cg::DEFAULT_CG_ITERS,
+        tol: 0.0,
+    };
+    let admm_set = admm::AdmmSettings::default();
+    let [t_bp, t_cg, t_admm] = time_solvers(&pool, &p, &g, runs, &cg_set, &admm_set);
+    let out = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "threads": pool.current_num_threads(),
+        "shape": [m.h.rows, m.h.cols],
+        "matrix": {"seconds": matrix_s, "spp": spp, "nnz": m.h.nnz(), "peak_rss_mib": matrix_peak},
+        "calibration": {"seconds": calibration_s, "frames_from": "H_true, no noise, dark frame, every entry kept"},
+        "setup": {"seconds": setup_s, "gram_nnz": p.gram_nnz, "gram_layout": p.gram_layout()},
+        "back_projection": median_ms(t_bp),
+        "cgm": {"iters": cg_set.iters, "timing": median_ms(t_cg)},
+        "admm_tv": {"iters": admm_set.iters, "inner_cg_iters": admm_set.inner_iters, "timing": median_ms(t_admm)},
+        "peak_rss_mib": peak_rss_mib(),
+    });
+    if json {
+        con.out(format_args!("{}", to_json(&out)?));
+    } else {
+        print_recon_bench(con, &out, runs);
+    }
+    Ok(())
+}
+
+/// The Hadamard calibration of `m` (frames from H, no noise, every entry kept), timed by
+/// `bench recon`; `None` where the object's pixel count is not a power of two.
+fn bench_calibration(
+    pool: &rayon::ThreadPool,
+    m: &crate::matrix::SystemMatrix,
+) -> Option<crate::hadamard::Calibration> {
+    let n = m.h.cols;
+    if n.is_power_of_two() {
         pool.install(|| {
             crate::hadamard::calibrate(
                 &m.h,
@@ -191,90 +232,75 @@ fn cmd_bench_recon(
         })
     } else {
         None
-    };
-    let calibration_s = cal.as_ref().map(|_| t0.elapsed().as_secs_f64());
-    let t0 = Instant::now();
-    let p = pool.install(|| Problem::new(&m.h, m.object.0, m.object.1));
-    let setup_s = t0.elapsed().as_secs_f64();
-    // One frame: the capture H f + o of the scene's target, offset removed.
-    let g = m.h.mul_vec(&sys.display.intensity);
-    let cg_set = cg::CgSettings {
-        iters: cg::DEFAULT_CG_ITERS,
-        tol: 0.0,
-    };
-    let admm_set = admm::AdmmSettings::default();
+    }
+}
+
+/// The times (s) of `runs` back-projections, CGM and ADMM-TV solves of the frame `g`.
+fn time_solvers(
+    pool: &rayon::ThreadPool,
+    p: &crate::recon::Problem,
+    g: &[f64],
+    runs: usize,
+    cg_set: &crate::recon::cg::CgSettings,
+    admm_set: &crate::recon::admm::AdmmSettings,
+) -> [Vec<f64>; 3] {
+    use crate::recon::{admm, cg};
+    let mut t_bp = Vec::new();
     let mut t_cg = Vec::new();
     let mut t_admm = Vec::new();
-    let mut t_bp = Vec::new();
     for _ in 0..runs {
         let t = Instant::now();
-        let htg = pool.install(|| p.back_project(&g));
+        let htg = pool.install(|| p.back_project(g));
         t_bp.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
         let f = pool.install(|| {
-            let htg = p.back_project(&g);
-            cg::cg_normal(&p, &htg, &cg_set).f
+            let htg = p.back_project(g);
+            cg::cg_normal(p, &htg, cg_set).f
         });
         t_cg.push(t.elapsed().as_secs_f64());
         std::hint::black_box((f, htg));
         let t = Instant::now();
         let f = pool.install(|| {
-            let htg = p.back_project(&g);
-            admm::admm_tv(&p, &htg, &admm_set).f
+            let htg = p.back_project(g);
+            admm::admm_tv(p, &htg, admm_set).f
         });
         t_admm.push(t.elapsed().as_secs_f64());
         std::hint::black_box(f);
     }
-    let out = serde_json::json!({
-        "stscam_version": crate::VERSION,
-        "threads": pool.current_num_threads(),
-        "shape": [m.h.rows, m.h.cols],
-        "matrix": {"seconds": matrix_s, "spp": spp, "nnz": m.h.nnz(), "peak_rss_mib": matrix_peak},
-        "calibration": {"seconds": calibration_s, "frames_from": "H_true, no noise, dark frame, every entry kept"},
-        "setup": {"seconds": setup_s, "gram_nnz": p.gram_nnz, "gram_layout": p.gram_layout()},
-        "back_projection": median_ms(t_bp),
-        "cgm": {"iters": cg_set.iters, "timing": median_ms(t_cg)},
-        "admm_tv": {"iters": admm_set.iters, "inner_cg_iters": admm_set.inner_iters, "timing": median_ms(t_admm)},
-        "peak_rss_mib": peak_rss_mib(),
-    });
-    if json {
-        con.out(format_args!("{}", to_json(&out)?));
-    } else {
+    [t_bp, t_cg, t_admm]
+}
+
+/// The text report of `bench recon` from its JSON `out`.
+fn print_recon_bench(con: &Console, out: &serde_json::Value, runs: usize) {
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let (matrix, setup) = (&out["matrix"], &out["setup"]);
+    con.out(format_args!(
+        "H {}x{} ({} entries): {:.2} s, peak memory {:.0} MiB",
+        out["shape"][0],
+        out["shape"][1],
+        matrix["nnz"],
+        f(&matrix["seconds"]),
+        f(&matrix["peak_rss_mib"])
+    ));
+    if let Some(c) = out["calibration"]["seconds"].as_f64() {
         con.out(format_args!(
-            "H {}x{} ({} entries): {:.2} s, peak memory {:.0} MiB",
-            m.h.rows,
-            m.h.cols,
-            m.h.nnz(),
-            matrix_s,
-            matrix_peak.unwrap_or(f64::NAN)
-        ));
-        if let Some(c) = calibration_s {
-            con.out(format_args!(
-                "calibration (frames from H, transform, errors): {c:.2} s"
-            ));
-        }
-        con.out(format_args!(
-            "reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s",
-            p.gram_nnz,
-            p.gram_layout(),
-            setup_s
-        ));
-        con.out(format_args!(
-            "per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
-            out["back_projection"]["median_ms"]
-                .as_f64()
-                .unwrap_or(f64::NAN),
-            cg_set.iters,
-            out["cgm"]["timing"]["median_ms"]
-                .as_f64()
-                .unwrap_or(f64::NAN),
-            admm_set.iters,
-            out["admm_tv"]["timing"]["median_ms"]
-                .as_f64()
-                .unwrap_or(f64::NAN)
+            "calibration (frames from H, transform, errors): {c:.2} s"
         ));
     }
-    Ok(())
+    con.out(format_args!(
+        "reconstruction set-up (H^T, H^T H with {} entries, {}): {:.3} s",
+        setup["gram_nnz"],
+        setup["gram_layout"].as_str().unwrap_or_default(),
+        f(&setup["seconds"])
+    ));
+    con.out(format_args!(
+        "per frame (median of {runs}): back-projection {:.2} ms, CGM ({} it) {:.2} ms, ADMM-TV ({} it) {:.2} ms",
+        f(&out["back_projection"]["median_ms"]),
+        out["cgm"]["iters"],
+        f(&out["cgm"]["timing"]["median_ms"]),
+        out["admm_tv"]["iters"],
+        f(&out["admm_tv"]["timing"]["median_ms"])
+    ));
 }
 
 /// The time-against-error plot of `bench render`.
@@ -327,18 +353,7 @@ fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
         .iter()
         .map(|c| crate::bench::Curve {
             name: c["name"].as_str().unwrap_or("").to_string(),
-            points: c["points"]
-                .as_array()
-                .map(|ps| {
-                    ps.iter()
-                        .map(|p| crate::bench::Point {
-                            spp: p["spp"].as_u64().unwrap_or(0) as u32,
-                            seconds: p["seconds"].as_f64().unwrap_or(f64::NAN),
-                            relative_rmse: p["relative_rmse"].as_f64().unwrap_or(f64::NAN),
-                        })
-                        .collect()
-                })
-                .unwrap_or_default(),
+            points: curve_points(c).unwrap_or_default(),
             seconds_to_target: c["seconds_to_target"].as_f64(),
             extrapolated: c["extrapolated"].as_bool().unwrap_or(false),
         })
@@ -355,6 +370,8 @@ fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
     .map_err(write_failure)
 }
 
+/// `stscam bench render`: time against error of each estimator on an N×N crop of the scene
+/// (plus `extra` curves from files), written as JSON, Markdown, SVG and PNG.
 #[allow(clippy::too_many_arguments)]
 fn cmd_bench_render(
     scene: &SceneArgs,
@@ -370,14 +387,11 @@ fn cmd_bench_render(
     threads: Option<usize>,
     con: &Console,
 ) -> Result<(), Failure> {
-    use crate::bench::{
-        Curve, CurveSampler, ErrorMeasure, curves_markdown, measure_curve, time_to_error,
-    };
+    use crate::bench::{ErrorMeasure, curves_markdown};
     if replot {
         return replot_bench(out);
     }
     let measure = error;
-    use crate::render::Estimator;
     if crop == 0
         || ref_spp == 0
         || !(budget_s > 0.0 && budget_s <= MAX_BUDGET_S)
@@ -388,44 +402,9 @@ fn cmd_bench_render(
         )));
     }
     check_out_dir(out)?;
-    let mut extras: Vec<Curve> = Vec::new();
-    for p in extra {
-        let text = crate::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
-        let name = v["name"].as_str().unwrap_or("extra").to_string();
-        let points: Vec<crate::bench::Point> = v["points"]
-            .as_array()
-            .ok_or_else(|| bad_input(format!("{}: no \"points\" array", p.display())))?
-            .iter()
-            .map(|q| crate::bench::Point {
-                spp: q["spp"].as_u64().unwrap_or(0) as u32,
-                seconds: q["seconds"].as_f64().unwrap_or(f64::NAN),
-                relative_rmse: q["relative_rmse"].as_f64().unwrap_or(f64::NAN),
-            })
-            .collect();
-        let t = time_to_error(&points, target);
-        extras.push(Curve {
-            name,
-            points,
-            seconds_to_target: t.map(|x| x.0),
-            extrapolated: t.is_some_and(|x| x.1),
-        });
-    }
+    let extras = read_extra_curves(extra, target)?;
     let pool = thread_pool(threads)?;
-    // Same field of view on an N×N crop.
-    let base =
-        load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
-    let (cw, ch) = base.scene.sensor.crop_px.size();
-    let pitch = base.scene.sensor.pitch_um * f64::from(cw.max(ch)) / f64::from(crop);
-    let mut set = scene.set.clone();
-    set.push(format!("sensor.crop_px=[{crop},{crop}]"));
-    set.push(format!("sensor.pitch_um={pitch}"));
-    let args = SceneArgs {
-        scene: scene.scene.clone(),
-        set,
-    };
-    let (ls, sys) = pool.install(|| load(&args))?;
+    let (ls, sys, args, pitch) = bench_scene(scene, crop, &pool)?;
     crate::render::check_limits(
         &sys,
         &RenderSettings::lattice(ref_spp, 0, false),
@@ -439,82 +418,9 @@ fn cmd_bench_render(
     } else {
         ref_spp
     };
-    let reference: Vec<Vec<f32>> = if ref_spp == 0 {
-        Vec::new()
-    } else {
-        pool.install(|| {
-            crate::render::render(
-                &sys,
-                &RenderSettings {
-                    spp: ref_spp,
-                    seed: 1_000_003,
-                    sampler: SamplerKind::Lattice,
-                    user_side: Default::default(),
-                    spectral_bins: None,
-                    progress: true,
-                    estimator: Default::default(),
-                },
-            )
-            .channels
-        })
-    };
+    let reference = reference_render(&pool, &sys, ref_spp);
     let ref_s = t0.elapsed().as_secs_f64();
-    let mut curves = Vec::new();
-    // The user side's estimators differ only in 3-D scenes.
-    let every_branch = sys.world.is_some().then_some((
-        Estimator::Bragg,
-        CurveSampler::EveryBranch,
-        "stscam: the default with every branch traced on the user side (padded; the 3-D default until 2026-11-26)",
-    ));
-    for (est, sampler, name) in [
-        (
-            Estimator::Bragg,
-            CurveSampler::Kind(SamplerKind::Lattice),
-            "stscam: Bragg sampling + replica splitting (default)",
-        ),
-        (
-            Estimator::Bragg,
-            CurveSampler::Kind(SamplerKind::Sobol),
-            "stscam: the default with Owen-scrambled Sobol' points",
-        ),
-        (
-            Estimator::UniformAnalog,
-            CurveSampler::Kind(SamplerKind::Lattice),
-            "stscam: uniform wavelengths + Russian roulette",
-        ),
-    ]
-    .into_iter()
-    .chain(every_branch)
-    {
-        let c = pool.install(|| {
-            measure_curve(
-                &sys,
-                est,
-                sampler,
-                name,
-                &reference,
-                measure,
-                budget_s,
-                1 << 20,
-                target,
-                true,
-            )
-        });
-        con.err(format_args!(
-            "{name}: {} renders, time to {:.0} %: {}",
-            c.points.len(),
-            100.0 * target,
-            c.seconds_to_target.map_or("-".into(), |t| format!(
-                "{t:.3} s{}",
-                if c.extrapolated {
-                    " (extrapolated)"
-                } else {
-                    ""
-                }
-            ))
-        ));
-        curves.push(c);
-    }
+    let mut curves = measure_curves(&pool, &sys, &reference, measure, budget_s, target, con);
     curves.extend(extras);
     let md = format!(
         "Scene: {} with a {crop}×{crop} crop (pitch {pitch:.3} µm, same field of view); {} threads; error: {}.\n\n{}",
@@ -562,6 +468,161 @@ fn cmd_bench_render(
         con.out(format_args!("{md}"));
     }
     Ok(())
+}
+
+/// The points of a curve's JSON (`points`: `spp`, `seconds`, `relative_rmse`; missing values
+/// 0 or NaN), or `None` without a `points` array.
+fn curve_points(v: &serde_json::Value) -> Option<Vec<crate::bench::Point>> {
+    Some(
+        v["points"]
+            .as_array()?
+            .iter()
+            .map(|q| crate::bench::Point {
+                spp: q["spp"].as_u64().unwrap_or(0) as u32,
+                seconds: q["seconds"].as_f64().unwrap_or(f64::NAN),
+                relative_rmse: q["relative_rmse"].as_f64().unwrap_or(f64::NAN),
+            })
+            .collect(),
+    )
+}
+
+/// The curves of `bench render --extra` files (another renderer's measurements), each with
+/// its time to `target`.
+fn read_extra_curves(extra: &[PathBuf], target: f64) -> Result<Vec<crate::bench::Curve>, Failure> {
+    let mut extras = Vec::new();
+    for p in extra {
+        let text = crate::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", p.display())))?;
+        let name = v["name"].as_str().unwrap_or("extra").to_string();
+        let points = curve_points(&v)
+            .ok_or_else(|| bad_input(format!("{}: no \"points\" array", p.display())))?;
+        let t = crate::bench::time_to_error(&points, target);
+        extras.push(crate::bench::Curve {
+            name,
+            points,
+            seconds_to_target: t.map(|x| x.0),
+            extrapolated: t.is_some_and(|x| x.1),
+        });
+    }
+    Ok(extras)
+}
+
+/// The scene of `bench render`: the same field of view on a `crop`×`crop` crop (the pitch
+/// scaled); returns it with its arguments and pitch (µm).
+fn bench_scene(
+    scene: &SceneArgs,
+    crop: u32,
+    pool: &rayon::ThreadPool,
+) -> Result<(LoadedScene, System, SceneArgs, f64), Failure> {
+    let base =
+        load_scene(scene.scene.as_deref(), &scene.set).map_err(|e| bad_input(e.to_string()))?;
+    let (cw, ch) = base.scene.sensor.crop_px.size();
+    let pitch = base.scene.sensor.pitch_um * f64::from(cw.max(ch)) / f64::from(crop);
+    let mut set = scene.set.clone();
+    set.push(format!("sensor.crop_px=[{crop},{crop}]"));
+    set.push(format!("sensor.pitch_um={pitch}"));
+    let args = SceneArgs {
+        scene: scene.scene.clone(),
+        set,
+    };
+    let (ls, sys) = pool.install(|| load(&args))?;
+    Ok((ls, sys, args, pitch))
+}
+
+/// The reference render of `bench render` (none for `ref_spp` 0).
+fn reference_render(pool: &rayon::ThreadPool, sys: &System, ref_spp: u32) -> Vec<Vec<f32>> {
+    if ref_spp == 0 {
+        Vec::new()
+    } else {
+        pool.install(|| {
+            crate::render::render(
+                sys,
+                &RenderSettings {
+                    spp: ref_spp,
+                    seed: 1_000_003,
+                    sampler: SamplerKind::Lattice,
+                    user_side: Default::default(),
+                    spectral_bins: None,
+                    progress: true,
+                    estimator: Default::default(),
+                },
+            )
+            .channels
+        })
+    }
+}
+
+/// The time-against-error curves of stscam's estimators (the default first), each reported
+/// on `con` as it finishes.
+fn measure_curves(
+    pool: &rayon::ThreadPool,
+    sys: &System,
+    reference: &[Vec<f32>],
+    measure: crate::bench::ErrorMeasure,
+    budget_s: f64,
+    target: f64,
+    con: &Console,
+) -> Vec<crate::bench::Curve> {
+    use crate::bench::{CurveSampler, measure_curve};
+    use crate::render::Estimator;
+    let mut curves = Vec::new();
+    // The user side's estimators differ only in 3-D scenes.
+    let every_branch = sys.world.is_some().then_some((
+        Estimator::Bragg,
+        CurveSampler::EveryBranch,
+        "stscam: the default with every branch traced on the user side (padded; the 3-D default until 2026-11-26)",
+    ));
+    for (est, sampler, name) in [
+        (
+            Estimator::Bragg,
+            CurveSampler::Kind(SamplerKind::Lattice),
+            "stscam: Bragg sampling + replica splitting (default)",
+        ),
+        (
+            Estimator::Bragg,
+            CurveSampler::Kind(SamplerKind::Sobol),
+            "stscam: the default with Owen-scrambled Sobol' points",
+        ),
+        (
+            Estimator::UniformAnalog,
+            CurveSampler::Kind(SamplerKind::Lattice),
+            "stscam: uniform wavelengths + Russian roulette",
+        ),
+    ]
+    .into_iter()
+    .chain(every_branch)
+    {
+        let c = pool.install(|| {
+            measure_curve(
+                sys,
+                est,
+                sampler,
+                name,
+                reference,
+                measure,
+                budget_s,
+                1 << 20,
+                target,
+                true,
+            )
+        });
+        con.err(format_args!(
+            "{name}: {} renders, time to {:.0} %: {}",
+            c.points.len(),
+            100.0 * target,
+            c.seconds_to_target.map_or("-".into(), |t| format!(
+                "{t:.3} s{}",
+                if c.extrapolated {
+                    " (extrapolated)"
+                } else {
+                    ""
+                }
+            ))
+        ));
+        curves.push(c);
+    }
+    curves
 }
 
 /// Runs the job: its files written (under temporary names, renamed when complete), its
@@ -614,7 +675,7 @@ pub struct BenchGratingOptions {
 /// `stscam bench grating`: RCWA time per point on one core (medians) and the table time.
 pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobError> {
     use crate::grating_spectrum as gs;
-    use crate::optics::rcwa::{self, Settings, table};
+    use crate::optics::rcwa::{Settings, table};
     if !(1..=MAX_RUNS).contains(&o.runs) || !(1..=1_000_000).contains(&o.probes) {
         return Err(bad_input(format!(
             "--runs in 1..={MAX_RUNS}, --probes in 1..=1000000"
@@ -650,31 +711,7 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
     let lam_b = gs::volume_gratings(s, &gratings)[0]
         .bragg_wavelength_nm(glam::DVec2::ZERO)
         .unwrap_or(s.hoe.primary_wavelength_nm());
-    let mut points = serde_json::Map::new();
-    for (name, kind, u) in [
-        ("bulk_normal", gs::StackKind::Bulk, glam::DVec2::ZERO),
-        (
-            "bulk_conical",
-            gs::StackKind::Bulk,
-            glam::DVec2::new(0.15, 0.1),
-        ),
-        ("contact_normal", gs::StackKind::Contact, glam::DVec2::ZERO),
-    ] {
-        let media = gs::stack_media(s, kind, lam_b);
-        let mut times = Vec::with_capacity(o.runs);
-        let mut slices = 0;
-        for _ in 0..o.runs {
-            let t = std::time::Instant::now();
-            let sol = rcwa::solve(&film, &media, lam_b, u, &settings)
-                .map_err(|e| bad_input(format!("bench grating: {e}")))?;
-            times.push(t.elapsed().as_secs_f64());
-            slices = sol.slices;
-        }
-        let mut v = median_ms(times);
-        v["slices"] = slices.into();
-        v["note"] = "one solve gives TE and TM".into();
-        points.insert(name.into(), v);
-    }
+    let points = time_points(o.runs, s, &film, lam_b, &settings)?;
     let spec = table::TableSpec {
         lambda_nm: table::Axis {
             start: lambdas[0],
@@ -693,6 +730,75 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
         },
         max_order: 1,
     };
+    let tables = time_tables(o, s, &film, &lambdas, &spec, &settings)?;
+    let report = serde_json::json!({
+        "point_at_bragg_lambda_nm": lam_b,
+        "harmonics": settings.harmonics,
+        "slices_per_period": settings.slices_per_period,
+        "points_one_core": points,
+        "table": {
+            "lambda_nm": [spec.lambda_nm.start, spec.lambda_nm.stop, spec.lambda_nm.n],
+            "u_half_width": o.table_u,
+            "nodes_ux_uy": [nodes.0, nodes.1],
+            "stacks": tables,
+        },
+    });
+    con.out(format_args!("{}", to_json(&report)?));
+    Ok(())
+}
+
+/// The single-point RCWA times of `bench grating` (medians of `runs` on one core) at the Bragg
+/// wavelength `lam_b`: bulk at normal and conical incidence, the contact stack at normal.
+fn time_points(
+    runs: usize,
+    s: &crate::scene::Scene,
+    film: &crate::optics::rcwa::Film,
+    lam_b: f64,
+    settings: &crate::optics::rcwa::Settings,
+) -> Result<serde_json::Map<String, serde_json::Value>, Failure> {
+    use crate::grating_spectrum as gs;
+    use crate::optics::rcwa;
+    let mut points = serde_json::Map::new();
+    for (name, kind, u) in [
+        ("bulk_normal", gs::StackKind::Bulk, glam::DVec2::ZERO),
+        (
+            "bulk_conical",
+            gs::StackKind::Bulk,
+            glam::DVec2::new(0.15, 0.1),
+        ),
+        ("contact_normal", gs::StackKind::Contact, glam::DVec2::ZERO),
+    ] {
+        let media = gs::stack_media(s, kind, lam_b);
+        let mut times = Vec::with_capacity(runs);
+        let mut slices = 0;
+        for _ in 0..runs {
+            let t = std::time::Instant::now();
+            let sol = rcwa::solve(film, &media, lam_b, u, settings)
+                .map_err(|e| bad_input(format!("bench grating: {e}")))?;
+            times.push(t.elapsed().as_secs_f64());
+            slices = sol.slices;
+        }
+        let mut v = median_ms(times);
+        v["slices"] = slices.into();
+        v["note"] = "one solve gives TE and TM".into();
+        points.insert(name.into(), v);
+    }
+    Ok(points)
+}
+
+/// The build time and interpolation error of the bulk and contact RCWA tables over `spec`
+/// (wavelengths `lambdas`) on `o.threads` threads.
+fn time_tables(
+    o: &BenchGratingOptions,
+    s: &crate::scene::Scene,
+    film: &crate::optics::rcwa::Film,
+    lambdas: &[f64],
+    spec: &crate::optics::rcwa::table::TableSpec,
+    settings: &crate::optics::rcwa::Settings,
+) -> Result<serde_json::Map<String, serde_json::Value>, Failure> {
+    use crate::grating_spectrum as gs;
+    use crate::optics::rcwa::table;
+    let nodes = (spec.u_x.n, spec.u_y.n);
     let pool = thread_pool(o.threads)?;
     let mut tables = serde_json::Map::new();
     for kind in [gs::StackKind::Bulk, gs::StackKind::Contact] {
@@ -702,7 +808,7 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
             .collect();
         let t0 = std::time::Instant::now();
         let t = pool
-            .install(|| table::RcwaTable::build(&film, &media, &spec, &settings))
+            .install(|| table::RcwaTable::build(film, &media, spec, settings))
             .map_err(|e| bad_input(format!("bench grating: {e}")))?;
         let build_s = t0.elapsed().as_secs_f64();
         let err = pool
@@ -719,18 +825,5 @@ pub fn run_grating(o: &BenchGratingOptions, con: &Console) -> Result<(), JobErro
             }),
         );
     }
-    let report = serde_json::json!({
-        "point_at_bragg_lambda_nm": lam_b,
-        "harmonics": settings.harmonics,
-        "slices_per_period": settings.slices_per_period,
-        "points_one_core": points,
-        "table": {
-            "lambda_nm": [spec.lambda_nm.start, spec.lambda_nm.stop, spec.lambda_nm.n],
-            "u_half_width": o.table_u,
-            "nodes_ux_uy": [nodes.0, nodes.1],
-            "stacks": tables,
-        },
-    });
-    con.out(format_args!("{}", to_json(&report)?));
-    Ok(())
+    Ok(tables)
 }

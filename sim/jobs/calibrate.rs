@@ -5,15 +5,6 @@ use std::time::Instant;
 
 use super::*;
 
-/// Sensor noise of `calibrate --noise`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
-pub enum NoiseArg {
-    /// The scene's [noise] section.
-    Sensor,
-    /// An ideal camera.
-    None,
-}
-
 /// Simulate the paper's Hadamard calibration of H: DIR/H_est.npz and calibration.json.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CalibrateOptions {
@@ -34,7 +25,7 @@ pub struct CalibrateOptions {
     pub run: RunArgs,
     /// Sensor noise: `sensor` (the scene's [noise] section) or `none` (ideal camera).
     #[arg(long, value_enum, default_value = "sensor")]
-    pub noise: NoiseArg,
+    pub noise: crate::hadamard::CaptureNoise,
     /// Store the estimate with a dark frame subtracted from every frame (the report always
     /// gives the errors with and without it).
     #[arg(long)]
@@ -54,14 +45,14 @@ fn cmd_calibrate(
     matrix: Option<&std::path::Path>,
     object: Option<&str>,
     run: &RunArgs,
-    noise: NoiseArg,
+    noise: crate::hadamard::CaptureNoise,
     dark_frame: bool,
     render_frames: bool,
     threshold_sigma: f64,
     con: &Console,
 ) -> Result<(), Failure> {
     let (spp, seed, threads) = run.checked()?;
-    use crate::hadamard::{CalibrationJob, TrueMatrix, calibrate_scene};
+    use crate::hadamard::{CalibrationJob, CaptureNoise, TrueMatrix, calibrate_scene};
     let start = Instant::now();
     if !(threshold_sigma.is_finite() && threshold_sigma >= 0.0) {
         return Err(bad_input(
@@ -91,7 +82,7 @@ fn cmd_calibrate(
         matrix,
         spp,
         seed,
-        sensor_noise: noise == NoiseArg::Sensor,
+        noise,
         dark_frame,
         render_frames,
         threshold_sigma,
@@ -116,7 +107,7 @@ fn cmd_calibrate(
         "spp": spp,
         "seed": seed,
         "frames_from": if render_frames { "rendered patterns" } else { "H_true" },
-        "noise": if noise == NoiseArg::Sensor { serde_json::to_value(&sys.scene.noise).unwrap_or_default() } else { serde_json::Value::String("none".into()) },
+        "noise": if noise == CaptureNoise::Sensor { serde_json::to_value(&sys.scene.noise).unwrap_or_default() } else { serde_json::Value::String("none".into()) },
         "exposure_electrons_per_unit": sensor_noise.as_ref().map(|s| s.electrons_per_unit),
         "stored_variant": if dark_frame { "dark frame subtracted" } else { "no dark frame (the paper's procedure)" },
         "threshold_sigma": threshold_sigma,

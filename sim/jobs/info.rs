@@ -22,6 +22,9 @@ fn fmt_fov(name: &str, f: &analysis::Fov) -> String {
     )
 }
 
+/// `stscam info`: the design summary as JSON, or as text: critical angles, each grating's
+/// fields ([`print_grating`]), the fields of view, the colour bands ([`print_colour_bands`])
+/// and the object coverage.
 fn cmd_info(
     scene: &SceneArgs,
     json: bool,
@@ -43,50 +46,7 @@ fn cmd_info(
     ));
     let multiplexed = info.gratings.len() > 1;
     for g in &info.gratings {
-        if multiplexed {
-            con.out(format_args!(
-                "grating {}: recorded at {} nm, reference {}°, object {}°, n1 = {}; period {:.2} nm",
-                g.grating,
-                g.recording_wavelength_nm,
-                g.reference_angle_deg,
-                g.object_angle_deg,
-                g.index_modulation,
-                g.grating_period_nm
-            ));
-        }
-        con.out(format_args!(
-            "{:<8} {:>10} {:>10} {:>12} {:>9} {:>10}",
-            "field", "λ_B (nm)", "Θ' (deg)", "pitch (mm)", "replicas", ">5% peak"
-        ));
-        for f in &g.field {
-            con.out(format_args!(
-                "{:<8} {:>10.2} {:>10.2} {:>12.3} {:>9} {:>10}",
-                f.name,
-                f.lambda_nm,
-                f.guided_angle_deg,
-                f.replica_pitch_mm,
-                f.replicas,
-                f.replicas_above_5pct
-            ));
-        }
-        let rows: Vec<String> = g
-            .point_replicas
-            .iter()
-            .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
-            .collect();
-        con.out(format_args!(
-            "a point at the display centre appears at rows (weight){}: {}",
-            if multiplexed {
-                format!(" through grating {}", g.grating)
-            } else {
-                String::new()
-            },
-            rows.join(", ")
-        ));
-        con.out(format_args!(
-            "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
-            g.replica_pitch_sensor_px
-        ));
+        print_grating(g, multiplexed, con);
     }
     con.out(format_args!(
         "{}",
@@ -105,60 +65,7 @@ fn cmd_info(
         fmt_fov("horizontal FOV, capture", &info.fov_horizontal_capture)
     ));
     if let Some(bands) = &info.colour_bands {
-        con.out(format_args!(
-            "colour bands (level = primary's spectrum at the best grating's Bragg wavelength / its peak; a band needs >= {}):",
-            crate::colour::BAND_LEVEL
-        ));
-        con.out(format_args!(
-            "{:>8} {:>10} {:>28} {:>12} {:>12} {:>12}",
-            "crop row",
-            "field (°)",
-            "λ_B per grating (nm)",
-            "R (grating)",
-            "G (grating)",
-            "B (grating)"
-        ));
-        for b in bands {
-            let lb: Vec<String> = b
-                .bragg_nm
-                .iter()
-                .map(|l| l.map_or("-".into(), |v| format!("{v:.1}")))
-                .collect();
-            let lv = |p: usize| match b.grating[p] {
-                Some(j) => format!(
-                    "{:.2} ({j}){}",
-                    b.level[p],
-                    if b.has_band(p) { "" } else { "!" }
-                ),
-                None => "- !".into(),
-            };
-            con.out(format_args!(
-                "{:>8} {:>10.2} {:>28} {:>12} {:>12} {:>12}",
-                b.crop_row,
-                b.field_deg,
-                lb.join(" "),
-                lv(0),
-                lv(1),
-                lv(2)
-            ));
-        }
-        let missing: Vec<String> = (0..3)
-            .filter_map(|p| {
-                let n = bands.iter().filter(|b| !b.has_band(p)).count();
-                (n > 0).then(|| {
-                    format!(
-                        "{} in {n} of {} rows",
-                        crate::matrix::PRIMARY_NAMES[p],
-                        bands.len()
-                    )
-                })
-            })
-            .collect();
-        if missing.is_empty() {
-            con.out(format_args!("every field row has a band in each primary"));
-        } else {
-            con.out(format_args!("no band (marked !): {}", missing.join(", ")));
-        }
+        print_colour_bands(bands, con);
     }
     let cov = &info.object_coverage;
     match cov.warning() {
@@ -172,6 +79,114 @@ fn cmd_info(
         Some(w) => con.out(format_args!("{w}")),
     }
     Ok(info)
+}
+
+/// One grating's table of fields and the sensor rows of a point at the display centre (with
+/// its recording set-up where there are several gratings).
+fn print_grating(g: &analysis::GratingInfo, multiplexed: bool, con: &Console) {
+    if multiplexed {
+        con.out(format_args!(
+            "grating {}: recorded at {} nm, reference {}°, object {}°, n1 = {}; period {:.2} nm",
+            g.grating,
+            g.recording_wavelength_nm,
+            g.reference_angle_deg,
+            g.object_angle_deg,
+            g.index_modulation,
+            g.grating_period_nm
+        ));
+    }
+    con.out(format_args!(
+        "{:<8} {:>10} {:>10} {:>12} {:>9} {:>10}",
+        "field", "λ_B (nm)", "Θ' (deg)", "pitch (mm)", "replicas", ">5% peak"
+    ));
+    for f in &g.field {
+        con.out(format_args!(
+            "{:<8} {:>10.2} {:>10.2} {:>12.3} {:>9} {:>10}",
+            f.name,
+            f.lambda_nm,
+            f.guided_angle_deg,
+            f.replica_pitch_mm,
+            f.replicas,
+            f.replicas_above_5pct
+        ));
+    }
+    let rows: Vec<String> = g
+        .point_replicas
+        .iter()
+        .map(|r| format!("{:.1} ({:.4})", r.row, r.weight))
+        .collect();
+    con.out(format_args!(
+        "a point at the display centre appears at rows (weight){}: {}",
+        if multiplexed {
+            format!(" through grating {}", g.grating)
+        } else {
+            String::new()
+        },
+        rows.join(", ")
+    ));
+    con.out(format_args!(
+        "replica spacing on the sensor (replicas above 5 % of the brightest): {:.2} px",
+        g.replica_pitch_sensor_px
+    ));
+}
+
+/// The colour band of each field row (the level of each primary at the best grating's Bragg
+/// wavelength) and the primaries some row has no band in.
+fn print_colour_bands(bands: &[crate::colour::FieldBands], con: &Console) {
+    con.out(format_args!(
+        "colour bands (level = primary's spectrum at the best grating's Bragg wavelength / its peak; a band needs >= {}):",
+        crate::colour::BAND_LEVEL
+    ));
+    con.out(format_args!(
+        "{:>8} {:>10} {:>28} {:>12} {:>12} {:>12}",
+        "crop row",
+        "field (°)",
+        "λ_B per grating (nm)",
+        "R (grating)",
+        "G (grating)",
+        "B (grating)"
+    ));
+    for b in bands {
+        let lb: Vec<String> = b
+            .bragg_nm
+            .iter()
+            .map(|l| l.map_or("-".into(), |v| format!("{v:.1}")))
+            .collect();
+        let lv = |p: usize| match b.grating[p] {
+            Some(j) => format!(
+                "{:.2} ({j}){}",
+                b.level[p],
+                if b.has_band(p) { "" } else { "!" }
+            ),
+            None => "- !".into(),
+        };
+        con.out(format_args!(
+            "{:>8} {:>10.2} {:>28} {:>12} {:>12} {:>12}",
+            b.crop_row,
+            b.field_deg,
+            lb.join(" "),
+            lv(0),
+            lv(1),
+            lv(2)
+        ));
+    }
+    let missing: Vec<String> = (0..3)
+        .filter_map(|p| {
+            let n = bands.iter().filter(|b| !b.has_band(p)).count();
+            (n > 0).then(|| {
+                format!(
+                    "{} in {n} of {} rows",
+                    crate::matrix::PRIMARY_NAMES[p],
+                    bands.len()
+                )
+            })
+        })
+        .collect();
+    if missing.is_empty() {
+        con.out(format_args!("every field row has a band in each primary"));
+    } else {
+        con.out(format_args!("no band (marked !): {}", missing.join(", ")));
+    }
 }
 
 /// Runs the job: the design summary, returned and sent to `con`.

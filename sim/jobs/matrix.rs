@@ -203,7 +203,9 @@ fn check_linearity(rel: f64) -> Result<(), Failure> {
     Ok(())
 }
 
-/// `matrix --depth-mm LIST`: the depth stack in one pass (`crate::stack`).
+/// `matrix --depth-mm LIST`: the depth stack in one pass (`crate::stack`): each depth's H,
+/// offset and sidecar ([`StackJob::depth_files`]), the block matrix with the layered offset and
+/// its sidecar, every matrix encoded in parallel ([`StackJob::encode_matrices`]).
 #[allow(clippy::too_many_arguments)]
 fn matrix_stack(
     ls: &LoadedScene,
@@ -217,8 +219,15 @@ fn matrix_stack(
     start: Instant,
     con: &Console,
 ) -> Result<(), Failure> {
-    use crate::stack::{
-        STACK_MATRIX, STACK_OFFSET, STACK_SIDECAR, coverage, depth_file_names, layered_offset,
+    use crate::stack::{STACK_MATRIX, STACK_OFFSET, STACK_SIDECAR, layered_offset};
+    let job = StackJob {
+        ls,
+        scene,
+        sys,
+        settings,
+        pool,
+        depths,
+        out,
     };
     let t0 = Instant::now();
     // The stack's peak (the pass, the matrices, the block matrix and the encoded files) is
@@ -234,49 +243,7 @@ fn matrix_stack(
         })
         .map_err(limit)?;
     let matrix_s = t0.elapsed().as_secs_f64();
-    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut per_depth = Vec::new();
-    let mut failed_check = None;
-    for (&d, m) in depths.iter().zip(&stack) {
-        let names = depth_file_names(d);
-        let linearity = check.then(|| {
-            let mut s = sys.clone();
-            s.display.z_mm = -d;
-            linearity_check(pool, &s, settings, m, con)
-        });
-        if let Some(rel) = linearity {
-            failed_check = failed_check.or(check_linearity(rel).err());
-        }
-        let cov = coverage(&m.h);
-        let mut side = matrix_sidecar(
-            ls,
-            scene,
-            sys,
-            settings,
-            m,
-            d,
-            [&names[0], &names[1], &names[2]],
-            linearity,
-        );
-        side["coverage"] = serde_json::to_value(cov).unwrap_or_default();
-        side["stack"] = STACK_MATRIX.into();
-        side["stats"] = serde_json::to_value(&m.stats).unwrap_or_default();
-        // The matrices are encoded below, in parallel.
-        files.push((names[0].clone(), Vec::new()));
-        files.push((
-            names[1].clone(),
-            crate::io::npz::encode_npy_f32(&out.join(&names[1]), &[m.offset.len()], &m.offset)
-                .map_err(write_failure)?,
-        ));
-        files.push((
-            names[2].clone(),
-            serde_json::to_vec_pretty(&side).map_err(write_failure)?,
-        ));
-        per_depth.push(serde_json::json!({
-            "depth_mm": d, "matrix": names[0], "offset": names[1], "sidecar": names[2],
-            "nnz": m.h.nnz(), "coverage": cov,
-        }));
-    }
+    let (mut files, per_depth, failed_check) = job.depth_files(&stack, check, con)?;
     let blocks: Vec<&crate::sparse::CsrMatrix> = stack.iter().map(|m| &m.h).collect();
     let block = crate::sparse::CsrMatrix::hstack(&blocks).ok_or_else(|| {
         bad_input(format!(
@@ -286,75 +253,10 @@ fn matrix_stack(
         ))
     })?;
     let offset = layered_offset(&stack);
-    let m0 = &stack[0];
-    let sidecar = serde_json::json!({
-        "stscam_version": crate::VERSION,
-        "command": "matrix",
-        "depths_mm": depths,
-        "scene_source": ls.source,
-        "overrides": scene.set,
-        "scene": sys.scene,
-        "seed": settings.seed,
-        "spp": settings.spp,
-        "sampler": settings.sampler,
-        "focus_distance_mm": sys.camera.focus_distance_mm,
-        "shape": [block.rows, block.cols],
-        "nnz": block.nnz(),
-        "crop_px": [m0.crop.0, m0.crop.1],
-        "object_px": [m0.object.0, m0.object.1],
-        "channels": m0.channels,
-        "rows": "as each depth's H (crop pixels, row-major; channel-major with several channels)",
-        "columns": "depth-major blocks [H_1 ... H_N]: column = depth_index * object_pixels + object pixel (row-major), depths as in depths_mm",
-        "model": "layered scene: g = sum_d (H_d f_d + o_d) + noise; planes are additive emitters without occlusion, each a display of the scene's extent at its depth; the camera focus, wavelength sampling and display extent are the scene's at every depth",
-        "units": crate::matrix::MATRIX_UNITS,
-        "offset_file": STACK_OFFSET,
-        "files": {STACK_MATRIX: "scipy.sparse CSR block matrix [H_1 ... H_N]", STACK_OFFSET: "float32 vector: sum over depths of the per-depth offsets (the capture with every layer black)"},
-        "depths": per_depth,
-        "coverage": "capture_filled = fraction of capture pixels some object pixel reaches; object_seen = fraction of object pixels the capture sees",
-        "threads": pool.current_num_threads(),
-        "matrix_time_s": matrix_s,
-        "wall_time_s": start.elapsed().as_secs_f64(),
-        "paths_per_second": m0.stats.camera_paths as f64 / matrix_s,
-        "stats": m0.stats,
-        "memory": {
-            "estimated_entries": memory.entries.round(),
-            "pilot_pixels": memory.pilot_pixels,
-            "estimated_peak_bytes": memory.estimated_peak_bytes() as f64,
-            "peak_bytes_of_the_entries": memory.peak_bytes(block.nnz() as f64) as f64,
-            "accepted_bytes": crate::limits::MAX_JOB_BYTES as f64,
-        },
-    });
-    // Every matrix file (each depth's and the block matrix) encoded in parallel.
-    let mut mats: Vec<&crate::sparse::CsrMatrix> = blocks.clone();
-    mats.push(&block);
-    let encoded: Vec<Result<Vec<u8>, String>> = pool.install(|| {
-        use rayon::prelude::*;
-        mats.par_iter()
-            .enumerate()
-            .map(|(i, h)| {
-                let name = if i < depths.len() {
-                    depth_file_names(depths[i])[0].clone()
-                } else {
-                    STACK_MATRIX.to_string()
-                };
-                h.encode_npz(&out.join(name)).map_err(|e| e.to_string())
-            })
-            .collect()
-    });
-    let mut encoded = encoded.into_iter();
-    for i in 0..depths.len() {
-        files[3 * i].1 = encoded
-            .next()
-            .unwrap_or(Ok(Vec::new()))
-            .map_err(write_failure)?;
-    }
-    files.push((
-        STACK_MATRIX.to_string(),
-        encoded
-            .next()
-            .unwrap_or(Ok(Vec::new()))
-            .map_err(write_failure)?,
-    ));
+    let mut sidecar = job.stack_sidecar(&stack[0], &block, &memory, matrix_s);
+    sidecar["depths"] = per_depth.into();
+    sidecar["wall_time_s"] = start.elapsed().as_secs_f64().into();
+    job.encode_matrices(&blocks, &block, &mut files)?;
     files.push((
         STACK_OFFSET.to_string(),
         crate::io::npz::encode_npy_f32(&out.join(STACK_OFFSET), &[offset.len()], &offset)
@@ -389,6 +291,178 @@ fn matrix_stack(
         pool.current_num_threads()
     ));
     Ok(())
+}
+
+/// What the steps of [`matrix_stack`] share.
+struct StackJob<'a> {
+    ls: &'a LoadedScene,
+    scene: &'a SceneArgs,
+    sys: &'a System,
+    settings: &'a RenderSettings,
+    pool: &'a rayon::ThreadPool,
+    depths: &'a [f64],
+    out: &'a std::path::Path,
+}
+
+impl StackJob<'_> {
+    /// Each depth's files (its matrix left empty for [`Self::encode_matrices`], its offset and
+    /// sidecar, with the linearity check where `check`), its entry of the stack's sidecar, and
+    /// the first failed check.
+    #[allow(clippy::type_complexity)]
+    fn depth_files(
+        &self,
+        stack: &[crate::matrix::SystemMatrix],
+        check: bool,
+        con: &Console,
+    ) -> Result<
+        (
+            Vec<(String, Vec<u8>)>,
+            Vec<serde_json::Value>,
+            Option<Failure>,
+        ),
+        Failure,
+    > {
+        use crate::stack::{STACK_MATRIX, coverage, depth_file_names};
+        let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+        let mut per_depth = Vec::new();
+        let mut failed_check = None;
+        for (&d, m) in self.depths.iter().zip(stack) {
+            let names = depth_file_names(d);
+            let linearity = check.then(|| {
+                let mut s = self.sys.clone();
+                s.display.z_mm = -d;
+                linearity_check(self.pool, &s, self.settings, m, con)
+            });
+            if let Some(rel) = linearity {
+                failed_check = failed_check.or(check_linearity(rel).err());
+            }
+            let cov = coverage(&m.h);
+            let mut side = matrix_sidecar(
+                self.ls,
+                self.scene,
+                self.sys,
+                self.settings,
+                m,
+                d,
+                [&names[0], &names[1], &names[2]],
+                linearity,
+            );
+            side["coverage"] = serde_json::to_value(cov).unwrap_or_default();
+            side["stack"] = STACK_MATRIX.into();
+            side["stats"] = serde_json::to_value(&m.stats).unwrap_or_default();
+            // The matrices are encoded below, in parallel.
+            files.push((names[0].clone(), Vec::new()));
+            files.push((
+                names[1].clone(),
+                crate::io::npz::encode_npy_f32(
+                    &self.out.join(&names[1]),
+                    &[m.offset.len()],
+                    &m.offset,
+                )
+                .map_err(write_failure)?,
+            ));
+            files.push((
+                names[2].clone(),
+                serde_json::to_vec_pretty(&side).map_err(write_failure)?,
+            ));
+            per_depth.push(serde_json::json!({
+                "depth_mm": d, "matrix": names[0], "offset": names[1], "sidecar": names[2],
+                "nnz": m.h.nnz(), "coverage": cov,
+            }));
+        }
+        Ok((files, per_depth, failed_check))
+    }
+
+    /// H_stack.json without `depths` and `wall_time_s` (the caller adds them).
+    fn stack_sidecar(
+        &self,
+        m0: &crate::matrix::SystemMatrix,
+        block: &crate::sparse::CsrMatrix,
+        memory: &crate::matrix::StackMemory,
+        matrix_s: f64,
+    ) -> serde_json::Value {
+        use crate::stack::{STACK_MATRIX, STACK_OFFSET};
+        serde_json::json!({
+            "stscam_version": crate::VERSION,
+            "command": "matrix",
+            "depths_mm": self.depths,
+            "scene_source": self.ls.source,
+            "overrides": self.scene.set,
+            "scene": self.sys.scene,
+            "seed": self.settings.seed,
+            "spp": self.settings.spp,
+            "sampler": self.settings.sampler,
+            "focus_distance_mm": self.sys.camera.focus_distance_mm,
+            "shape": [block.rows, block.cols],
+            "nnz": block.nnz(),
+            "crop_px": [m0.crop.0, m0.crop.1],
+            "object_px": [m0.object.0, m0.object.1],
+            "channels": m0.channels,
+            "rows": "as each depth's H (crop pixels, row-major; channel-major with several channels)",
+            "columns": "depth-major blocks [H_1 ... H_N]: column = depth_index * object_pixels + object pixel (row-major), depths as in depths_mm",
+            "model": "layered scene: g = sum_d (H_d f_d + o_d) + noise; planes are additive emitters without occlusion, each a display of the scene's extent at its depth; the camera focus, wavelength sampling and display extent are the scene's at every depth",
+            "units": crate::matrix::MATRIX_UNITS,
+            "offset_file": STACK_OFFSET,
+            "files": {STACK_MATRIX: "scipy.sparse CSR block matrix [H_1 ... H_N]", STACK_OFFSET: "float32 vector: sum over depths of the per-depth offsets (the capture with every layer black)"},
+            "depths": null,
+            "coverage": "capture_filled = fraction of capture pixels some object pixel reaches; object_seen = fraction of object pixels the capture sees",
+            "threads": self.pool.current_num_threads(),
+            "matrix_time_s": matrix_s,
+            "wall_time_s": null,
+            "paths_per_second": m0.stats.camera_paths as f64 / matrix_s,
+            "stats": m0.stats,
+            "memory": {
+                "estimated_entries": memory.entries.round(),
+                "pilot_pixels": memory.pilot_pixels,
+                "estimated_peak_bytes": memory.estimated_peak_bytes() as f64,
+                "peak_bytes_of_the_entries": memory.peak_bytes(block.nnz() as f64) as f64,
+                "accepted_bytes": crate::limits::MAX_JOB_BYTES as f64,
+            },
+        })
+    }
+
+    /// Every matrix file (each depth's into its empty slot of `files`, then the block matrix
+    /// appended) encoded in parallel.
+    fn encode_matrices(
+        &self,
+        blocks: &[&crate::sparse::CsrMatrix],
+        block: &crate::sparse::CsrMatrix,
+        files: &mut Vec<(String, Vec<u8>)>,
+    ) -> Result<(), Failure> {
+        use crate::stack::{STACK_MATRIX, depth_file_names};
+        let (depths, out) = (self.depths, self.out);
+        let mut mats: Vec<&crate::sparse::CsrMatrix> = blocks.to_vec();
+        mats.push(block);
+        let encoded: Vec<Result<Vec<u8>, String>> = self.pool.install(|| {
+            use rayon::prelude::*;
+            mats.par_iter()
+                .enumerate()
+                .map(|(i, h)| {
+                    let name = if i < depths.len() {
+                        depth_file_names(depths[i])[0].clone()
+                    } else {
+                        STACK_MATRIX.to_string()
+                    };
+                    h.encode_npz(&out.join(name)).map_err(|e| e.to_string())
+                })
+                .collect()
+        });
+        let mut encoded = encoded.into_iter();
+        for i in 0..depths.len() {
+            files[3 * i].1 = encoded
+                .next()
+                .unwrap_or(Ok(Vec::new()))
+                .map_err(write_failure)?;
+        }
+        files.push((
+            STACK_MATRIX.to_string(),
+            encoded
+                .next()
+                .unwrap_or(Ok(Vec::new()))
+                .map_err(write_failure)?,
+        ));
+        Ok(())
+    }
 }
 
 /// Runs the job: its files written (under temporary names, renamed when complete), its

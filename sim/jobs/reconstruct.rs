@@ -51,22 +51,49 @@ pub struct ReconstructOptions {
     pub threads: Option<usize>,
 }
 
-/// Method of `reconstruct --method`.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
+/// Method of `reconstruct --method`: a solver of one H ([`crate::recon::Method`]) or of a depth
+/// stack ([`crate::recon::layered::StackMethod`]). The names and help lines are those enums'
+/// (one definition for clap and the Python module); this type only joins the two lists.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MethodArg {
-    /// Conjugate gradients on the normal equations (the paper's CGM).
-    Cg,
-    /// ADMM with total variation.
-    AdmmTv,
-    /// Depth stack: joint multi-depth ADMM-TV with a sparsity prior across depth.
-    Joint,
-    /// Depth stack: estimate the depth of one planar object, then ADMM-TV at that depth.
-    Depth,
+    /// A method of one H.
+    One(crate::recon::Method),
+    /// A method of a depth stack.
+    Stack(crate::recon::layered::StackMethod),
 }
 
-#[allow(clippy::too_many_arguments)]
+impl MethodArg {
+    /// The name on the command line (`cg`, `admm-tv`, `joint`, `depth`).
+    fn name(self) -> String {
+        self.to_possible_value()
+            .map(|p| p.get_name().to_string())
+            .unwrap_or_default()
+    }
+}
+
+impl ValueEnum for MethodArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        use crate::recon::{Method, layered::StackMethod};
+        &[
+            Self::One(Method::Cg),
+            Self::One(Method::AdmmTv),
+            Self::Stack(StackMethod::Joint),
+            Self::Stack(StackMethod::Depth),
+        ]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        match self {
+            Self::One(m) => m.to_possible_value(),
+            Self::Stack(m) => m.to_possible_value(),
+        }
+    }
+}
+
+/// `stscam reconstruct`: options checked, the method chosen for the matrix (one H or a depth
+/// stack), then one H's reconstruction with its metrics and files.
 fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure> {
-    use crate::recon::{Method, Problem, Solution, SolveOptions};
+    use crate::recon::{Problem, Solution, SolveOptions};
     let ReconstructOptions {
         matrix,
         capture,
@@ -85,6 +112,97 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     let (matrix, capture, out) = (matrix.as_path(), capture.as_path(), out.as_path());
     let (iters, tau, gamma) = (*iters, *tau, *gamma);
     let (object, offset, truth) = (object.as_deref(), offset.as_deref(), truth.as_deref());
+    check_numbers(a)?;
+    let method = resolve_method(*method, matrix)?;
+    let tv = *tv;
+    let method = match method {
+        MethodArg::Stack(method) => {
+            let opts = crate::recon::layered::StackOptions {
+                method,
+                iters,
+                tau_rel: tau,
+                mu_rel: *mu,
+                tv,
+                ..Default::default()
+            };
+            return reconstruct_stack(
+                matrix, capture, offset, truth, gamma, out, *threads, &opts, con,
+            );
+        }
+        MethodArg::One(method) => method,
+    };
+    check_out_dir(out)?;
+    let object = object.map(parse_object).transpose()?;
+    let pool = thread_pool(*threads)?;
+    let (lm, g) = load_problem(matrix, capture, object, offset)?;
+    let (w, h) = lm.object;
+    let planes = lm.planes;
+    let truth_v = truth
+        .map(|t| load_truth(t, gamma, w, h, planes))
+        .transpose()?;
+    crate::limits::check_bytes(
+        "--matrix",
+        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
+        crate::recon::setup_bytes_bound(&lm.h, pool.current_num_threads()),
+    )
+    .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
+    let t0 = Instant::now();
+    let problem = pool.install(|| Problem::new(&lm.h, w, planes * h));
+    let setup_s = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let opts = SolveOptions {
+        method,
+        iters,
+        tau_rel: tau,
+        tv,
+    };
+    let Solution { f, info } =
+        pool.install(|| crate::recon::solve_planes(&problem, planes, &g, &opts));
+    let solve_s = t0.elapsed().as_secs_f64();
+    // Computed in f64; stored as float32, which must hold every value.
+    check_f32_range(&f, capture, matrix)?;
+    let metrics = truth_v
+        .as_ref()
+        .map(|t| recon_metrics(&f, t, w, h, planes, gamma));
+    let json = serde_json::json!({
+        "stscam_version": crate::VERSION,
+        "command": "reconstruct",
+        "matrix": matrix.display().to_string(),
+        "capture": capture.display().to_string(),
+        "offset": lm.offset_path.as_ref().map(|p| p.display().to_string()),
+        "object_px": [w, h],
+        "object_planes": planes,
+        "solver": info,
+        "gram_layout": problem.gram_layout(),
+        "setup_time_s": setup_s,
+        "frame_time_s": solve_s,
+        "metrics": metrics,
+        "units": "linear object intensity (0 = black, 1 = white display pixel)",
+    });
+    write_recon(out, &f, (w, h, planes), gamma, &json)?;
+    let m = metrics
+        .map(|m| {
+            format!(
+                ", PSNR {:.2} dB, SSIM {:.3}",
+                m["psnr_db"].as_f64().unwrap_or(f64::NAN),
+                m["ssim"].as_f64().unwrap_or(f64::NAN)
+            )
+        })
+        .unwrap_or_default();
+    con.err(format_args!(
+        "wrote {}/recon.{{exr,png,json}}: {}x{}, set-up {:.3} s, frame {:.2} ms{m}",
+        out.display(),
+        w,
+        h,
+        setup_s,
+        solve_s * 1e3
+    ));
+    Ok(())
+}
+
+/// Checks `--tau`, `--mu`, `--gamma` and `--iters`.
+fn check_numbers(a: &ReconstructOptions) -> Result<(), Failure> {
+    let (tau, mu, gamma, iters) = (a.tau, &a.mu, a.gamma, a.iters);
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(bad_input(format!(
             "--tau {tau}: must be a non-negative number"
@@ -105,51 +223,45 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
             "--iters: must be in 1..={MAX_ITERS}, got {n}"
         )));
     }
+    Ok(())
+}
+
+/// The method of `--method` (default: ADMM-TV with one H, joint with a depth stack), checked
+/// against the kind of `matrix`.
+fn resolve_method(
+    method: Option<MethodArg>,
+    matrix: &std::path::Path,
+) -> Result<MethodArg, Failure> {
+    use crate::recon::Method;
     let stack = crate::stack::is_stack(matrix);
-    let method = match (method, stack) {
-        (None, false) => MethodArg::AdmmTv,
-        (None, true) => MethodArg::Joint,
-        (Some(m @ (MethodArg::Joint | MethodArg::Depth)), false) => {
+    Ok(match (method, stack) {
+        (None, false) => MethodArg::One(Method::AdmmTv),
+        (None, true) => MethodArg::Stack(crate::recon::layered::StackMethod::Joint),
+        (Some(m @ MethodArg::Stack(_)), false) => {
             return Err(bad_input(format!(
                 "{}: --method {}: needs a depth stack (H_stack.npz from matrix --depth-mm D1,D2,...)",
                 matrix.display(),
-                if *m == MethodArg::Joint {
-                    "joint"
-                } else {
-                    "depth"
-                }
+                m.name()
             )));
         }
-        (Some(m @ (MethodArg::Cg | MethodArg::AdmmTv)), true) => {
+        (Some(m @ MethodArg::One(_)), true) => {
             return Err(bad_input(format!(
                 "{}: --method {}: a depth stack takes --method joint or depth (or pass one depth's H_<D>mm.npz)",
                 matrix.display(),
-                if *m == MethodArg::Cg { "cg" } else { "admm-tv" }
+                m.name()
             )));
         }
-        (Some(m), _) => *m,
-    };
-    let tv = *tv;
-    if stack {
-        let opts = crate::recon::layered::StackOptions {
-            method: if method == MethodArg::Joint {
-                crate::recon::layered::StackMethod::Joint
-            } else {
-                crate::recon::layered::StackMethod::Depth
-            },
-            iters,
-            tau_rel: tau,
-            mu_rel: *mu,
-            tv,
-            ..Default::default()
-        };
-        return reconstruct_stack(
-            matrix, capture, offset, truth, gamma, out, *threads, &opts, con,
-        );
-    }
-    check_out_dir(out)?;
-    let object = object.map(parse_object).transpose()?;
-    let pool = thread_pool(*threads)?;
+        (Some(m), _) => m,
+    })
+}
+
+/// The matrix (with its offset) and the capture minus that offset, their sizes checked.
+fn load_problem(
+    matrix: &std::path::Path,
+    capture: &std::path::Path,
+    object: Option<(usize, usize)>,
+    offset: Option<&std::path::Path>,
+) -> Result<(crate::matrix::LoadedMatrix, Vec<f64>), Failure> {
     let lm =
         crate::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
     let mut g = load_capture(capture)?;
@@ -167,80 +279,56 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
             *x -= f64::from(v);
         }
     }
-    let (w, h) = lm.object;
-    let planes = lm.planes;
-    let truth_v = truth
-        .map(|t| load_truth(t, gamma, w, h, planes))
-        .transpose()?;
-    crate::limits::check_bytes(
-        "--matrix",
-        "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
-        crate::recon::setup_bytes_bound(&lm.h, pool.current_num_threads()),
-    )
-    .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
-    let t0 = Instant::now();
-    let problem = pool.install(|| Problem::new(&lm.h, w, planes * h));
-    let setup_s = t0.elapsed().as_secs_f64();
-    let t0 = Instant::now();
-    let opts = SolveOptions {
-        method: if method == MethodArg::Cg {
-            Method::Cg
-        } else {
-            Method::AdmmTv
-        },
-        iters,
-        tau_rel: tau,
-        tv,
-    };
-    let Solution { f, info } =
-        pool.install(|| crate::recon::solve_planes(&problem, planes, &g, &opts));
-    let solve_s = t0.elapsed().as_secs_f64();
-    // Computed in f64; stored as float32, which must hold every value.
-    check_f32_range(&f, capture, matrix)?;
-    let metrics = truth_v.as_ref().map(|t| {
-        let mut m = serde_json::json!({
-            "psnr_db": crate::recon::metrics::psnr(&f, t),
-            "ssim": crate::recon::metrics::ssim(&f, t, w, planes * h),
-            "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
-        });
-        if planes == 3 {
-            let xyz = colour_matrix(gamma);
-            let e = crate::recon::colour::colour_errors(&f, t, &xyz);
-            m["ssim_note"] = "SSIM of the three planes stacked vertically".into();
-            m["ciede2000_mean"] = e.ciede2000_mean.into();
-            m["ciede2000_p95"] = e.ciede2000_p95.into();
-            m["energy_share_rgb"] = serde_json::json!(e.energy_share);
-            m["colour_space"] = crate::recon::colour::LAB_NOTE.into();
-        }
-        m
+    Ok((lm, g))
+}
+
+/// PSNR and SSIM of the reconstruction `f` against the truth `t` (linear, `w`×`h`×`planes`),
+/// and for colour the CIEDE2000 errors and energy shares.
+fn recon_metrics(
+    f: &[f64],
+    t: &[f64],
+    w: usize,
+    h: usize,
+    planes: usize,
+    gamma: f64,
+) -> serde_json::Value {
+    let mut m = serde_json::json!({
+        "psnr_db": crate::recon::metrics::psnr(f, t),
+        "ssim": crate::recon::metrics::ssim(f, t, w, planes * h),
+        "normalisation": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM Wang et al. 2004, Gaussian sigma 1.5",
     });
-    let json = serde_json::json!({
-        "stscam_version": crate::VERSION,
-        "command": "reconstruct",
-        "matrix": matrix.display().to_string(),
-        "capture": capture.display().to_string(),
-        "offset": lm.offset_path.as_ref().map(|p| p.display().to_string()),
-        "object_px": [w, h],
-        "object_planes": planes,
-        "solver": info,
-        "gram_layout": problem.gram_layout(),
-        "setup_time_s": setup_s,
-        "frame_time_s": solve_s,
-        "metrics": metrics,
-        "units": "linear object intensity (0 = black, 1 = white display pixel)",
-    });
+    if planes == 3 {
+        let xyz = colour_matrix(gamma);
+        let e = crate::recon::colour::colour_errors(f, t, &xyz);
+        m["ssim_note"] = "SSIM of the three planes stacked vertically".into();
+        m["ciede2000_mean"] = e.ciede2000_mean.into();
+        m["ciede2000_p95"] = e.ciede2000_p95.into();
+        m["energy_share_rgb"] = serde_json::json!(e.energy_share);
+        m["colour_space"] = crate::recon::colour::LAB_NOTE.into();
+    }
+    m
+}
+
+/// Writes recon.exr, recon.png (grey or colour by `planes`) and recon.json into `out`.
+fn write_recon(
+    out: &std::path::Path,
+    f: &[f64],
+    (w, h, planes): (usize, usize, usize),
+    gamma: f64,
+    json: &serde_json::Value,
+) -> Result<(), Failure> {
     let (exr, png) = if planes == 3 {
         (
-            crate::output::encode_colour_object_exr(&f, w, h).map_err(write_failure)?,
-            crate::output::encode_colour_object_png(&f, w, h, gamma).map_err(write_failure)?,
+            crate::output::encode_colour_object_exr(f, w, h).map_err(write_failure)?,
+            crate::output::encode_colour_object_png(f, w, h, gamma).map_err(write_failure)?,
         )
     } else {
         (
-            crate::output::encode_object_exr(&f, w, h, &[]).map_err(write_failure)?,
-            crate::output::encode_object_png(&f, w, h, gamma).map_err(write_failure)?,
+            crate::output::encode_object_exr(f, w, h, &[]).map_err(write_failure)?,
+            crate::output::encode_object_png(f, w, h, gamma).map_err(write_failure)?,
         )
     };
-    let jb = serde_json::to_vec_pretty(&json).map_err(write_failure)?;
+    let jb = serde_json::to_vec_pretty(json).map_err(write_failure)?;
     crate::io::write_all_atomic(
         out,
         &[
@@ -249,25 +337,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
             ("recon.json", &jb),
         ],
     )
-    .map_err(write_failure)?;
-    let m = metrics
-        .map(|m| {
-            format!(
-                ", PSNR {:.2} dB, SSIM {:.3}",
-                m["psnr_db"].as_f64().unwrap_or(f64::NAN),
-                m["ssim"].as_f64().unwrap_or(f64::NAN)
-            )
-        })
-        .unwrap_or_default();
-    con.err(format_args!(
-        "wrote {}/recon.{{exr,png,json}}: {}x{}, set-up {:.3} s, frame {:.2} ms{m}",
-        out.display(),
-        w,
-        h,
-        setup_s,
-        solve_s * 1e3
-    ));
-    Ok(())
+    .map_err(write_failure)
 }
 
 /// The XYZ matrix of the colour display a colour H was made for: the default scene's LCD
@@ -419,4 +489,36 @@ fn reconstruct_stack(
 /// report sent to `con`.
 pub fn run(o: &ReconstructOptions, con: &Console) -> Result<(), JobError> {
     cmd_reconstruct(o, con)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recon::{Method, layered::StackMethod};
+
+    #[test]
+    fn methods_are_the_solvers_names_in_the_cli_order() {
+        let names: Vec<String> = MethodArg::value_variants()
+            .iter()
+            .map(|m| m.name())
+            .collect();
+        assert_eq!(names, ["cg", "admm-tv", "joint", "depth"]);
+        assert_eq!(
+            MethodArg::from_str("admm-tv", false),
+            Ok(MethodArg::One(Method::AdmmTv))
+        );
+        assert_eq!(
+            MethodArg::from_str("depth", false),
+            Ok(MethodArg::Stack(StackMethod::Depth))
+        );
+        // Python's messages (one H, then a stack) come from the same enums.
+        assert_eq!(
+            crate::options::parse::<Method>("method", "joint"),
+            Err(r#"method "joint": expected "cg" or "admm-tv""#.into())
+        );
+        assert_eq!(
+            crate::options::parse::<StackMethod>("method", "cg"),
+            Err(r#"method "cg": expected "joint" or "depth""#.into())
+        );
+    }
 }

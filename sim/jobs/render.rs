@@ -41,6 +41,8 @@ pub struct RenderOptions {
     pub frontal_space: crate::world::colour::FrontalSpace,
 }
 
+/// `stscam render`: the capture, and in a 3-D scene the frontal view; written with their
+/// sidecar, with warnings of non-finite or truncated paths.
 #[allow(clippy::too_many_arguments)]
 fn cmd_render(
     scene: &SceneArgs,
@@ -84,23 +86,7 @@ fn cmd_render(
     let render_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
-    let sm = &sys.scene.sampling;
-    if sys.world.is_some()
-        && frontal_space != crate::world::colour::FrontalSpace::Sensor
-        && crate::world::colour::ColourWeights::new(
-            frontal_space,
-            sm.lambda_min_nm,
-            sm.lambda_max_nm,
-        )
-        .is_none()
-    {
-        return Err(bad_input(format!(
-            "--frontal-space {}: the CIE luminance function is 0 over the sampling band {}-{} nm",
-            frontal_space.name(),
-            crate::numfmt::sig6(sm.lambda_min_nm),
-            crate::numfmt::sig6(sm.lambda_max_nm)
-        )));
-    }
+    check_frontal_space(&sys, frontal_space)?;
     let frontal = pool.install(|| {
         crate::world::frontal::render_frontal_in(&sys, fw, fh, spp, seed, frontal_space)
     });
@@ -131,33 +117,7 @@ fn cmd_render(
     });
     let mut sidecar = sidecar;
     if let (Some(world), Some(f)) = (sys.world.as_deref(), frontal.as_ref()) {
-        sidecar["world"] = serde_json::json!({
-            "objects": world.objects,
-            "triangles": world.mesh.triangles.len(),
-            "lights": sys.scene.light.len(),
-            "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
-            "display_enabled": sys.scene.display.enabled,
-            "user_side": settings.user_side.resolve(Some(world)),
-        });
-        sidecar["frontal"] = serde_json::json!({
-            "files": {
-                "frontal.exr": format!("channels {:?}: {}", f.channel_names, crate::output::frontal_units(f.space)),
-                "frontal.png": if f.space == crate::world::colour::FrontalSpace::Xyz {
-                    "16-bit preview of frontal.exr converted to linear sRGB (IEC 61966-2-1), sRGB-encoded, scaled to the 99.9th percentile"
-                } else {
-                    "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)"
-                },
-                "depth.exr": "channel Z: distance from the plate's front face along -z in mm, +inf where nothing is hit (pixel centre ray)",
-                "mask.png": "16-bit grey: object index + 1 (see world.objects[].mask_value), 65535 the display, 0 nothing (pixel centre ray)",
-            },
-            "space": f.space.name(),
-            "width": f.width,
-            "height": f.height,
-            "spp": spp,
-            "camera": "pinhole at (0, 0, 0) mm (front face, bottom vHOE centre) looking along -z; pixel (c, r) looks along the capture's chief ray at crop position ((c + 0.5) * crop_w / w, (r + 0.5) * crop_h / h)",
-            "rays": f.rays,
-            "render_time_s": frontal_s,
-        });
+        world_sidecar(&mut sidecar, &sys, world, &settings, f, frontal_s);
     }
     // A missing or unwritable output location is the user's to fix, but it is not bad input
     // to the simulator: exit 1.
@@ -174,24 +134,7 @@ fn cmd_render(
         code: 1,
         message: e.to_string(),
     })?;
-    if cap.stats.nonfinite_samples > 0 {
-        con.err(format_args!(
-            "warning: {} samples were NaN or infinite and were zeroed",
-            cap.stats.nonfinite_samples
-        ));
-    }
-    if cap.stats.max_truncated_weight > 1e-3 && cap.stats.max_contacts_hits == 0 {
-        con.err(format_args!(
-            "warning: paths were stopped by sampling.min_guided_weight with up to {:.3e} of their guided weight left; lower it for this scene",
-            cap.stats.max_truncated_weight
-        ));
-    }
-    if cap.stats.max_contacts_hits > 0 {
-        con.err(format_args!(
-            "warning: {} paths hit sampling.max_contacts; up to {:.3e} of a path's guided weight was dropped",
-            cap.stats.max_contacts_hits, cap.stats.max_truncated_weight
-        ));
-    }
+    warn_stats(&cap.stats, con);
     con.err(format_args!(
         "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {:.2} M paths/s ({} threads)",
         out.display(),
@@ -203,6 +146,92 @@ fn cmd_render(
         pool.current_num_threads()
     ));
     Ok(cap)
+}
+
+/// That the frontal view's colour space has a luminance over the sampling band (3-D scenes).
+fn check_frontal_space(
+    sys: &System,
+    frontal_space: crate::world::colour::FrontalSpace,
+) -> Result<(), Failure> {
+    let sm = &sys.scene.sampling;
+    if sys.world.is_some()
+        && frontal_space != crate::world::colour::FrontalSpace::Sensor
+        && crate::world::colour::ColourWeights::new(
+            frontal_space,
+            sm.lambda_min_nm,
+            sm.lambda_max_nm,
+        )
+        .is_none()
+    {
+        return Err(bad_input(format!(
+            "--frontal-space {}: the CIE luminance function is 0 over the sampling band {}-{} nm",
+            frontal_space.name(),
+            crate::numfmt::sig6(sm.lambda_min_nm),
+            crate::numfmt::sig6(sm.lambda_max_nm)
+        )));
+    }
+    Ok(())
+}
+
+/// The `world` and `frontal` entries of a 3-D render's sidecar.
+fn world_sidecar(
+    sidecar: &mut serde_json::Value,
+    sys: &System,
+    world: &crate::world::World,
+    settings: &RenderSettings,
+    f: &crate::world::frontal::Frontal,
+    frontal_s: f64,
+) {
+    let spp = settings.spp;
+    sidecar["world"] = serde_json::json!({
+        "objects": world.objects,
+        "triangles": world.mesh.triangles.len(),
+        "lights": sys.scene.light.len(),
+        "bvh_build_s": world.accel.as_ref().map_or(0.0, |a| a.build_s),
+        "display_enabled": sys.scene.display.enabled,
+        "user_side": settings.user_side.resolve(Some(world)),
+    });
+    sidecar["frontal"] = serde_json::json!({
+        "files": {
+            "frontal.exr": format!("channels {:?}: {}", f.channel_names, crate::output::frontal_units(f.space)),
+            "frontal.png": if f.space == crate::world::colour::FrontalSpace::Xyz {
+                "16-bit preview of frontal.exr converted to linear sRGB (IEC 61966-2-1), sRGB-encoded, scaled to the 99.9th percentile"
+            } else {
+                "16-bit preview of frontal.exr (sRGB-encoded, scaled to the 99.9th percentile)"
+            },
+            "depth.exr": "channel Z: distance from the plate's front face along -z in mm, +inf where nothing is hit (pixel centre ray)",
+            "mask.png": "16-bit grey: object index + 1 (see world.objects[].mask_value), 65535 the display, 0 nothing (pixel centre ray)",
+        },
+        "space": f.space.name(),
+        "width": f.width,
+        "height": f.height,
+        "spp": spp,
+        "camera": "pinhole at (0, 0, 0) mm (front face, bottom vHOE centre) looking along -z; pixel (c, r) looks along the capture's chief ray at crop position ((c + 0.5) * crop_w / w, (r + 0.5) * crop_h / h)",
+        "rays": f.rays,
+        "render_time_s": frontal_s,
+    });
+}
+
+/// Warnings of samples zeroed as non-finite and of paths stopped with guided weight left.
+fn warn_stats(stats: &crate::render::RenderStats, con: &Console) {
+    if stats.nonfinite_samples > 0 {
+        con.err(format_args!(
+            "warning: {} samples were NaN or infinite and were zeroed",
+            stats.nonfinite_samples
+        ));
+    }
+    if stats.max_truncated_weight > 1e-3 && stats.max_contacts_hits == 0 {
+        con.err(format_args!(
+            "warning: paths were stopped by sampling.min_guided_weight with up to {:.3e} of their guided weight left; lower it for this scene",
+            stats.max_truncated_weight
+        ));
+    }
+    if stats.max_contacts_hits > 0 {
+        con.err(format_args!(
+            "warning: {} paths hit sampling.max_contacts; up to {:.3e} of a path's guided weight was dropped",
+            stats.max_contacts_hits, stats.max_truncated_weight
+        ));
+    }
 }
 
 /// `N` or `WxH` for `--frontal-px`.

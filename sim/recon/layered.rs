@@ -13,12 +13,18 @@ use super::{Problem, setup_bytes_bound, setup_bytes_bound_blocks};
 use crate::sparse::CsrMatrix;
 use crate::stack::LoadedStack;
 
-/// How a stack is used.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How a stack is used (`reconstruct --method joint|depth`, Python's `method=`: one definition
+/// for clap and the Python module; the first paragraph of each variant's comment is its
+/// `--help` line).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum StackMethod {
-    /// Joint multi-depth ADMM-TV (layered scenes).
+    /// Depth stack: joint multi-depth ADMM-TV with a sparsity prior across depth.
+    ///
+    /// The layered model, every plane at once (layered scenes).
     Joint,
-    /// Depth estimation of one planar object, then ADMM-TV at the estimated depth.
+    /// Depth stack: estimate the depth of one planar object, then ADMM-TV at that depth.
+    ///
+    /// The depth whose H leaves the smallest residual after a short CGM.
     Depth,
 }
 

@@ -260,12 +260,18 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     t
 }
 
-/// The solver of [`solve`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The solver of [`solve`] (`reconstruct --method cg|admm-tv`, Python's `method=`: one
+/// definition for clap and the Python module; the first paragraph of each variant's comment is
+/// its `--help` line).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Method {
-    /// Conjugate gradients on HᵀHf = Hᵀg from f = 0 ([`cg::cg_normal`]).
+    /// Conjugate gradients on the normal equations (the paper's CGM).
+    ///
+    /// HᵀHf = Hᵀg from f = 0 ([`cg::cg_normal`]).
     Cg,
-    /// ADMM for ½‖Hf − g‖² + τ·TV(f) ([`admm::admm_tv`]).
+    /// ADMM with total variation.
+    ///
+    /// ½‖Hf − g‖² + τ·TV(f) ([`admm::admm_tv`]).
     AdmmTv,
 }
 

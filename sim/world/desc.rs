@@ -192,205 +192,243 @@ pub struct WorldProblem {
 
 /// Checks the objects and lights of a scene; every failure names its key.
 pub fn validate_world(objects: &[ObjectDesc], lights: &[LightDesc]) -> Result<(), WorldProblem> {
-    let err = |key: String, message: String| Err(WorldProblem { key, message });
     for (i, o) in objects.iter().enumerate() {
-        let k = |name: &str| format!("object.{i}.{name}");
-        if o.mesh.trim().is_empty() {
-            return err(
-                k("mesh"),
-                "must name a mesh file or a built-in shape".into(),
-            );
-        }
-        if !finite_all(&o.position_mm) {
-            return err(k("position_mm"), "must be finite".into());
-        }
-        crate::limits::check_coords(&k("position_mm"), &o.position_mm).map_err(|e| {
-            WorldProblem {
-                key: e.setting,
-                message: e.message,
-            }
-        })?;
-        if !finite_all(&o.rotation_deg) {
-            return err(k("rotation_deg"), "must be finite".into());
-        }
-        let sc = o.scale.axes();
-        if !sc.iter().all(|v| v.is_finite() && *v > 0.0 && *v < 1e9) {
-            return err(
-                k("scale"),
-                format!("must be positive and finite, got {sc:?}"),
-            );
-        }
-        if unit_mm(o.units.as_deref()).is_none() {
-            let names: Vec<_> = UNITS.iter().map(|u| u.0).collect();
-            return err(
-                k("units"),
-                format!(
-                    "unknown unit {:?}; expected one of {names:?}",
-                    o.units.as_deref().unwrap_or("")
-                ),
-            );
-        }
-        if let Some(m) = &o.material {
-            if let Some(RgbOr::Rgb(c)) = &m.base_color
-                && !c.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v))
-            {
-                return err(
-                    k("material.base_color"),
-                    format!("RGB components must be in [0, 1], got {c:?}"),
-                );
-            }
-            if let Some(RgbOr::Rgb(c)) = &m.emission
-                && !c.iter().all(|v| v.is_finite() && *v >= 0.0 && *v < 1e12)
-            {
-                return err(
-                    k("material.emission"),
-                    format!("RGB components must be finite and >= 0, got {c:?}"),
-                );
-            }
-            for (name, v, lo, hi) in [
-                ("material.emission_scale", m.emission_scale, 0.0, 1e12),
-                ("material.roughness", m.roughness, 0.0, 1.0),
-                ("material.metallic", m.metallic, 0.0, 1.0),
-            ] {
-                if let Some(v) = v
-                    && !(v.is_finite() && v >= lo && v <= hi)
-                {
-                    return err(k(name), format!("must be in [{lo}, {hi}], got {v}"));
-                }
-            }
-            if let Some(f) = &m.texture_filter
-                && f != "linear"
-                && f != "nearest"
-            {
-                return err(
-                    k("material.texture_filter"),
-                    format!("expected \"linear\" or \"nearest\", got {f:?}"),
-                );
-            }
-        }
-        if let Some(p) = &o.pose {
-            let bends = match &p.bend_deg {
-                Some(BendSpec::All(b)) => vec![*b],
-                Some(BendSpec::Each(b)) => b.to_vec(),
-                None => vec![],
-            };
-            if !bends
-                .iter()
-                .all(|b| b.is_finite() && (-30.0..=120.0).contains(b))
-            {
-                return err(
-                    k("pose.bend_deg"),
-                    format!("must be in [-30, 120] degrees, got {bends:?}"),
-                );
-            }
-            if let Some(sp) = p.spread_deg
-                && !(sp.is_finite() && (-20.0..=30.0).contains(&sp))
-            {
-                return err(
-                    k("pose.spread_deg"),
-                    format!("must be in [-20, 30] degrees, got {sp}"),
-                );
-            }
-        }
+        validate_object(i, o)?;
     }
     for (i, l) in lights.iter().enumerate() {
-        let k = |name: &str| format!("light.{i}.{name}");
-        if !LIGHT_KINDS.contains(&l.kind.as_str()) {
+        validate_light(i, l)?;
+    }
+    Ok(())
+}
+
+/// `Err` of the problem `message` with `key`.
+fn problem<T>(key: String, message: String) -> Result<T, WorldProblem> {
+    Err(WorldProblem { key, message })
+}
+
+/// Object `i` (`object.i.*`): mesh, placement, units, then its material and pose.
+fn validate_object(i: usize, o: &ObjectDesc) -> Result<(), WorldProblem> {
+    let err = problem;
+    let k = |name: &str| format!("object.{i}.{name}");
+    if o.mesh.trim().is_empty() {
+        return err(
+            k("mesh"),
+            "must name a mesh file or a built-in shape".into(),
+        );
+    }
+    if !finite_all(&o.position_mm) {
+        return err(k("position_mm"), "must be finite".into());
+    }
+    crate::limits::check_coords(&k("position_mm"), &o.position_mm).map_err(|e| WorldProblem {
+        key: e.setting,
+        message: e.message,
+    })?;
+    if !finite_all(&o.rotation_deg) {
+        return err(k("rotation_deg"), "must be finite".into());
+    }
+    let sc = o.scale.axes();
+    if !sc.iter().all(|v| v.is_finite() && *v > 0.0 && *v < 1e9) {
+        return err(
+            k("scale"),
+            format!("must be positive and finite, got {sc:?}"),
+        );
+    }
+    if unit_mm(o.units.as_deref()).is_none() {
+        let names: Vec<_> = UNITS.iter().map(|u| u.0).collect();
+        return err(
+            k("units"),
+            format!(
+                "unknown unit {:?}; expected one of {names:?}",
+                o.units.as_deref().unwrap_or("")
+            ),
+        );
+    }
+    if let Some(m) = &o.material {
+        validate_material(&k, m)?;
+    }
+    if let Some(p) = &o.pose {
+        validate_pose(&k, p)?;
+    }
+    Ok(())
+}
+
+/// An object's `material` (`k("material.…")`): colours, scales and the texture filter.
+fn validate_material(k: &dyn Fn(&str) -> String, m: &MaterialDesc) -> Result<(), WorldProblem> {
+    let err = problem;
+    if let Some(RgbOr::Rgb(c)) = &m.base_color
+        && !c.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v))
+    {
+        return err(
+            k("material.base_color"),
+            format!("RGB components must be in [0, 1], got {c:?}"),
+        );
+    }
+    if let Some(RgbOr::Rgb(c)) = &m.emission
+        && !c.iter().all(|v| v.is_finite() && *v >= 0.0 && *v < 1e12)
+    {
+        return err(
+            k("material.emission"),
+            format!("RGB components must be finite and >= 0, got {c:?}"),
+        );
+    }
+    for (name, v, lo, hi) in [
+        ("material.emission_scale", m.emission_scale, 0.0, 1e12),
+        ("material.roughness", m.roughness, 0.0, 1.0),
+        ("material.metallic", m.metallic, 0.0, 1.0),
+    ] {
+        if let Some(v) = v
+            && !(v.is_finite() && v >= lo && v <= hi)
+        {
+            return err(k(name), format!("must be in [{lo}, {hi}], got {v}"));
+        }
+    }
+    if let Some(f) = &m.texture_filter
+        && f != "linear"
+        && f != "nearest"
+    {
+        return err(
+            k("material.texture_filter"),
+            format!("expected \"linear\" or \"nearest\", got {f:?}"),
+        );
+    }
+    Ok(())
+}
+
+/// An object's `pose` (`k("pose.…")`): the bend and spread angles.
+fn validate_pose(k: &dyn Fn(&str) -> String, p: &PoseDesc) -> Result<(), WorldProblem> {
+    let err = problem;
+    let bends = match &p.bend_deg {
+        Some(BendSpec::All(b)) => vec![*b],
+        Some(BendSpec::Each(b)) => b.to_vec(),
+        None => vec![],
+    };
+    if !bends
+        .iter()
+        .all(|b| b.is_finite() && (-30.0..=120.0).contains(b))
+    {
+        return err(
+            k("pose.bend_deg"),
+            format!("must be in [-30, 120] degrees, got {bends:?}"),
+        );
+    }
+    if let Some(sp) = p.spread_deg
+        && !(sp.is_finite() && (-20.0..=30.0).contains(&sp))
+    {
+        return err(
+            k("pose.spread_deg"),
+            format!("must be in [-20, 30] degrees, got {sp}"),
+        );
+    }
+    Ok(())
+}
+
+/// Light `i` (`light.i.*`): kind, position, scale, directions, its kind's shape, and a map
+/// only on an environment light.
+fn validate_light(i: usize, l: &LightDesc) -> Result<(), WorldProblem> {
+    let err = problem;
+    let k = |name: &str| format!("light.{i}.{name}");
+    if !LIGHT_KINDS.contains(&l.kind.as_str()) {
+        return err(
+            k("kind"),
+            format!(
+                "unknown light kind {:?}; expected one of {LIGHT_KINDS:?}",
+                l.kind
+            ),
+        );
+    }
+    let needs_pos = l.kind != "environment";
+    match l.position_mm {
+        Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
+        Some(p) => {
+            crate::limits::check_coords(&k("position_mm"), &p).map_err(|e| WorldProblem {
+                key: e.setting,
+                message: e.message,
+            })?
+        }
+        None if needs_pos => {
             return err(
-                k("kind"),
-                format!(
-                    "unknown light kind {:?}; expected one of {LIGHT_KINDS:?}",
-                    l.kind
-                ),
+                k("position_mm"),
+                format!("a {} light needs a position", l.kind),
             );
         }
-        let needs_pos = l.kind != "environment";
-        match l.position_mm {
-            Some(p) if !finite_all(&p) => return err(k("position_mm"), "must be finite".into()),
-            Some(p) => {
-                crate::limits::check_coords(&k("position_mm"), &p).map_err(|e| WorldProblem {
-                    key: e.setting,
-                    message: e.message,
-                })?
-            }
-            None if needs_pos => {
+        _ => {}
+    }
+    if let Some(s) = l.scale
+        && !(s.is_finite() && (0.0..1e15).contains(&s))
+    {
+        return err(k("scale"), format!("must be finite and >= 0, got {s}"));
+    }
+    let unit_vec = |v: Option<[f64; 3]>, name: &str| -> Result<(), WorldProblem> {
+        if let Some(v) = v
+            && !(finite_all(&v) && v.iter().map(|x| x * x).sum::<f64>() > 1e-24)
+        {
+            return err(k(name), "must be a finite nonzero vector".into());
+        }
+        Ok(())
+    };
+    unit_vec(l.normal, "normal")?;
+    unit_vec(l.direction, "direction")?;
+    validate_light_shape(&k, l)?;
+    if l.map.is_some() && l.kind != "environment" {
+        return err(k("map"), "only an environment light takes a map".into());
+    }
+    Ok(())
+}
+
+/// The shape keys of a rect, sphere or spot light.
+fn validate_light_shape(k: &dyn Fn(&str) -> String, l: &LightDesc) -> Result<(), WorldProblem> {
+    let err = problem;
+    match l.kind.as_str() {
+        "rect" => match l.size_mm {
+            Some([w, h])
+                if w > 0.0
+                    && h > 0.0
+                    && w <= crate::limits::MAX_COORD_MM
+                    && h <= crate::limits::MAX_COORD_MM => {}
+            Some(s) => {
                 return err(
-                    k("position_mm"),
-                    format!("a {} light needs a position", l.kind),
+                    k("size_mm"),
+                    format!(
+                        "must be two positive sizes up to {:e} mm, got {s:?}",
+                        crate::limits::MAX_COORD_MM
+                    ),
                 );
             }
-            _ => {}
-        }
-        if let Some(s) = l.scale
-            && !(s.is_finite() && (0.0..1e15).contains(&s))
-        {
-            return err(k("scale"), format!("must be finite and >= 0, got {s}"));
-        }
-        let unit_vec = |v: Option<[f64; 3]>, name: &str| -> Result<(), WorldProblem> {
-            if let Some(v) = v
-                && !(finite_all(&v) && v.iter().map(|x| x * x).sum::<f64>() > 1e-24)
+            None => {
+                return err(
+                    k("size_mm"),
+                    "a rect light needs size_mm = [width, height]".into(),
+                );
+            }
+        },
+        "sphere" => match l.radius_mm {
+            Some(r) if r > 0.0 && r <= crate::limits::MAX_COORD_MM => {}
+            Some(r) => {
+                return err(
+                    k("radius_mm"),
+                    format!(
+                        "must be positive and at most {:e} mm, got {r}",
+                        crate::limits::MAX_COORD_MM
+                    ),
+                );
+            }
+            None => return err(k("radius_mm"), "a sphere light needs radius_mm".into()),
+        },
+        "spot" => {
+            let cone = l.cone_deg.unwrap_or(30.0);
+            if !(cone.is_finite() && cone > 0.0 && cone < 90.0) {
+                return err(k("cone_deg"), format!("must be in (0, 90), got {cone}"));
+            }
+            if let Some(f) = l.falloff_deg
+                && !(f.is_finite() && f >= 0.0 && f <= cone)
             {
-                return err(k(name), "must be a finite nonzero vector".into());
+                return err(
+                    k("falloff_deg"),
+                    format!("must be in [0, cone_deg], got {f}"),
+                );
             }
-            Ok(())
-        };
-        unit_vec(l.normal, "normal")?;
-        unit_vec(l.direction, "direction")?;
-        match l.kind.as_str() {
-            "rect" => match l.size_mm {
-                Some([w, h])
-                    if w > 0.0
-                        && h > 0.0
-                        && w <= crate::limits::MAX_COORD_MM
-                        && h <= crate::limits::MAX_COORD_MM => {}
-                Some(s) => {
-                    return err(
-                        k("size_mm"),
-                        format!(
-                            "must be two positive sizes up to {:e} mm, got {s:?}",
-                            crate::limits::MAX_COORD_MM
-                        ),
-                    );
-                }
-                None => {
-                    return err(
-                        k("size_mm"),
-                        "a rect light needs size_mm = [width, height]".into(),
-                    );
-                }
-            },
-            "sphere" => match l.radius_mm {
-                Some(r) if r > 0.0 && r <= crate::limits::MAX_COORD_MM => {}
-                Some(r) => {
-                    return err(
-                        k("radius_mm"),
-                        format!(
-                            "must be positive and at most {:e} mm, got {r}",
-                            crate::limits::MAX_COORD_MM
-                        ),
-                    );
-                }
-                None => return err(k("radius_mm"), "a sphere light needs radius_mm".into()),
-            },
-            "spot" => {
-                let cone = l.cone_deg.unwrap_or(30.0);
-                if !(cone.is_finite() && cone > 0.0 && cone < 90.0) {
-                    return err(k("cone_deg"), format!("must be in (0, 90), got {cone}"));
-                }
-                if let Some(f) = l.falloff_deg
-                    && !(f.is_finite() && f >= 0.0 && f <= cone)
-                {
-                    return err(
-                        k("falloff_deg"),
-                        format!("must be in [0, cone_deg], got {f}"),
-                    );
-                }
-            }
-            _ => {}
         }
-        if l.map.is_some() && l.kind != "environment" {
-            return err(k("map"), "only an environment light takes a map".into());
-        }
+        _ => {}
     }
     Ok(())
 }

@@ -377,6 +377,8 @@ struct GltfCtx<'a> {
     normal_plans: super::gltf_features::NormalPlans,
 }
 
+/// Reads a glTF / GLB file: the document checked, its buffers read ([`gltf_buffers`]), then
+/// the meshes of the scene's node tree ([`gltf_scene_mesh`]) with the skins' default poses.
 fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     let bytes = read_file(path)?;
     super::gltf_features::check_required_extensions(&bytes).map_err(|m| LoadError::new(path, m))?;
@@ -386,6 +388,43 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
     super::gltf_features::check_document(&document, &normal_plans)
         .map_err(|m| LoadError::new(path, m))?;
     drop(bytes);
+    let buffers = gltf_buffers(path, &document, blob.take())?;
+    let mut ctx = GltfCtx {
+        path,
+        buffers,
+        textures: HashMap::new(),
+        materials: Vec::new(),
+        material_ids: HashMap::new(),
+        triangles: 0,
+        vertices: 0,
+        normal_plans,
+    };
+    // Skins: their joint matrices in the default pose.
+    let skin_poses = if document.skins().len() == 0 {
+        Vec::new()
+    } else {
+        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
+            .map_err(|m| LoadError::new(path, m))?;
+        document
+            .skins()
+            .map(|s| skin_pose(&ctx, &s, &globals))
+            .collect::<Result<Vec<_>, _>>()?
+    };
+    let mesh = gltf_scene_mesh(&mut ctx, &document, &skin_poses)?;
+    Ok(Asset {
+        mesh,
+        materials: ctx.materials,
+    })
+}
+
+/// The data of every buffer of `document` (GLB's binary chunk `blob`, data URIs, files beside
+/// `path`), each cut to its declared `byteLength`; the declared lengths are summed and checked
+/// before any is read.
+fn gltf_buffers(
+    path: &Path,
+    document: &gltf::Document,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<Vec<u8>>, LoadError> {
     // Every buffer's byteLength is summed before any is read.
     let declared_total = document
         .buffers()
@@ -438,17 +477,13 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
         data.truncate(declared);
         buffers.push(data);
     }
-    let mut ctx = GltfCtx {
-        path,
-        buffers,
-        textures: HashMap::new(),
-        materials: Vec::new(),
-        material_ids: HashMap::new(),
-        triangles: 0,
-        vertices: 0,
-        normal_plans,
-    };
-    let roots: Vec<gltf::Node> = match document
+    Ok(buffers)
+}
+
+/// The root nodes of the default scene (else the first scene, else every node that is no
+/// node's child).
+fn gltf_roots(document: &gltf::Document) -> Vec<gltf::Node<'_>> {
+    match document
         .default_scene()
         .or_else(|| document.scenes().next())
     {
@@ -464,20 +499,20 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             }
             document.nodes().filter(|n| !is_child[n.index()]).collect()
         }
-    };
-    // Skins: their joint matrices in the default pose.
-    let skin_poses = if document.skins().len() == 0 {
-        Vec::new()
-    } else {
-        let globals = super::gltf_shape::node_globals(&document, local_matrix, MAX_NODE_DEPTH)
-            .map_err(|m| LoadError::new(path, m))?;
-        document
-            .skins()
-            .map(|s| skin_pose(&ctx, &s, &globals))
-            .collect::<Result<Vec<_>, _>>()?
-    };
+    }
+}
+
+/// Every primitive of every mesh in the node tree under [`gltf_roots`], placed by its node's
+/// global transform (a skinned mesh by its joints) in mm, as one mesh; the walk is bounded in
+/// depth and in node instances.
+fn gltf_scene_mesh(
+    ctx: &mut GltfCtx,
+    document: &gltf::Document,
+    skin_poses: &[super::gltf_shape::SkinPose],
+) -> Result<Mesh, LoadError> {
+    let path = ctx.path;
     let mut mesh = Mesh::default();
-    let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots
+    let mut stack: Vec<(gltf::Node, DMat4, usize)> = gltf_roots(document)
         .into_iter()
         .rev()
         .map(|n| (n, DMat4::IDENTITY, 0))
@@ -509,7 +544,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             };
             let weights = super::gltf_shape::morph_weights(&node, &m);
             for prim in m.primitives() {
-                if let Some(part) = read_primitive(&mut ctx, &prim, &to_mm, &weights, skin)? {
+                if let Some(part) = read_primitive(ctx, &prim, &to_mm, &weights, skin)? {
                     mesh.append(&part, 0);
                 }
             }
@@ -519,10 +554,7 @@ fn load_gltf(path: &Path) -> Result<Asset, LoadError> {
             stack.push((c, world, depth + 1));
         }
     }
-    Ok(Asset {
-        mesh,
-        materials: ctx.materials,
-    })
+    Ok(mesh)
 }
 
 /// The joint matrices of a skin in the default pose (`globals`: every node's global
@@ -658,7 +690,8 @@ fn check_accessor(
 }
 
 /// Reads one primitive into a mesh in mm (material ids already resolved), or `None` if it has
-/// no triangles (points, lines, empty).
+/// no triangles (points, lines, empty): its accessors checked ([`check_primitive`]), its
+/// vertex data read ([`read_vertex_data`]), posed, and its triangles assembled.
 fn read_primitive(
     ctx: &mut GltfCtx,
     prim: &gltf::Primitive,
@@ -666,7 +699,6 @@ fn read_primitive(
     morph_weights: &[f64],
     skin: Option<&super::gltf_shape::SkinPose>,
 ) -> Result<Option<Mesh>, LoadError> {
-    use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::mesh::Mode;
     let mode = prim.mode();
     if !matches!(
@@ -675,6 +707,104 @@ fn read_primitive(
     ) {
         return Ok(None);
     }
+    let Some(plan) = check_primitive(ctx, prim, morph_weights, skin)? else {
+        return Ok(None);
+    };
+    // The checks above keep the reader within its buffers; a panic on a malformed sparse
+    // accessor is still turned into an error rather than aborting the run.
+    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        read_vertex_data(&ctx.buffers, prim, &plan, morph_weights, skin)
+    }));
+    let Ok(Some(PrimData {
+        mut positions,
+        mut normals,
+        uvs,
+        indices,
+        mut tangents,
+        influences,
+    })) = read
+    else {
+        return Err(LoadError::new(
+            ctx.path,
+            format!(
+                "mesh primitive {} has unreadable accessor data",
+                prim.index()
+            ),
+        ));
+    };
+    if let (Some(pose), Some((j, w))) = (skin, &influences) {
+        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
+            .map_err(|m| LoadError::new(ctx.path, m))?;
+    }
+    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(LoadError::new(
+            ctx.path,
+            format!("index {i} is out of range ({} vertices)", positions.len()),
+        ));
+    }
+    let triangles = assemble_triangles(mode, &indices, plan.tris);
+    if triangles.is_empty() {
+        return Ok(None);
+    }
+    let material = material_id(ctx, &prim.material())?;
+    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, plan.n)
+        .map_err(|m| LoadError::new(ctx.path, m))?;
+    let mut mesh = Mesh {
+        positions_mm: positions,
+        normals,
+        uvs,
+        material_ids: vec![material; triangles.len()],
+        triangles,
+        colors,
+        alphas,
+        tangents,
+    };
+    transform_mesh(&mut mesh, to_mm);
+    if !plan.has_normals {
+        mesh.compute_normals();
+    }
+    Ok(Some(mesh))
+}
+
+/// What [`check_primitive`] found of a primitive: its vertex count, triangle count, and which
+/// attributes [`read_vertex_data`] reads.
+struct PrimPlan {
+    n: usize,
+    tris: usize,
+    has_normals: bool,
+    has_uv: bool,
+    has_tangents: bool,
+    uv_plan: super::gltf_features::UvPlan,
+    /// Morph targets with a non-zero weight apply.
+    morphing: bool,
+}
+
+/// A primitive's vertex data, read and morphed (not yet posed).
+struct PrimData {
+    positions: Vec<DVec3>,
+    normals: Vec<DVec3>,
+    uvs: Vec<DVec2>,
+    indices: Vec<u32>,
+    tangents: Vec<DVec4>,
+    /// Joints and weights of a skinned primitive.
+    influences: Option<Influences>,
+}
+
+/// The joints and weights of each vertex of a skinned primitive.
+type Influences = (Vec<[u16; 4]>, Vec<[f64; 4]>);
+
+/// Checks the accessors of a triangle primitive (positions, normals, tangents, texture
+/// coordinates, indices, skin and non-zero morph targets) against their buffers and counts its
+/// triangles and vertices against the asset's limits; `None` without positions.
+fn check_primitive(
+    ctx: &mut GltfCtx,
+    prim: &gltf::Primitive,
+    morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
+) -> Result<Option<PrimPlan>, LoadError> {
+    use gltf::accessor::{DataType as T, Dimensions as D};
+    use gltf::mesh::Mode;
+    let mode = prim.mode();
     let Some(pos_acc) = prim.get(&gltf::Semantic::Positions) else {
         return Ok(None);
     };
@@ -719,10 +849,6 @@ fn read_primitive(
             format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
         ));
     }
-    let buffers = &ctx.buffers;
-    let has_normals = normals_acc.is_some();
-    let has_uv = uv_acc.is_some();
-    let has_tangents = tangents_acc.is_some();
     if skin.is_some() {
         for (sem, what, types) in [
             (gltf::Semantic::Joints(0), "JOINTS_0", &[T::U8, T::U16][..]),
@@ -760,107 +886,119 @@ fn read_primitive(
             }
         }
     }
-    // The checks above keep the reader within its buffers; a panic on a malformed sparse
-    // accessor is still turned into an error rather than aborting the run.
-    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-        let positions: Vec<DVec3> = reader
-            .read_positions()?
+    Ok(Some(PrimPlan {
+        n,
+        tris,
+        has_normals: normals_acc.is_some(),
+        has_uv: uv_acc.is_some(),
+        has_tangents: tangents_acc.is_some(),
+        uv_plan,
+        morphing,
+    }))
+}
+
+/// Reads the vertex data `plan` names from `buffers`, with the non-zero morph targets applied
+/// one at a time (memory stays that of one attribute); `None` where an accessor cannot be read.
+fn read_vertex_data(
+    buffers: &[Vec<u8>],
+    prim: &gltf::Primitive,
+    plan: &PrimPlan,
+    morph_weights: &[f64],
+    skin: Option<&super::gltf_shape::SkinPose>,
+) -> Option<PrimData> {
+    let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+    let positions: Vec<DVec3> = reader
+        .read_positions()?
+        .map(|p| DVec3::from_array(p.map(f64::from)))
+        .collect();
+    let normals: Vec<DVec3> = if plan.has_normals {
+        reader
+            .read_normals()?
             .map(|p| DVec3::from_array(p.map(f64::from)))
-            .collect();
-        let normals: Vec<DVec3> = if has_normals {
-            reader
-                .read_normals()?
-                .map(|p| DVec3::from_array(p.map(f64::from)))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let uvs: Vec<DVec2> = if has_uv {
-            reader
-                .read_tex_coords(uv_plan.set)?
-                .into_f32()
-                .map(|p| uv_plan.apply(DVec2::new(f64::from(p[0]), f64::from(p[1]))))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let indices: Vec<u32> = match reader.read_indices() {
-            Some(i) => i.into_u32().collect(),
-            None => (0..positions.len() as u32).collect(),
-        };
-        let mut positions = positions;
-        let mut normals = normals;
-        if morphing {
-            // One target at a time: memory stays that of one attribute.
-            let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
-            for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
-                let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
-                    continue;
-                };
-                for (values, delta) in [
-                    (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
-                    (&mut normals, q.map(|i| i.map(vec3).collect())),
-                ] {
-                    if let Some(d) = delta {
-                        if d.len() != values.len() && !values.is_empty() {
-                            return None;
-                        }
-                        super::gltf_shape::apply_morph(values, w, &d);
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let uvs: Vec<DVec2> = if plan.has_uv {
+        reader
+            .read_tex_coords(plan.uv_plan.set)?
+            .into_f32()
+            .map(|p| {
+                plan.uv_plan
+                    .apply(DVec2::new(f64::from(p[0]), f64::from(p[1])))
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let indices: Vec<u32> = match reader.read_indices() {
+        Some(i) => i.into_u32().collect(),
+        None => (0..positions.len() as u32).collect(),
+    };
+    let mut positions = positions;
+    let mut normals = normals;
+    if plan.morphing {
+        // One target at a time: memory stays that of one attribute.
+        let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
+        for (k, (p, q, _)) in reader.read_morph_targets().enumerate() {
+            let Some(&w) = morph_weights.get(k).filter(|w| **w != 0.0) else {
+                continue;
+            };
+            for (values, delta) in [
+                (&mut positions, p.map(|i| i.map(vec3).collect::<Vec<_>>())),
+                (&mut normals, q.map(|i| i.map(vec3).collect())),
+            ] {
+                if let Some(d) = delta {
+                    if d.len() != values.len() && !values.is_empty() {
+                        return None;
                     }
+                    super::gltf_shape::apply_morph(values, w, &d);
                 }
             }
         }
-        let tangents: Vec<DVec4> = if has_tangents {
-            reader
-                .read_tangents()?
-                .map(|t| {
-                    let v = DVec4::from_array(t.map(f64::from));
-                    let w = if v.w < 0.0 { -1.0 } else { 1.0 };
-                    if v.is_finite() {
-                        v.truncate().extend(w)
-                    } else {
-                        DVec4::ZERO
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let influences = match skin {
-            Some(_) => {
-                let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
-                let w: Vec<[f64; 4]> = reader
-                    .read_weights(0)?
-                    .into_f32()
-                    .map(|w| w.map(f64::from))
-                    .collect();
-                Some((j, w))
-            }
-            None => None,
-        };
-        Some((positions, normals, uvs, indices, tangents, influences))
-    }));
-    let Ok(Some((mut positions, mut normals, uvs, indices, mut tangents, influences))) = read
-    else {
-        return Err(LoadError::new(
-            ctx.path,
-            format!(
-                "mesh primitive {} has unreadable accessor data",
-                prim.index()
-            ),
-        ));
+    }
+    let tangents: Vec<DVec4> = if plan.has_tangents {
+        reader
+            .read_tangents()?
+            .map(|t| {
+                let v = DVec4::from_array(t.map(f64::from));
+                let w = if v.w < 0.0 { -1.0 } else { 1.0 };
+                if v.is_finite() {
+                    v.truncate().extend(w)
+                } else {
+                    DVec4::ZERO
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
     };
-    if let (Some(pose), Some((j, w))) = (skin, &influences) {
-        pose.apply(&mut positions, &mut normals, &mut tangents, j, w)
-            .map_err(|m| LoadError::new(ctx.path, m))?;
-    }
-    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-        return Err(LoadError::new(
-            ctx.path,
-            format!("index {i} is out of range ({} vertices)", positions.len()),
-        ));
-    }
+    let influences = match skin {
+        Some(_) => {
+            let j: Vec<[u16; 4]> = reader.read_joints(0)?.into_u16().collect();
+            let w: Vec<[f64; 4]> = reader
+                .read_weights(0)?
+                .into_f32()
+                .map(|w| w.map(f64::from))
+                .collect();
+            Some((j, w))
+        }
+        None => None,
+    };
+    Some(PrimData {
+        positions,
+        normals,
+        uvs,
+        indices,
+        tangents,
+        influences,
+    })
+}
+
+/// The triangles of `indices` in primitive `mode` (lists, strips with alternating winding, fans
+/// around the first index); strips and fans without their degenerate triangles.
+fn assemble_triangles(mode: gltf::mesh::Mode, indices: &[u32], tris: usize) -> Vec<[u32; 3]> {
+    use gltf::mesh::Mode;
     let mut triangles = Vec::with_capacity(tris);
     match mode {
         Mode::Triangles => {
@@ -885,27 +1023,7 @@ fn read_primitive(
     if mode != Mode::Triangles {
         triangles.retain(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2]);
     }
-    if triangles.is_empty() {
-        return Ok(None);
-    }
-    let material = material_id(ctx, &prim.material())?;
-    let (colors, alphas) = super::gltf_features::vertex_colors(&ctx.buffers, prim, n)
-        .map_err(|m| LoadError::new(ctx.path, m))?;
-    let mut mesh = Mesh {
-        positions_mm: positions,
-        normals,
-        uvs,
-        material_ids: vec![material; triangles.len()],
-        triangles,
-        colors,
-        alphas,
-        tangents,
-    };
-    transform_mesh(&mut mesh, to_mm);
-    if !has_normals {
-        mesh.compute_normals();
-    }
-    Ok(Some(mesh))
+    triangles
 }
 
 /// Applies `m` to positions and (inverse transpose, renormalised) normals; a mirroring `m`
@@ -1123,6 +1241,9 @@ fn obj_counts(path: &Path) -> Result<(u64, u64), LoadError> {
     Ok((vertices, triangles))
 }
 
+/// Reads a Wavefront OBJ file with its material libraries: counts checked before reading
+/// ([`obj_counts`]), the models read and triangulated ([`read_obj_models`]), then each model a
+/// part of one mesh with its converted material ([`obj_part`]).
 fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let (nv, nt) = obj_counts(path)?;
     if nt > MAX_TRIANGLES as u64 || nv > MAX_VERTICES as u64 {
@@ -1139,88 +1260,7 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
             "no triangles (no face has three corners)",
         ));
     }
-    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
-    let mut reader = Utf8Lines {
-        inner: BufReader::new(file),
-        line: Vec::new(),
-        pos: 0,
-    };
-    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
-    let log = RefCell::new(MtlLog::default());
-    let opts = tobj::LoadOptions {
-        // Polygons are triangulated below by ear clipping (`obj_features`).
-        triangulate: false,
-        single_index: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
-        let full = mtl
-            .to_str()
-            .and_then(|s| resolve_reference(&dir, s, false))
-            .unwrap_or_else(|| dir.join(mtl));
-        let mut log = log.borrow_mut();
-        let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
-        match opened {
-            Err(e) => {
-                // Only a library that does not exist is tolerated: a folder, FIFO, device or
-                // broken file in its place is an error even then.
-                let missing = std::fs::metadata(&full)
-                    .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
-                if options.allow_missing_mtl && missing {
-                    return Ok((Vec::new(), Default::default()));
-                }
-                if log.error.is_none() {
-                    log.error = Some(LoadError::new(
-                        &e.path,
-                        format!(
-                            "cannot open material library (used by {}): {}",
-                            file_name(path),
-                            e.message
-                        ),
-                    ));
-                }
-                Err(tobj::LoadError::OpenFileFailed)
-            }
-            Ok(text) => {
-                let r = tobj::load_mtl_buf(&mut text.as_bytes());
-                match &r {
-                    Ok((mats, _)) => log.loaded.push((full, mats.len())),
-                    Err(e) => {
-                        if log.error.is_none() {
-                            log.error = Some(LoadError::new(
-                                &full,
-                                format!("not a readable material library ({e})"),
-                            ));
-                        }
-                    }
-                }
-                r
-            }
-        }
-    });
-    let log = log.into_inner();
-    if let Some(e) = log.error {
-        return Err(e);
-    }
-    let (mut models, materials) =
-        result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
-    for m in &mut models {
-        super::obj_features::triangulate_faces(&mut m.mesh);
-    }
-    let materials = materials.unwrap_or_default();
-    // Size checks before building the f64 arrays.
-    let (mut nv, mut nt) = (0usize, 0usize);
-    for m in &models {
-        nv += m.mesh.positions.len() / 3;
-        nt += m.mesh.indices.len() / 3;
-    }
-    if nt > MAX_TRIANGLES || nv > MAX_VERTICES {
-        return Err(LoadError::new(
-            path,
-            format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
-        ));
-    }
+    let (models, materials, log) = read_obj_models(path, options)?;
     // Which library each tobj material came from (for texture paths).
     let mut lib_of = Vec::with_capacity(materials.len());
     for (p, n) in &log.loaded {
@@ -1229,7 +1269,6 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
     let mut asset = Asset::default();
     let mut converted: HashMap<Option<usize>, u32> = HashMap::new();
     let mut cache: HashMap<PathBuf, Arc<Texture>> = HashMap::new();
-    let unit = options.obj_unit_mm;
     for model in &models {
         let m = &model.mesh;
         let n = m.positions.len() / 3;
@@ -1262,56 +1301,167 @@ fn load_obj(path: &Path, options: &LoadOptions) -> Result<Asset, LoadError> {
                 format!("face index {i} is out of range"),
             ));
         }
-        let positions_mm = m
-            .positions
-            .chunks_exact(3)
-            .map(|p| DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * unit)
-            .collect();
-        let normals: Vec<DVec3> = if m.normals.len() == 3 * n {
-            m.normals
-                .chunks_exact(3)
-                .map(|p| {
-                    let v = DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                    let len = v.length();
-                    if len > 0.0 && len.is_finite() {
-                        v / len
-                    } else {
-                        DVec3::ZERO
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let uvs = if m.texcoords.len() == 2 * n {
-            m.texcoords
-                .chunks_exact(2)
-                .map(|t| DVec2::new(f64::from(t[0]), 1.0 - f64::from(t[1])))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let triangles: Vec<[u32; 3]> = m
-            .indices
-            .chunks_exact(3)
-            .map(|t| [t[0], t[1], t[2]])
-            .collect();
-        let mut part = Mesh {
-            positions_mm,
-            normals,
-            uvs,
-            material_ids: vec![mat_id; triangles.len()],
-            triangles,
-            colors: super::obj_features::vertex_colours(m),
-            alphas: Vec::new(),
-            tangents: Vec::new(),
-        };
-        if part.normals.is_empty() {
-            part.compute_normals();
-        }
+        let part = obj_part(m, mat_id, options.obj_unit_mm);
         asset.mesh.append(&part, 0);
     }
     Ok(asset)
+}
+
+/// The models and materials of OBJ file `path` (faces triangulated by ear clipping) and the
+/// log of its material libraries, with the sizes checked before any f64 array is built.
+fn read_obj_models(
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>, MtlLog), LoadError> {
+    let file = std::fs::File::open(path).map_err(|e| LoadError::new(path, e))?;
+    let mut reader = Utf8Lines {
+        inner: BufReader::new(file),
+        line: Vec::new(),
+        pos: 0,
+    };
+    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let log = RefCell::new(MtlLog::default());
+    let opts = tobj::LoadOptions {
+        // Polygons are triangulated below by ear clipping (`obj_features`).
+        triangulate: false,
+        single_index: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let result = tobj::load_obj_buf(&mut reader, &opts, |mtl: &Path| {
+        load_mtl(mtl, &dir, path, options, &mut log.borrow_mut())
+    });
+    let log = log.into_inner();
+    if let Some(e) = log.error {
+        return Err(e);
+    }
+    let (mut models, materials) =
+        result.map_err(|e| LoadError::new(path, format!("not a readable OBJ file ({e})")))?;
+    for m in &mut models {
+        super::obj_features::triangulate_faces(&mut m.mesh);
+    }
+    let materials = materials.unwrap_or_default();
+    // Size checks before building the f64 arrays.
+    let (mut nv, mut nt) = (0usize, 0usize);
+    for m in &models {
+        nv += m.mesh.positions.len() / 3;
+        nt += m.mesh.indices.len() / 3;
+    }
+    if nt > MAX_TRIANGLES || nv > MAX_VERTICES {
+        return Err(LoadError::new(
+            path,
+            format!("more than {MAX_TRIANGLES} triangles or {MAX_VERTICES} vertices"),
+        ));
+    }
+    Ok((models, materials, log))
+}
+
+/// Reads material library `mtl` (named in OBJ file `path`, resolved against its folder `dir`)
+/// for tobj, noting it in `log`; a missing library is tolerated with
+/// `options.allow_missing_mtl`, any other failure is logged (the first one) and fails the load.
+fn load_mtl(
+    mtl: &Path,
+    dir: &Path,
+    path: &Path,
+    options: &LoadOptions,
+    log: &mut MtlLog,
+) -> tobj::MTLLoadResult {
+    let full = mtl
+        .to_str()
+        .and_then(|s| resolve_reference(dir, s, false))
+        .unwrap_or_else(|| dir.join(mtl));
+    let opened = check_regular_file(&full).and_then(|_| read_mtl_text(&full));
+    match opened {
+        Err(e) => {
+            // Only a library that does not exist is tolerated: a folder, FIFO, device or
+            // broken file in its place is an error even then.
+            let missing =
+                std::fs::metadata(&full).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
+            if options.allow_missing_mtl && missing {
+                return Ok((Vec::new(), Default::default()));
+            }
+            if log.error.is_none() {
+                log.error = Some(LoadError::new(
+                    &e.path,
+                    format!(
+                        "cannot open material library (used by {}): {}",
+                        file_name(path),
+                        e.message
+                    ),
+                ));
+            }
+            Err(tobj::LoadError::OpenFileFailed)
+        }
+        Ok(text) => {
+            let r = tobj::load_mtl_buf(&mut text.as_bytes());
+            match &r {
+                Ok((mats, _)) => log.loaded.push((full, mats.len())),
+                Err(e) => {
+                    if log.error.is_none() {
+                        log.error = Some(LoadError::new(
+                            &full,
+                            format!("not a readable material library ({e})"),
+                        ));
+                    }
+                }
+            }
+            r
+        }
+    }
+}
+
+/// One OBJ model's mesh with material `mat_id`, in mm (`unit` mm per OBJ unit): unit normals
+/// where the model has one per vertex (else computed), v flipped to the texture's rows.
+fn obj_part(m: &tobj::Mesh, mat_id: u32, unit: f64) -> Mesh {
+    let n = m.positions.len() / 3;
+    let positions_mm = m
+        .positions
+        .chunks_exact(3)
+        .map(|p| DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * unit)
+        .collect();
+    let normals: Vec<DVec3> = if m.normals.len() == 3 * n {
+        m.normals
+            .chunks_exact(3)
+            .map(|p| {
+                let v = DVec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                let len = v.length();
+                if len > 0.0 && len.is_finite() {
+                    v / len
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let uvs = if m.texcoords.len() == 2 * n {
+        m.texcoords
+            .chunks_exact(2)
+            .map(|t| DVec2::new(f64::from(t[0]), 1.0 - f64::from(t[1])))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let triangles: Vec<[u32; 3]> = m
+        .indices
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    let mut part = Mesh {
+        positions_mm,
+        normals,
+        uvs,
+        material_ids: vec![mat_id; triangles.len()],
+        triangles,
+        colors: super::obj_features::vertex_colours(m),
+        alphas: Vec::new(),
+        tangents: Vec::new(),
+    };
+    if part.normals.is_empty() {
+        part.compute_normals();
+    }
+    part
 }
 
 /// Largest material library read, bytes.
