@@ -14,11 +14,16 @@ Checks (all must pass; the same rules are in tests/it/mitsuba_reference.rs):
  3. waveguide only, replica positions: the peaks (local maxima above 10 % of the maximum, parabolic sub-pixel
     position) of the row profile (sum over all columns) agree one to one within 1 px (not for
     mesh-waveguide: a textured scene has no isolated replica lines).
-delta is the allowance for the known model differences (README.md): 0.01 (plain glass and
-mesh-plain-glass), 0.03 (waveguide and mesh-waveguide).
+delta is the allowance for the known model differences, at least twice the sum of their
+itemised estimates (README.md, "Known differences"; known_differences.py computes the
+waveguide's, 0.6 %, and checks the value here): 0.01 (plain glass and mesh-plain-glass), 0.015
+(waveguide), 0.03 (mesh-waveguide, which adds the texture's spectral upsampling differences in
+the waveguide's narrow Bragg bands).
 With --max-tolerance the comparison also fails when the noise makes the tolerance itself larger
-than FULL or BINNED: a check whose tolerance is 65 % would pass a 20 % error (.ci/run asks for
-at most 0.10 and 0.05 from the llvm_ad_spectral run).
+than FULL or BINNED: a check whose tolerance is 65 % would pass a 20 % error (run.sh asks for
+at most 0.10 and 0.05 from the llvm_ad_spectral run, and .ci/run fails on it).
+--stscam-gain G and --stscam-shift-rows N make the stscam input deliberately wrong (G times too
+bright, moved down N rows) to show that the check fails on it (run.sh does, with G = 1.10).
 """
 import argparse
 import json
@@ -30,7 +35,7 @@ import numpy as np
 # user side (RGB upsampling tables and the order of texture interpolation and upsampling, about
 # 0.15 % through plain glass and 0.4-0.8 % in the narrow Bragg bands of the waveguide; README.md)
 # are well inside it.
-DELTA = {"plain-glass": 0.01, "waveguide": 0.03, "mesh-plain-glass": 0.01, "mesh-waveguide": 0.03}
+DELTA = {"plain-glass": 0.01, "waveguide": 0.015, "mesh-plain-glass": 0.01, "mesh-waveguide": 0.03}
 NOISE_FACTOR = 2.0
 PEAK_FRACTION = 0.10
 PEAK_TOLERANCE_PX = 1.0
@@ -112,14 +117,18 @@ def main():
     ap.add_argument("--json", default=None)
     ap.add_argument("--max-tolerance", nargs=2, type=float, default=None, metavar=("FULL", "BINNED"),
                     help="fail if the tolerance (full resolution, 4x4-binned) exceeds these")
-    ap.add_argument("--limits-warn", action="store_true",
-                    help="with --max-tolerance: report a tolerance above the limits instead of failing")
+    ap.add_argument("--stscam-gain", type=float, default=1.0,
+                    help="deliberately wrong input: multiply the stscam captures by this")
+    ap.add_argument("--stscam-shift-rows", type=int, default=0,
+                    help="deliberately wrong input: move the stscam captures down by this many rows")
     a = ap.parse_args()
     m = np.load(a.mitsuba).astype(np.float64)
     meta = json.load(open(a.mitsuba[:-4] + ".json"))
-    s_a, s_b = (read_exr_y(p) for p in a.stscam)
+    s_a, s_b = (a.stscam_gain * np.roll(read_exr_y(p), a.stscam_shift_rows, axis=0) for p in a.stscam)
     res = compare(a.scene, m, meta["noise_rel_rms"], meta["noise_rel_rms_binned4"], s_a, s_b)
-    res["mitsuba"] = {k: meta[k] for k in ("variant", "spp", "render_s") if k in meta}
+    res["mitsuba"] = {k: meta[k] for k in ("variant", "spp", "render_s", "sampler") if k in meta}
+    if a.stscam_gain != 1.0 or a.stscam_shift_rows:
+        res["deliberately_wrong"] = {"stscam_gain": a.stscam_gain, "stscam_shift_rows": a.stscam_shift_rows}
     if a.max_tolerance is not None:
         lim, lim_b = a.max_tolerance
         res["max_tolerance"] = [lim, lim_b]
@@ -127,17 +136,17 @@ def main():
         if not res["tolerance_within_limits"]:
             print(f"mitsuba: {a.scene}: TOLERANCE ABOVE THE LIMITS ({100 * res['tolerance']:.2f} % / "
                   f"{100 * res['tolerance_binned4']:.2f} % binned against {100 * lim:.0f} % / {100 * lim_b:.0f} %): "
-                  f"Mitsuba needs more samples here" + (" (reported, not failed: --limits-warn)" if a.limits_warn else ""),
-                  file=sys.stderr)
-        if not a.limits_warn:
-            res["pass"] = res["pass"] and res["tolerance_within_limits"]
+                  f"Mitsuba needs more samples here", file=sys.stderr)
+        res["pass"] = res["pass"] and res["tolerance_within_limits"]
     print(json.dumps(res))
     limits = "" if a.max_tolerance is None else \
         f"; limits {100 * a.max_tolerance[0]:.0f} % / {100 * a.max_tolerance[1]:.0f} %"
-    print(f"mitsuba: {a.scene} ({res['mitsuba'].get('variant', '?')}, {res['mitsuba'].get('spp', '?')} spp): "
+    wrong = "" if "deliberately_wrong" not in res else \
+        f" with a deliberately wrong stscam input (gain {a.stscam_gain:g}, shifted {a.stscam_shift_rows} rows)"
+    print(f"mitsuba: {a.scene}{wrong} ({res['mitsuba'].get('variant', '?')}, {res['mitsuba'].get('spp', '?')} spp): "
           f"relative RMSE {100 * res['rel_rmse']:.2f} % (tolerance {100 * res['tolerance']:.2f} %), "
           f"4x4-binned {100 * res['rel_rmse_binned4']:.2f} % (tolerance {100 * res['tolerance_binned4']:.2f} %)"
-          f"{limits}", file=sys.stderr)
+          f"{limits}: {'passes' if res['pass'] else 'FAILS'}", file=sys.stderr)
     if a.json:
         with open(a.json, "w") as f:
             json.dump(res, f, indent=1)
