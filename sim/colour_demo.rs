@@ -518,14 +518,7 @@ fn colour_figure(
     crop: (usize, usize),
     gamma: f64,
 ) -> Result<Vec<u8>, String> {
-    let labels = [
-        "OBJECT",
-        "CAPTURE",
-        "CGM H TRUE",
-        "ADMM TV H TRUE",
-        "CGM H CAL",
-        "ADMM TV H CAL",
-    ];
+    let labels = crate::demo::FIGURE_COLUMNS;
     let (n, c) = (object.0 * object.1, crop.0 * crop.1);
     let peaks: Vec<f64> = rows
         .iter()

@@ -669,14 +669,7 @@ impl DemoRun<'_> {
         files.push((
             "figure.png".to_string(),
             figure(
-                &[
-                    "OBJECT",
-                    "CAPTURE",
-                    "CGM H TRUE",
-                    "ADMM TV H TRUE",
-                    "CGM H CAL",
-                    "ADMM TV H CAL",
-                ],
+                &FIGURE_COLUMNS,
                 &shots
                     .iter()
                     .map(|s| (s.name, &s.truth[..], &s.noisy[..rows_per_channel]))
@@ -951,6 +944,17 @@ fn resample(src: &[f64], w: usize, h: usize, tw: usize, th: usize) -> Vec<f64> {
 const TILE: usize = 192;
 /// Gap between tiles, pixels.
 const GAP: usize = 6;
+
+/// Column labels of the demo's figure and of the colour demo's: object, capture, then CGM and
+/// ADMM-TV with the true H and with the calibrated one.
+pub(crate) const FIGURE_COLUMNS: [&str; 6] = [
+    "OBJECT",
+    "CAPTURE",
+    "CGM H TRUE",
+    "ADMM TV H TRUE",
+    "CGM H CAL",
+    "ADMM TV H CAL",
+];
 
 /// The Fig. 9-like figure: per target a row object | capture | CGM | ADMM-TV (H true) |
 /// CGM | ADMM-TV (H calibrated), with column labels; grey 16-bit PNG, display code values.

@@ -3,7 +3,11 @@
 //! band (the sample's factor is then cos⁴θ·S(λ)·band), and each path has one analog outcome:
 //! its polarisation state and its branch (or its death) are drawn with their probabilities,
 //! the branch weights being the outcome probabilities (they sum to ≤ 1). The path stops at the
-//! chosen branch (Russian roulette at every interaction). Unbiased, with far more noise.
+//! chosen branch (Russian roulette at every interaction). Unbiased, with far more noise. This is
+//! the analog (unweighted) simulation of Monte Carlo transport: J. Spanier & E. M. Gelbard,
+//! Monte Carlo Principles and Neutron Transport Problems (Addison-Wesley 1969), ch. 2; its
+//! estimates are the same in expectation as the weighted (split) estimator of
+//! [`super::display`].
 
 use std::ops::ControlFlow;
 
@@ -57,7 +61,6 @@ impl Outcome {
 pub(super) struct Display<'a> {
     sys: &'a System,
     seed: u64,
-    pixel: u64,
     sums: PixelSums<'a>,
     outcome: Outcome,
 }
@@ -67,7 +70,6 @@ impl<'a> Display<'a> {
         Display {
             sys,
             seed: set.seed,
-            pixel: 0,
             sums: PixelSums::new(sys, set),
             outcome: Outcome::default(),
         }
@@ -76,7 +78,7 @@ impl<'a> Display<'a> {
 
 impl SampleConsumer for Display<'_> {
     fn begin(&mut self, _s: &CameraSample, i: u64) {
-        let h = crate::sampler::hash(&[self.seed, self.pixel, i, ANALOG_TAG]);
+        let h = crate::sampler::hash(&[self.seed, self.sums.pixel, i, ANALOG_TAG]);
         let (u_pol, u_branch) = (
             crate::sampler::to_unit(h),
             crate::sampler::to_unit(crate::sampler::mix64(h)),
@@ -99,14 +101,9 @@ impl SampleConsumer for Display<'_> {
     }
 }
 
-impl PixelEstimator for Display<'_> {
-    fn start(&mut self, pixel: u64) {
-        self.pixel = pixel;
-        self.sums.clear();
-    }
-
-    fn finish(&mut self, _stats: &mut RenderStats) -> &PixelSums<'_> {
-        &self.sums
+impl<'a> PixelEstimator<'a> for Display<'a> {
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        &mut self.sums
     }
 }
 
@@ -118,7 +115,6 @@ pub(super) struct Scene<'a> {
     sys: &'a System,
     world: &'a World,
     seed: u64,
-    pixel: u64,
     sums: PixelSums<'a>,
     outcome: Outcome,
     rng: PathRng,
@@ -130,7 +126,6 @@ impl<'a> Scene<'a> {
             sys,
             world,
             seed: set.seed,
-            pixel: 0,
             sums: PixelSums::new(sys, set),
             outcome: Outcome::default(),
             rng: PathRng::new(&[]),
@@ -140,7 +135,7 @@ impl<'a> Scene<'a> {
 
 impl SampleConsumer for Scene<'_> {
     fn begin(&mut self, _s: &CameraSample, i: u64) {
-        self.rng = PathRng::new(&[self.seed, self.pixel, i, ANALOG_TAG]);
+        self.rng = PathRng::new(&[self.seed, self.sums.pixel, i, ANALOG_TAG]);
         let (u_pol, u_branch) = (self.rng.uniform(), self.rng.uniform());
         self.outcome = Outcome::new(usize::from(u_pol >= 0.5), u_branch);
     }
@@ -170,13 +165,8 @@ impl SampleConsumer for Scene<'_> {
     }
 }
 
-impl PixelEstimator for Scene<'_> {
-    fn start(&mut self, pixel: u64) {
-        self.pixel = pixel;
-        self.sums.clear();
-    }
-
-    fn finish(&mut self, _stats: &mut RenderStats) -> &PixelSums<'_> {
-        &self.sums
+impl<'a> PixelEstimator<'a> for Scene<'a> {
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        &mut self.sums
     }
 }

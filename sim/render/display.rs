@@ -4,7 +4,8 @@
 //! branch's weight averaged over the display's polarisation and L_rel the display's relative
 //! radiance at the branch's object point x_b (for a colour display, the primaries' shares of
 //! white at λ weighting each primary's image). Every replica is summed: the branches are
-//! deterministic splits of the path (docs/physics.md, "Replica splitting").
+//! deterministic splits of the path (replica weights: docs/physics.md §5; why splitting rather
+//! than choosing: docs/design.md, "Estimator decisions").
 
 use std::ops::ControlFlow;
 
@@ -93,22 +94,16 @@ impl SampleConsumer for Primaries<'_> {
     }
 }
 
-impl PixelEstimator for Monochrome<'_> {
-    fn start(&mut self, _pixel: u64) {
-        self.sums.clear();
-    }
-
-    fn finish(&mut self, _stats: &mut RenderStats) -> &PixelSums<'_> {
-        &self.sums
+impl<'a> PixelEstimator<'a> for Monochrome<'a> {
+    #[inline]
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        &mut self.sums
     }
 }
 
-impl PixelEstimator for Primaries<'_> {
-    fn start(&mut self, pixel: u64) {
-        self.inner.start(pixel);
-    }
-
-    fn finish(&mut self, stats: &mut RenderStats) -> &PixelSums<'_> {
-        self.inner.finish(stats)
+impl<'a> PixelEstimator<'a> for Primaries<'a> {
+    #[inline]
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        self.inner.sums()
     }
 }

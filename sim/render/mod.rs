@@ -281,7 +281,7 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
 /// The row loop: rows in parallel (collected in row order), each pixel's samples walked by
 /// the camera-sample driver [`drive_pixel`] into a pixel estimator made by `estimator` (one per
 /// row), and the image assembled.
-fn render_rows<'a, E: samples::PixelEstimator>(
+fn render_rows<'a, E: samples::PixelEstimator<'a>>(
     sys: &'a System,
     set: &RenderSettings,
     estimator: impl Fn() -> E + Sync,

@@ -3,13 +3,14 @@
 //! side of 3-D scenes, the analog reference, the colour demo's grating shares).
 //!
 //! A camera sample is a sensor point and a lens point (a thin-lens ray), and a wavelength drawn
-//! around the ray's Bragg wavelength (a mixture with a uniform part; docs/physics.md, "Spectral
-//! sampling"), with the factor cos⁴θ·S(λ)/p(λ) every branch shares. [`drive_pixel`] draws the
+//! around the ray's Bragg wavelength (closed form: docs/physics.md §3.2), mixed with a uniform
+//! part so the estimator stays unbiased (docs/design.md, "Estimator decisions"), with the factor cos⁴θ·S(λ)/p(λ) every branch shares. [`drive_pixel`] draws the
 //! pixel's samples in order from the addressable sampler, traces each one backward through the
 //! waveguide ([`crate::trace`]) and hands each branch that reaches the object plane to a
 //! [`SampleConsumer`]. What is done with the branches is the consumer's business, so the
 //! samples, their order and their counters are the same for every use: `render(f)` and `H·f +
-//! offset` agree to float rounding by construction (docs/design.md, "One camera sample").
+//! offset` agree to float rounding by construction (docs/design.md, "One camera sample, end to
+//! end").
 
 use std::ops::ControlFlow;
 
@@ -76,6 +77,8 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
     let pixel = (row * sys.camera.width_px + col) as u64;
     let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
     let spp = u64::from(set.spp);
+    // The glass index of the see-through test is the same for every ray.
+    let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
     let mut batch = [None; SAMPLE_BATCH];
     let mut first = 0u64;
     while first < spp {
@@ -86,7 +89,7 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
             (col, row),
             first,
             &mut batch[..len],
-            set.estimator,
+            (n0, set.estimator),
         );
         for (i, s) in (first..).zip(&batch[..len]) {
             if let Some(s) = s {
@@ -122,7 +125,8 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
 }
 
 /// Samples `start`, `start + 1`, … of pixel (col, row) into `out` (at most [`SAMPLE_BATCH`]),
-/// each `None` when its wavelength falls outside the band.
+/// each `None` when its wavelength falls outside the band; `n0` is the glass index at the
+/// recording wavelength.
 #[inline]
 fn camera_samples(
     sys: &System,
@@ -130,13 +134,11 @@ fn camera_samples(
     (col, row): (usize, usize),
     start: u64,
     out: &mut [Option<CameraSample>],
-    estimator: Estimator,
+    (n0, estimator): (f64, Estimator),
 ) {
     let mut u = [[0.0; crate::sampler::DIMS]; SAMPLE_BATCH];
     let u = &mut u[..out.len()];
     sampler.get_batch(start, u);
-    // The glass index of the see-through test is the same for every ray.
-    let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
     for (o, u) in out.iter_mut().zip(u.iter()) {
         *o = camera_sample_at(sys, col, row, u, n0, estimator);
     }
@@ -212,9 +214,12 @@ pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
     }
 }
 
-/// A pixel's sums over its samples: the sensor channels and the optional spectral bins.
+/// A pixel's sums over its samples: the sensor channels and the optional spectral bins, with
+/// the pixel's row-major index (the key of its random streams).
 pub(crate) struct PixelSums<'a> {
     sys: &'a System,
+    /// The pixel's row-major index.
+    pub(crate) pixel: u64,
     bins: Option<(f64, f64, usize)>,
     /// Channel sums (unused channels stay 0).
     pub(crate) acc: [f64; 4],
@@ -227,15 +232,17 @@ impl<'a> PixelSums<'a> {
     pub(crate) fn new(sys: &'a System, set: &RenderSettings) -> Self {
         PixelSums {
             sys,
+            pixel: 0,
             bins: set.spectral_bins,
             acc: [0.0; 4],
             spectral: vec![0.0; set.spectral_bins.map_or(0, |b| b.2)],
         }
     }
 
-    /// Back to zero for the next pixel.
+    /// Empty sums for pixel `pixel`.
     #[inline]
-    pub(crate) fn clear(&mut self) {
+    pub(crate) fn start(&mut self, pixel: u64) {
+        self.pixel = pixel;
         self.acc = [0.0; 4];
         self.spectral.fill(0.0);
     }
@@ -268,11 +275,20 @@ impl<'a> PixelSums<'a> {
 
 /// A pixel estimator of the image: a [`SampleConsumer`] that sums its samples' values into
 /// [`PixelSums`].
-pub(crate) trait PixelEstimator: SampleConsumer {
+pub(crate) trait PixelEstimator<'a>: SampleConsumer {
+    /// The pixel's sums.
+    fn sums(&mut self) -> &mut PixelSums<'a>;
+
     /// Starts pixel `pixel` (row-major index) with empty sums.
-    fn start(&mut self, pixel: u64);
+    #[inline]
+    fn start(&mut self, pixel: u64) {
+        self.sums().start(pixel);
+    }
 
     /// Ends the pixel (work still pending is done, its counters added to `stats`) and gives
     /// its sums.
-    fn finish(&mut self, stats: &mut RenderStats) -> &PixelSums<'_>;
+    #[inline]
+    fn finish(&mut self, _stats: &mut RenderStats) -> &PixelSums<'a> {
+        self.sums()
+    }
 }

@@ -10,7 +10,9 @@
 //!
 //! Two estimators ([`super::UserSideSampler`]):
 //! - [`EveryBranch`] (`padded`): every branch of every sample traced, weak ones through
-//!   Russian roulette over branches ([`BRANCH_ROULETTE_FRACTION`]);
+//!   Russian roulette over branches ([`BRANCH_ROULETTE_FRACTION`]; J. Arvo & D. Kirk,
+//!   "Particle transport and image synthesis", SIGGRAPH 1990: a path kept with probability q
+//!   and weighted 1/q keeps its expectation);
 //! - [`Resampled`] (the default): a pixel's branches share user-side paths, about
 //!   [`USER_SIDE_PATHS_PER_SAMPLE`] per camera sample (the estimator is described there).
 
@@ -71,7 +73,6 @@ pub(super) struct EveryBranch<'a> {
     sys: &'a System,
     world: &'a World,
     seed: u64,
-    pixel: u64,
     /// The pixel's sample count when the first vertices use padded sets.
     padded_n: Option<u32>,
     sums: PixelSums<'a>,
@@ -85,7 +86,6 @@ impl<'a> EveryBranch<'a> {
             sys,
             world,
             seed: set.seed,
-            pixel: 0,
             padded_n: (set.sampler != SamplerKind::Independent).then_some(set.spp),
             sums: PixelSums::new(sys, set),
             branches: Vec::with_capacity(16),
@@ -116,11 +116,11 @@ impl SampleConsumer for EveryBranch<'_> {
         let threshold = BRANCH_ROULETTE_FRACTION * strongest;
         let mut total = 0.0;
         for &(exit, weight, replica) in &self.branches {
-            let mut rng = PathRng::new(&[self.seed, self.pixel, i, replica]);
+            let mut rng = PathRng::new(&[self.seed, self.sums.pixel, i, replica]);
             if let Some(n) = self.padded_n {
                 // One padded set per (seed, pixel, replica (grating, contact)), shared by the
                 // pixel's samples.
-                let pad_key = PathRng::padded_key(&[self.seed, self.pixel, replica]);
+                let pad_key = PathRng::padded_key(&[self.seed, self.sums.pixel, replica]);
                 rng = rng.with_padded(pad_key, i, n);
             }
             let w = weight[0] + weight[1];
@@ -137,14 +137,9 @@ impl SampleConsumer for EveryBranch<'_> {
     }
 }
 
-impl PixelEstimator for EveryBranch<'_> {
-    fn start(&mut self, pixel: u64) {
-        self.pixel = pixel;
-        self.sums.clear();
-    }
-
-    fn finish(&mut self, _stats: &mut RenderStats) -> &PixelSums<'_> {
-        &self.sums
+impl<'a> PixelEstimator<'a> for EveryBranch<'a> {
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        &mut self.sums
     }
 }
 
@@ -199,7 +194,6 @@ pub(super) struct Resampled<'a> {
     padded: bool,
     /// Spectral bins are written (the selection weights then leave out the response).
     spectral_bins: bool,
-    pixel: u64,
     window_branches: usize,
     sums: PixelSums<'a>,
     /// The window's camera samples, in order.
@@ -226,7 +220,6 @@ impl<'a> Resampled<'a> {
             seed: set.seed,
             padded: set.sampler != SamplerKind::Independent,
             spectral_bins: set.spectral_bins.is_some(),
-            pixel: 0,
             window_branches,
             sums: PixelSums::new(sys, set),
             samples: Vec::new(),
@@ -255,7 +248,7 @@ impl<'a> Resampled<'a> {
             let s_c: f64 = group.iter().map(|p| p.sel).sum();
             let q = paths * s_c / total;
             let tag = RESAMPLED_TAG ^ window.0;
-            let h = crate::sampler::hash(&[self.seed, self.pixel, tag, contact]);
+            let h = crate::sampler::hash(&[self.seed, self.sums.pixel, tag, contact]);
             // K paths, each standing for S_c/K_eff of selection weight.
             let (k, k_eff) = if q >= 1.0 {
                 let k = q.round() as u64;
@@ -266,7 +259,7 @@ impl<'a> Resampled<'a> {
                 continue;
             };
             let offset = crate::sampler::to_unit(crate::sampler::mix64(h));
-            let pad_key = PathRng::padded_key(&[self.seed, self.pixel, contact, tag]);
+            let pad_key = PathRng::padded_key(&[self.seed, self.sums.pixel, contact, tag]);
             let step = s_c / k as f64;
             let mut j = 0;
             let mut cum = group[0].sel;
@@ -280,7 +273,7 @@ impl<'a> Resampled<'a> {
                 }
                 let p = &group[j];
                 let s = &self.samples[p.sample as usize];
-                let mut rng = PathRng::new(&[self.seed, self.pixel, tag, contact, kk]);
+                let mut rng = PathRng::new(&[self.seed, self.sums.pixel, tag, contact, kk]);
                 if self.padded && k <= u64::from(u32::MAX) {
                     rng = rng.with_padded(pad_key, kk, k as u32);
                 }
@@ -335,16 +328,19 @@ impl SampleConsumer for Resampled<'_> {
     }
 }
 
-impl PixelEstimator for Resampled<'_> {
+impl<'a> PixelEstimator<'a> for Resampled<'a> {
+    fn sums(&mut self) -> &mut PixelSums<'a> {
+        &mut self.sums
+    }
+
     fn start(&mut self, pixel: u64) {
-        self.pixel = pixel;
-        self.sums.clear();
+        self.sums.start(pixel);
         self.samples.clear();
         self.branches.clear();
         self.window = (0, 0);
     }
 
-    fn finish(&mut self, stats: &mut RenderStats) -> &PixelSums<'_> {
+    fn finish(&mut self, stats: &mut RenderStats) -> &PixelSums<'a> {
         self.trace_window(stats);
         &self.sums
     }
