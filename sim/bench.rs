@@ -8,6 +8,7 @@
 
 use std::time::Instant;
 
+use crate::render::camera_table::{CameraTable, TableSettings};
 use crate::render::{Estimator, RenderSettings, UserSideSampler, relative_rmse, render};
 use crate::sampler::SamplerKind;
 use crate::system::System;
@@ -34,6 +35,10 @@ pub struct Curve {
     pub seconds_to_target: Option<f64>,
     /// Whether that time was extrapolated.
     pub extrapolated: bool,
+    /// Time spent once before the curve's renders (the camera-side table), s; not in the
+    /// points' times, which are each further scene's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub precompute_seconds: Option<f64>,
 }
 
 /// Time at which a curve reaches `target` (interpolated in log-log, or extrapolated with
@@ -83,6 +88,7 @@ fn timed_render(
     seed: u64,
     estimator: Estimator,
     (sampler, user_side): (SamplerKind, UserSideSampler),
+    table: Option<&CameraTable>,
 ) -> (Vec<Vec<f32>>, f64) {
     let set = RenderSettings {
         spp,
@@ -94,8 +100,13 @@ fn timed_render(
         estimator,
     };
     let t0 = Instant::now();
-    let cap = render(sys, &set);
-    (cap.channels, t0.elapsed().as_secs_f64())
+    let cap = match table {
+        // A table drawn for `sys` by `measure_curve` suits its renders.
+        Some(t) => crate::render::camera_table::render_with_table(sys, &set, t)
+            .map_or_else(|_| Vec::new(), |c| c.channels),
+        None => render(sys, &set).channels,
+    };
+    (cap, t0.elapsed().as_secs_f64())
 }
 
 /// Which sample sequence a curve renders with at each sample count.
@@ -106,6 +117,9 @@ pub enum CurveSampler {
     /// The default lattice with every branch of every camera sample traced on the user side
     /// (`UserSideSampler::Padded`: the previous 3-D default, CHANGELOG.md).
     EveryBranch,
+    /// 3-D scenes: the camera side from a table drawn once with these settings (its seed
+    /// replaced per render: 7 and, for `Halves`, 8), spp = user-side paths per pixel.
+    CameraTable(TableSettings),
 }
 
 impl CurveSampler {
@@ -114,6 +128,7 @@ impl CurveSampler {
         match self {
             CurveSampler::Kind(k) => (k, UserSideSampler::Auto),
             CurveSampler::EveryBranch => (SamplerKind::Lattice, UserSideSampler::Padded),
+            CurveSampler::CameraTable(_) => (SamplerKind::Lattice, UserSideSampler::Auto),
         }
     }
 }
@@ -139,6 +154,25 @@ pub fn measure_curve(
         budget_s.ceil() as u64,
         &format!("{name}: seconds of the budget"),
     );
+    // The camera-side tables, drawn before the curve (their time reported apart).
+    let t_pre = Instant::now();
+    let tables: Vec<CameraTable> = match sampler {
+        CurveSampler::CameraTable(ts) => [7u64, 8]
+            .iter()
+            .take(if measure == ErrorMeasure::Halves {
+                2
+            } else {
+                1
+            })
+            .filter_map(|&seed| {
+                crate::render::camera_table::build(sys, &TableSettings { seed, ..ts }, false).ok()
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    let precompute_seconds =
+        (!tables.is_empty()).then(|| t_pre.elapsed().as_secs_f64() / tables.len() as f64);
+    let (table_a, table_b) = (tables.first(), tables.get(1));
     let mut points = Vec::new();
     let mut spent = 0.0;
     let mut spp = if measure == ErrorMeasure::Halves {
@@ -149,7 +183,7 @@ pub fn measure_curve(
     while spp <= max_spp && spent < budget_s {
         let (seconds, err) = match measure {
             ErrorMeasure::Reference => {
-                let (img, t) = timed_render(sys, spp, 7, estimator, sampler.kinds());
+                let (img, t) = timed_render(sys, spp, 7, estimator, sampler.kinds(), table_a);
                 let pairs: Vec<(&[f32], &[f32])> = img
                     .iter()
                     .zip(reference)
@@ -158,8 +192,8 @@ pub fn measure_curve(
                 (t, relative_rmse(&pairs))
             }
             ErrorMeasure::Halves => {
-                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler.kinds());
-                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler.kinds());
+                let (a, ta) = timed_render(sys, spp / 2, 7, estimator, sampler.kinds(), table_a);
+                let (b, tb) = timed_render(sys, spp / 2, 8, estimator, sampler.kinds(), table_b);
                 let (mut num, mut den) = (0.0f64, 0.0f64);
                 for (ca, cb) in a.iter().zip(&b) {
                     for (x, y) in ca.iter().zip(cb) {
@@ -201,6 +235,7 @@ pub fn measure_curve(
         points,
         seconds_to_target: t.map(|x| x.0),
         extrapolated: t.is_some_and(|x| x.1),
+        precompute_seconds,
     }
 }
 
@@ -221,7 +256,9 @@ pub fn curves_markdown(curves: &[Curve], target: f64) -> String {
                 } else {
                     ""
                 }
-            )
+            ) + &c.precompute_seconds.map_or(String::new(), |p| {
+                format!(" per further scene, after a {p:.1} s table")
+            })
         });
         let ratio = match (c.seconds_to_target, base) {
             (Some(t), Some(b)) if b > 0.0 => format!("{:.1}×", t / b),

@@ -275,7 +275,7 @@ fn scene_json(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None, camera_table=None))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -290,6 +290,7 @@ fn render<'py>(
     batch: Vec<ImageArg>,
     frontal_space: &str,
     progress: Option<Bound<'_, PyAny>>,
+    camera_table: Option<(std::path::PathBuf, u32, u32)>,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     let frontal_space =
@@ -332,6 +333,24 @@ fn render<'py>(
             stscam::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
                 .map_err(|e| e.to_string())?;
         }
+        // The camera side from the design's table (read, or drawn and written), for every
+        // render of the call.
+        let table = match &camera_table {
+            None => None,
+            Some((dir, tspp, treps)) => {
+                use stscam::render::camera_table::{TableSettings, check_usable};
+                check_usable(&sys, &settings).map_err(|e| format!("camera_table: {e}"))?;
+                let ts = TableSettings { spp: *tspp, reps: *treps, seed };
+                let c = stscam::render::table_file::cached(&sys, &ts, dir, false)
+                    .map_err(|e| format!("camera_table: {e}"))?;
+                Some(c.table)
+            }
+        };
+        let render_one = |s: &stscam::system::System| match &table {
+            Some(t) => stscam::render::camera_table::render_with_table(s, &settings, t)
+                .map_err(|e| format!("camera_table: {e}")),
+            None => Ok(stscam::render::render(s, &settings)),
+        };
         let t0 = std::time::Instant::now();
         let mut more = Vec::new();
         if let Some((first, rest)) = batch.split_first() {
@@ -339,10 +358,10 @@ fn render<'py>(
             for (img, v) in rest.iter().zip(&values[1..]) {
                 let mut s = sys.clone();
                 show_image(&mut s, img, v);
-                more.push(stscam::render::render(&s, &settings));
+                more.push(render_one(&s)?);
             }
         }
-        let cap = stscam::render::render(&sys, &settings);
+        let cap = render_one(&sys)?;
         let render_s = t0.elapsed().as_secs_f64();
         let (fw, fh) = frontal_px.unwrap_or((cap.width, cap.height));
         let frontal =

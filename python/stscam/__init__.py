@@ -341,12 +341,21 @@ def _check_noise(noise: Optional[str]) -> None:
         raise ValueError(f"noise {noise!r}: expected None, \"none\" or \"sensor\"")
 
 
+def _camera_table(camera_table: Any, table_spp: Any, table_reps: Any):
+    if camera_table is None:
+        return None
+    return (os.fspath(camera_table), _uint(table_spp, "table_spp", _U32, 1),
+            _uint(table_reps, "table_reps", _U32, 1))
+
+
 def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            threads: Optional[int] = None, sampler: str = "lattice", spectral: bool = False,
            frontal_px: Any = None, user_side: str = "auto", target: Any = None,
            encoding: Optional[str] = None, noise: Optional[str] = None,
            white_peak: Optional[float] = None, frontal_space: str = "sensor",
-           progress: Optional[Callable[[int, int, str], Any]] = None) -> Render:
+           progress: Optional[Callable[[int, int, str], Any]] = None,
+           camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
+           table_reps: int = 32) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
@@ -362,14 +371,20 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     ``seed`` and ``white_peak``). The CLI's limits (``--spp``, ``--threads``, memory) are checked
     before any work: ValueError with its message. ``frontal_space`` (3-D scenes) is
     ``"sensor"`` (default: the capture's response), ``"xyz"`` (CIE 1931 XYZ, Y = 1 for a flat
-    radiance at display white) or ``"linear-srgb"`` (Rec. 709, D65), as ``--frontal-space``."""
+    radiance at display white) or ``"linear-srgb"`` (Rec. 709, D65), as ``--frontal-space``.
+    ``camera_table`` (a cache directory) takes the camera side from the design's table there,
+    drawn with ``table_spp`` camera samples and ``table_reps`` exit rays per pixel on first use
+    and read by every later call with the same design, crop and seed, as ``stscam render
+    --camera-table``: a 3-D scene then traces ``spp`` user-side paths per pixel, a display-only
+    scene sums the table's exit rays on the display (no sampling at all)."""
     s = _scene(scene)
     _check_noise(noise)
     if target is not None:
         s = s.with_image(target, encoding)
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                        _threads(threads), sampler, bool(spectral), _frontal_px(frontal_px),
-                       user_side, [], str(frontal_space), _progress(progress))
+                       user_side, [], str(frontal_space), _progress(progress),
+                       _camera_table(camera_table, table_spp, table_reps))
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
     out = Render(
@@ -399,11 +414,15 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
                  spp: int = 64, seed: int = 1, threads: Optional[int] = None,
                  sampler: str = "lattice", user_side: str = "auto",
                  noise: Optional[str] = None, white_peak: Optional[float] = None,
-                 progress: Optional[Callable[[int, int, str], Any]] = None) -> np.ndarray:
+                 progress: Optional[Callable[[int, int, str], Any]] = None,
+                 camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
+                 table_reps: int = 32) -> np.ndarray:
     """Renders each of ``targets`` (an array (n, h, w) or (n, h, w, 3), or a sequence of
     (h, w) arrays) on the scene's display in one call, the scene built once: float32
     (n, h, w) or (n, c, h, w), image i equal to ``render(scene, target=targets[i], ...).image``
-    (same ``seed`` for each). ``noise="sensor"`` gives each its noise with seed ``seed + i``."""
+    (same ``seed`` for each). ``noise="sensor"`` gives each its noise with seed ``seed + i``.
+    With ``camera_table`` (as :func:`render`) the camera side is read once and every target is
+    a sum over the table's exit rays."""
     s = _scene(scene)
     _check_noise(noise)
     args = [_image_arg(t, encoding, f"targets[{i}]") for i, t in enumerate(targets)]
@@ -411,7 +430,7 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
         raise ValueError("targets: no targets")
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                        _threads(threads), sampler, False, None, user_side, args, "sensor",
-                       _progress(progress))
+                       _progress(progress), _camera_table(camera_table, table_spp, table_reps))
     w, h, names = d["width"], d["height"], d["channels"]
     imgs = [_image(d["image"], len(names), h, w)] + [_image(b, len(names), h, w) for b in d["batch_rest"]]
     out = np.stack(imgs)

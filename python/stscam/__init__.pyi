@@ -71,12 +71,16 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            frontal_px: Any = None, user_side: str = "auto", target: Any = None,
            encoding: Optional[str] = None, noise: Optional[str] = None,
            white_peak: Optional[float] = None, frontal_space: str = "sensor",
-           progress: Optional[Callable[[int, int, str], Any]] = None) -> Render: ...
+           progress: Optional[Callable[[int, int, str], Any]] = None,
+           camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
+           table_reps: int = 32) -> Render: ...
 def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
                  spp: int = 64, seed: int = 1, threads: Optional[int] = None,
                  sampler: str = "lattice", user_side: str = "auto",
                  noise: Optional[str] = None, white_peak: Optional[float] = None,
-                 progress: Optional[Callable[[int, int, str], Any]] = None) -> np.ndarray: ...
+                 progress: Optional[Callable[[int, int, str], Any]] = None,
+                 camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
+                 table_reps: int = 32) -> np.ndarray: ...
 def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
                  white_peak: Optional[float] = None) -> np.ndarray: ...
 def matrix(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,

@@ -293,16 +293,20 @@ pub fn sample_system(
 }
 
 /// The capture (channel-major, f64) and the frontal ground truth (`size`², in `space`) of a
-/// sample.
+/// sample; the capture's camera side from `table` when given (drawn for `sys`'s design).
 pub fn render_sample(
     sys: &System,
     size: usize,
     spp: u32,
     seed: u64,
     space: crate::world::colour::FrontalSpace,
-) -> (Vec<f64>, Frontal) {
+    table: Option<&crate::render::camera_table::CameraTable>,
+) -> Result<(Vec<f64>, Frontal), crate::render::camera_table::TableError> {
     let settings = crate::render::RenderSettings::lattice(spp, seed, false);
-    let cap = crate::render::render(sys, &settings);
+    let cap = match table {
+        Some(t) => crate::render::camera_table::render_with_table(sys, &settings, t)?,
+        None => crate::render::render(sys, &settings),
+    };
     let capture = cap
         .channels
         .iter()
@@ -320,7 +324,7 @@ pub fn render_sample(
         mask: vec![0; size * size],
         rays: 0,
     });
-    (capture, frontal)
+    Ok((capture, frontal))
 }
 
 /// What `metadata.jsonl` holds for a 3-D sample (the card's `loading.metadata_3d`).

@@ -1098,6 +1098,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         opts,
         root: &opts.out,
         cancel: crate::cancel::current(),
+        tables: Default::default(),
     };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
@@ -1148,6 +1149,10 @@ struct Generation<'a> {
     opts: &'a RunOptions,
     root: &'a Path,
     cancel: crate::cancel::Token,
+    /// Camera-side tables drawn so far, by design key (`[camera_table]`).
+    tables: std::sync::Mutex<
+        BTreeMap<[u64; 2], std::sync::Arc<crate::render::camera_table::CameraTable>>,
+    >,
 }
 
 /// The scenes of a run: H and offset of each scene a matrix-mode sample needs, and the
@@ -1375,6 +1380,30 @@ impl Generation<'_> {
         )
     }
 
+    /// The camera-side table of `sys`'s design (drawn on first use, then shared by every
+    /// sample of the run with that design; seeded by the recipe, so every shard draws the same).
+    fn camera_table(
+        &self,
+        sys: &System,
+        t: recipe::TableRecipe,
+    ) -> Result<std::sync::Arc<crate::render::camera_table::CameraTable>, DatasetError> {
+        let key = crate::render::camera_table::design_key(sys);
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(t) = tables.get(&key) {
+            return Ok(t.clone());
+        }
+        let ts = crate::render::camera_table::TableSettings {
+            spp: t.spp,
+            reps: t.reps,
+            seed: self.plan.recipe.seed,
+        };
+        let table = crate::render::camera_table::build(sys, &ts, false)
+            .map_err(|e| recipe_err(&self.plan.recipe_path, "camera_table", e.to_string()))?;
+        let table = std::sync::Arc::new(table);
+        tables.insert(key, table.clone());
+        Ok(table)
+    }
+
     /// A sample of a 3-D scene: its meshes drawn, rendered with the frontal view, measured and
     /// written; `false` where the sample has no mesh source.
     fn mesh_sample(
@@ -1410,8 +1439,19 @@ impl Generation<'_> {
                 ),
             ));
         }
-        let (clean, frontal) =
-            meshes::render_sample(&sys, recipe.objects.size_px, recipe.spp, s.seed, space);
+        let table = recipe
+            .camera_table
+            .map(|t| self.camera_table(&sys, t))
+            .transpose()?;
+        let (clean, frontal) = meshes::render_sample(
+            &sys,
+            recipe.objects.size_px,
+            recipe.spp,
+            s.seed,
+            space,
+            table.as_deref(),
+        )
+        .map_err(|e| recipe_err(&plan.recipe_path, "camera_table", e.to_string()))?;
         let capture = exposure.measure(&clean, s.seed);
         write_mesh_sample(
             plan,

@@ -498,6 +498,30 @@ pub struct Recipe {
     /// Planar objects at random depths (matrix mode).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth: Option<DepthGrid>,
+    /// 3-D (meshes) render-mode datasets: the camera side from one table per design, drawn
+    /// once per run and shared by its samples (`spp` is then user-side paths per pixel).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_table: Option<TableRecipe>,
+}
+
+/// `[camera_table]`: the camera-side table of a 3-D dataset (docs/design.md, "The camera side
+/// is scene-independent"); its seed is the recipe's.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableRecipe {
+    /// Camera samples per pixel drawn for the table.
+    #[serde(default = "default_table_spp")]
+    pub spp: u32,
+    /// Representative exit rays per pixel.
+    #[serde(default = "default_table_reps")]
+    pub reps: u32,
+}
+
+fn default_table_spp() -> u32 {
+    crate::render::camera_table::DEFAULT_TABLE_SPP
+}
+fn default_table_reps() -> u32 {
+    crate::render::camera_table::DEFAULT_TABLE_REPS
 }
 
 fn default_spp() -> u32 {
@@ -551,6 +575,19 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
     let meshes = check_kind(r)?;
     if let Some(d) = &r.depth {
         check_depth(d, r.mode, meshes)?;
+    }
+    if let Some(t) = &r.camera_table {
+        if !(r.is_meshes() && r.mode == CaptureMode::Render) {
+            return key_err(
+                "camera_table",
+                "a camera-side table is for render-mode 3-D datasets (a meshes source)".into(),
+            );
+        }
+        for (k, v) in [("camera_table.spp", t.spp), ("camera_table.reps", t.reps)] {
+            if !(1..=1 << 20).contains(&v) {
+                return key_err(k, format!("must be 1..=1048576, got {v}"));
+            }
+        }
     }
     check_vary(r)
 }

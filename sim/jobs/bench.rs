@@ -356,6 +356,7 @@ fn replot_bench(dir: &std::path::Path) -> Result<(), Failure> {
             points: curve_points(c).unwrap_or_default(),
             seconds_to_target: c["seconds_to_target"].as_f64(),
             extrapolated: c["extrapolated"].as_bool().unwrap_or(false),
+            precompute_seconds: c["precompute_seconds"].as_f64(),
         })
         .collect();
     let plot = bench_plot(&curves, target);
@@ -503,6 +504,7 @@ fn read_extra_curves(extra: &[PathBuf], target: f64) -> Result<Vec<crate::bench:
             points,
             seconds_to_target: t.map(|x| x.0),
             extrapolated: t.is_some_and(|x| x.1),
+            precompute_seconds: None,
         });
     }
     Ok(extras)
@@ -573,6 +575,11 @@ fn measure_curves(
         CurveSampler::EveryBranch,
         "stscam: the default with every branch traced on the user side (padded; the 3-D default until 2026-11-26)",
     ));
+    let table = sys.world.is_some().then_some((
+        Estimator::Bragg,
+        CurveSampler::CameraTable(Default::default()),
+        "stscam: the camera side from a per-design table (--camera-table, 1024 camera samples and 32 exit rays per pixel); spp = user-side paths",
+    ));
     for (est, sampler, name) in [
         (
             Estimator::Bragg,
@@ -591,6 +598,7 @@ fn measure_curves(
         ),
     ]
     .into_iter()
+    .chain(table)
     .chain(every_branch)
     {
         let c = pool.install(|| {

@@ -39,6 +39,50 @@ pub struct RenderOptions {
     /// (Rec. 709 primaries, D65 white).
     #[arg(long, value_enum, default_value = "sensor")]
     pub frontal_space: crate::world::colour::FrontalSpace,
+    /// The camera-side table's options (3-D scenes).
+    #[command(flatten)]
+    pub table: TableArgs,
+}
+
+/// The camera side paid once per design.
+#[derive(clap::Args, Debug, Clone)]
+pub struct TableArgs {
+    /// Take the camera side (sensor to front face) from this design's table in the cache
+    /// directory DIR, drawing and writing it there on first use; every later scene with the
+    /// same design, crop, seed and table options reads it. In 3-D scenes `--spp` then counts
+    /// user-side paths per pixel; a display-only scene needs no further sampling (every
+    /// representative's display value is summed). The sidecar records whether the table was
+    /// read or built, and its time.
+    #[arg(long, value_name = "DIR")]
+    pub camera_table: Option<PathBuf>,
+    /// Camera samples per pixel drawn for the table.
+    #[arg(long, default_value_t = crate::render::camera_table::DEFAULT_TABLE_SPP, requires = "camera_table")]
+    pub table_spp: u32,
+    /// Representative exit rays per pixel kept in the table (72 bytes each).
+    #[arg(long, default_value_t = crate::render::camera_table::DEFAULT_TABLE_REPS, requires = "camera_table")]
+    pub table_reps: u32,
+}
+
+impl Default for TableArgs {
+    /// No table (the CLI's defaults for its settings).
+    fn default() -> Self {
+        TableArgs {
+            camera_table: None,
+            table_spp: crate::render::camera_table::DEFAULT_TABLE_SPP,
+            table_reps: crate::render::camera_table::DEFAULT_TABLE_REPS,
+        }
+    }
+}
+
+impl TableArgs {
+    /// The table's settings for a render with `seed`.
+    pub fn settings(&self, seed: u64) -> crate::render::camera_table::TableSettings {
+        crate::render::camera_table::TableSettings {
+            spp: self.table_spp,
+            reps: self.table_reps,
+            seed,
+        }
+    }
 }
 
 /// `stscam render`: the capture, and in a 3-D scene the frontal view; written with their
@@ -53,6 +97,7 @@ fn cmd_render(
     user_side: UserSideSampler,
     frontal_px: Option<&str>,
     frontal_space: crate::world::colour::FrontalSpace,
+    table: &TableArgs,
     con: &Console,
 ) -> Result<crate::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
@@ -82,7 +127,10 @@ fn cmd_render(
             .map_err(limit)?;
     }
     let t0 = Instant::now();
-    let cap = pool.install(|| render(&sys, &settings));
+    let (cap, table_info) = match &table.camera_table {
+        None => (pool.install(|| render(&sys, &settings)), None),
+        Some(dir) => pool.install(|| render_tabled(&sys, &settings, table, dir, con))?,
+    };
     let render_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
@@ -116,6 +164,9 @@ fn cmd_render(
         "stats": cap.stats,
     });
     let mut sidecar = sidecar;
+    if let Some(info) = table_info {
+        sidecar["camera_table"] = info;
+    }
     if let (Some(world), Some(f)) = (sys.world.as_deref(), frontal.as_ref()) {
         world_sidecar(&mut sidecar, &sys, world, &settings, f, frontal_s);
     }
@@ -263,6 +314,60 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, J
         o.user_side,
         o.frontal_px.as_deref(),
         o.frontal_space,
+        &o.table,
         con,
     )
+}
+
+/// A render with the camera side from the design's table in `dir` (read, or drawn and
+/// written): the capture and the sidecar's `camera_table` entry.
+fn render_tabled(
+    sys: &System,
+    settings: &RenderSettings,
+    table: &TableArgs,
+    dir: &std::path::Path,
+    con: &Console,
+) -> Result<(crate::render::Capture, Option<serde_json::Value>), Failure> {
+    use crate::render::camera_table::{TableError, render_with_table};
+    let failure = |e: TableError| match e {
+        TableError::Io(e @ crate::io::IoError::Io { .. }) => Failure {
+            code: 1,
+            message: e.to_string(),
+        },
+        TableError::Limit(l) => limit(l),
+        other => bad_input(format!("--camera-table: {other}")),
+    };
+    // Refused before a table is drawn for nothing.
+    crate::render::camera_table::check_usable(sys, settings).map_err(failure)?;
+    let ts = table.settings(settings.seed);
+    let t0 = Instant::now();
+    let c = crate::render::table_file::cached(sys, &ts, dir, settings.progress).map_err(failure)?;
+    let table_s = t0.elapsed().as_secs_f64();
+    if let Some(note) = &c.note {
+        con.err(format_args!("warning: camera-side table rebuilt: {note}"));
+    }
+    let (t, origin, path) = (c.table, c.origin, c.path);
+    con.err(format_args!(
+        "camera-side table {}: {} ({} representatives, {:.3} s)",
+        match origin {
+            crate::render::table_file::TableOrigin::Read => "read",
+            crate::render::table_file::TableOrigin::Built => "built",
+            crate::render::table_file::TableOrigin::Rebuilt => "rebuilt",
+        },
+        path.display(),
+        t.len(),
+        table_s
+    ));
+    let t1 = Instant::now();
+    let cap = render_with_table(sys, settings, &t).map_err(failure)?;
+    let info = serde_json::json!({
+        "file": path,
+        "origin": origin,
+        "settings": ts,
+        "representatives": t.len(),
+        "table_time_s": table_s,
+        "user_side_time_s": t1.elapsed().as_secs_f64(),
+        "build_camera_paths": t.stats.camera_paths,
+    });
+    Ok((cap, Some(info)))
 }

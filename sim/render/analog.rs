@@ -151,7 +151,8 @@ impl SampleConsumer for Scene<'_> {
                 let l = super::user_side::trace_exit(
                     self.sys,
                     self.world,
-                    s,
+                    s.ray.dir,
+                    s.lambda_nm,
                     b.exit_point_mm,
                     &mut self.rng,
                     stats,

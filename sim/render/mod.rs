@@ -24,8 +24,10 @@ use crate::sampler::SamplerKind;
 use crate::system::System;
 
 mod analog;
+pub mod camera_table;
 mod display;
 pub(crate) mod samples;
+pub mod table_file;
 mod user_side;
 
 pub use samples::BROADBAND_UNIFORM_FRACTION;
@@ -278,17 +280,68 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
     )
 }
 
-/// The row loop: rows in parallel (collected in row order), each pixel's samples walked by
-/// the camera-sample driver [`drive_pixel`] into a pixel estimator made by `estimator` (one per
-/// row), and the image assembled.
+/// The work of one pixel: its sums over its samples (counters added to `stats`).
+pub(crate) trait PixelJob<'a> {
+    /// Pixel (col, row)'s sums.
+    fn pixel(&mut self, px: (usize, usize), stats: &mut RenderStats) -> &samples::PixelSums<'a>;
+}
+
+/// A pixel estimator driven by the camera samples ([`drive_pixel`]): the job of every
+/// estimator that traces the camera side.
+struct Driven<'s, E> {
+    sys: &'s System,
+    set: &'s RenderSettings,
+    rule: Option<crate::sampler::LatticeRule>,
+    est: E,
+}
+
+impl<'a, E: samples::PixelEstimator<'a>> PixelJob<'a> for Driven<'_, E> {
+    #[inline]
+    fn pixel(
+        &mut self,
+        (col, row): (usize, usize),
+        stats: &mut RenderStats,
+    ) -> &samples::PixelSums<'a> {
+        self.est
+            .start((row * self.sys.camera.width_px + col) as u64);
+        drive_pixel(
+            self.sys,
+            self.set,
+            self.rule,
+            (col, row),
+            stats,
+            &mut self.est,
+        );
+        self.est.finish(stats)
+    }
+}
+
+/// The row loop of the estimators that trace the camera side: [`job_rows`] with each pixel's
+/// samples walked by the camera-sample driver [`drive_pixel`] into a pixel estimator made by
+/// `estimator` (one per row).
 fn render_rows<'a, E: samples::PixelEstimator<'a>>(
     sys: &'a System,
     set: &RenderSettings,
     estimator: impl Fn() -> E + Sync,
 ) -> Capture {
+    let rule = lattice_rule(set);
+    job_rows(sys, set, || Driven {
+        sys,
+        set,
+        rule,
+        est: estimator(),
+    })
+}
+
+/// The row loop: rows in parallel (collected in row order), each pixel's sums from a job made
+/// by `job` (one per row), divided by `set.spp`, and the image assembled.
+fn job_rows<'a, J: PixelJob<'a>>(
+    sys: &'a System,
+    set: &RenderSettings,
+    job: impl Fn() -> J + Sync,
+) -> Capture {
     let h = sys.camera.height_px;
     let pb = row_progress(set.progress, h, "rendering rows");
-    let rule = lattice_rule(set);
     let cancel = crate::cancel::current();
     let (nch, nbins) = row_layout(sys, set);
     let rows: Vec<RowResult> = (0..h)
@@ -298,12 +351,10 @@ fn render_rows<'a, E: samples::PixelEstimator<'a>>(
             if cancel.is_cancelled() {
                 return r;
             }
-            let mut est = estimator();
+            let mut job = job();
             let inv = 1.0 / f64::from(set.spp.max(1));
             for col in 0..sys.camera.width_px {
-                est.start((row * sys.camera.width_px + col) as u64);
-                drive_pixel(sys, set, rule, (col, row), &mut r.stats, &mut est);
-                let sums = est.finish(&mut r.stats);
+                let sums = job.pixel((col, row), &mut r.stats);
                 // The pixel's values from its sums over `set.spp` samples.
                 for (v, a) in r.values[col * nch..(col + 1) * nch]
                     .iter_mut()

@@ -41,12 +41,13 @@ pub const USER_SIDE_PATHS_PER_SAMPLE: f64 = 1.0;
 /// bounding its memory whatever the spp and the contact limit.
 pub const RESAMPLE_WINDOW_BRANCHES: usize = 16_384;
 
-/// Traces one branch's exit ray (front-face exit point, the camera ray's direction) on the
-/// user side and counts its rays.
+/// Traces one branch's exit ray (front-face exit point `exit`, the camera ray's direction
+/// `dir`, wavelength `lambda_nm`) on the user side and counts its rays.
 pub(super) fn trace_exit(
     sys: &System,
     world: &World,
-    s: &CameraSample,
+    dir: glam::DVec3,
+    lambda_nm: f64,
     exit: glam::DVec2,
     rng: &mut PathRng,
     stats: &mut RenderStats,
@@ -55,8 +56,8 @@ pub(super) fn trace_exit(
     let l = world.radiance(
         &sys.display,
         crate::world::integrator::exit_point(exit),
-        s.ray.dir,
-        s.lambda_nm,
+        dir,
+        lambda_nm,
         rng,
         &mut counts,
     );
@@ -128,7 +129,15 @@ impl SampleConsumer for EveryBranch<'_> {
             if keep < 1.0 && rng.single(ROULETTE_SLOT) >= keep {
                 continue;
             }
-            let l = trace_exit(self.sys, self.world, s, exit, &mut rng, stats);
+            let l = trace_exit(
+                self.sys,
+                self.world,
+                s.ray.dir,
+                s.lambda_nm,
+                exit,
+                &mut rng,
+                stats,
+            );
             let (wd, wo) = branch_weights(weight, pol);
             total += (wd * l.display + wo * l.other) / keep;
         }
@@ -143,24 +152,146 @@ impl<'a> PixelEstimator<'a> for EveryBranch<'a> {
     }
 }
 
-/// One branch of a pixel's camera samples waiting for its user side ([`Resampled`]).
+/// One branch of a pixel's camera samples waiting for its user side ([`Resampled`], and the
+/// camera-side table's representatives, [`super::camera_table`]).
 #[derive(Clone, Copy, Debug)]
-struct PendingBranch {
+pub(super) struct PendingBranch {
     /// The branch's replica, (grating, plate contact) as [`Branch::replica_key`].
-    replica: u64,
-    /// Its camera sample's index in [`Resampled::samples`] (the samples in order).
-    sample: u32,
+    pub(super) replica: u64,
+    /// Its camera sample's index in [`Gathered::samples`] (the samples in order).
+    pub(super) sample: u32,
     /// Front-face exit point, mm.
-    exit: glam::DVec2,
+    pub(super) exit: glam::DVec2,
     /// Energy fractions [TE, TM].
-    weight: [f64; 2],
+    pub(super) weight: [f64; 2],
     /// Selection weight: the branch's weight to the sensor, ½(w_TE + w_TM)·cos⁴θ/p(λ)·Σ_c R_c(λ)
     /// (without the response sum when spectral bins are written, which do not use it).
-    sel: f64,
+    pub(super) sel: f64,
 }
 
 /// Tag of the resampled user side's random streams (keeps them apart from the per-branch ones).
 const RESAMPLED_TAG: u64 = 0x5E5A_4D91_ED00_0000;
+
+/// A run of camera samples and their branches gathered for resampling (a [`Resampled`]
+/// window, or a whole pixel of the camera-side table).
+pub(super) struct Gathered<'a> {
+    sys: &'a System,
+    /// Spectral bins are written (the selection weights then leave out the response).
+    spectral_bins: bool,
+    /// The camera samples, in order.
+    pub(super) samples: Vec<CameraSample>,
+    /// Their branches with a positive selection weight, in order.
+    pub(super) branches: Vec<PendingBranch>,
+    /// The current sample's selection scale, cos⁴θ/p(λ)·Σ_c R_c(λ).
+    sel_scale: f64,
+}
+
+impl<'a> Gathered<'a> {
+    /// Nothing gathered yet.
+    pub(super) fn new(sys: &'a System, spectral_bins: bool) -> Self {
+        Gathered {
+            sys,
+            spectral_bins,
+            samples: Vec::new(),
+            branches: Vec::new(),
+            sel_scale: 0.0,
+        }
+    }
+
+    /// Forgets what was gathered.
+    pub(super) fn clear(&mut self) {
+        self.samples.clear();
+        self.branches.clear();
+    }
+
+    /// Sample `s` begins ([`SampleConsumer::begin`]).
+    #[inline]
+    pub(super) fn begin(&mut self, s: &CameraSample) {
+        let response = if self.spectral_bins {
+            1.0
+        } else {
+            channel_weights(self.sys, s.lambda_nm)
+                .iter()
+                .take(self.sys.response.curves.len())
+                .sum()
+        };
+        self.sel_scale = s.ray.cos4 / s.pdf * response;
+        self.samples.push(*s);
+    }
+
+    /// A branch of the current sample ([`SampleConsumer::branch`]).
+    #[inline]
+    pub(super) fn branch(&mut self, b: &Branch) {
+        let sel = 0.5 * (b.weight[0] + b.weight[1]) * self.sel_scale;
+        if sel > 0.0 && sel.is_finite() {
+            self.branches.push(PendingBranch {
+                replica: b.replica_key(),
+                sample: (self.samples.len() - 1) as u32,
+                exit: b.exit_point_mm,
+                weight: b.weight,
+                sel,
+            });
+        }
+    }
+
+    /// Sorts the branches by (replica, sample) and calls `group` for each replica's run with
+    /// the selection weight of all branches.
+    pub(super) fn by_replica(&mut self, mut group: impl FnMut(&[PendingBranch], f64)) {
+        self.branches
+            .sort_unstable_by_key(|p| (p.replica, p.sample));
+        let total: f64 = self.branches.iter().map(|p| p.sel).sum();
+        for g in self.branches.chunk_by(|a, b| a.replica == b.replica) {
+            group(g, total);
+        }
+    }
+}
+
+/// Systematic resampling of one replica's branches `group` (selection weight `s_c`) into
+/// about `q` draws: K = round(q) draws for q ≥ 1; one draw for `t` ≤ q < 1; for q < t one
+/// draw with probability q/t (Russian roulette on the uniform of hash `h`), else none. Calls
+/// `draw(kk, K, s_c/K_eff, branch)` for draw kk of K, in order: each draw stands for s_c/K_eff
+/// of selection weight, K_eff = K (or q/t), so Σ draws·(s_c/K_eff)·v/s is unbiased for Σ_j v_j
+/// (Douc, Cappé & Moulines 2005). The offset comes from `mix64(h)`.
+pub(super) fn resample_group(
+    group: &[PendingBranch],
+    s_c: f64,
+    q: f64,
+    t: f64,
+    h: u64,
+    mut draw: impl FnMut(u64, u64, f64, &PendingBranch),
+) {
+    let (k, k_eff) = if q >= 1.0 {
+        let k = q.round() as u64;
+        (k, k as f64)
+    } else if q >= t {
+        (1, 1.0)
+    } else if t == 1.0 {
+        // (q/t written as q: the resampled user side's numbers, unchanged.)
+        if crate::sampler::to_unit(h) < q {
+            (1, q)
+        } else {
+            return;
+        }
+    } else if crate::sampler::to_unit(h) < q / t {
+        (1, q / t)
+    } else {
+        return;
+    };
+    let offset = crate::sampler::to_unit(crate::sampler::mix64(h));
+    let step = s_c / k as f64;
+    let share = s_c / k_eff;
+    let mut j = 0;
+    let mut cum = group[0].sel;
+    for kk in 0..k {
+        // The branch whose cumulative weight passes (kk + offset)·step.
+        let t = (kk as f64 + offset) * step;
+        while cum <= t && j + 1 < group.len() {
+            j += 1;
+            cum += group[j].sel;
+        }
+        draw(kk, k, share, &group[j]);
+    }
+}
 
 /// The pixel's branches share user-side paths.
 ///
@@ -171,13 +302,13 @@ const RESAMPLED_TAG: u64 = 0x5E5A_4D91_ED00_0000;
 /// (grating and plate contact c); replica c's sum Σ_j v_j·L_j over its G_c branches, of total
 /// selection weight S_c = Σ_j s_j, is estimated from K_c user-side paths traced from branches
 /// drawn by systematic resampling in proportion to s_j (one uniform offset, the branches in
-/// sample order): (S_c/K_c)·Σ_k v_jk·L̂_jk/s_jk. Systematic resampling draws branch j
-/// K_c·s_j/S_c times in expectation (Douc, Cappé & Moulines 2005, "Comparison of resampling
-/// schemes for particle filtering"), and each L̂ is an independent unbiased path estimate, so
-/// the estimate is unbiased for any K_c fixed by the branches. Paths are allotted by weight,
-/// K_c = round(τ·N·S_c/Σ S) for τ = [`USER_SIDE_PATHS_PER_SAMPLE`] and N camera samples;
-/// a replica with τ·N·S_c/ΣS = q < 1 is traced once with probability q and weighted 1/q
-/// (Russian roulette). Why it pays: every camera sample still contributes its exact branch
+/// sample order): (S_c/K_c)·Σ_k v_jk·L̂_jk/s_jk ([`resample_group`]). Systematic resampling
+/// draws branch j K_c·s_j/S_c times in expectation (Douc, Cappé & Moulines 2005, "Comparison
+/// of resampling schemes for particle filtering"), and each L̂ is an independent unbiased path
+/// estimate, so the estimate is unbiased for any K_c fixed by the branches. Paths are allotted
+/// by weight, K_c = round(τ·N·S_c/Σ S) for τ = [`USER_SIDE_PATHS_PER_SAMPLE`] and N camera
+/// samples; a replica with τ·N·S_c/ΣS = q < 1 is traced once with probability q and weighted
+/// 1/q (Russian roulette). Why it pays: every camera sample still contributes its exact branch
 /// weights (the replica edges, the Bragg selectivity and the pixel footprint are integrated
 /// with all N samples), while the user side, about 85 % of a sample's cost, is sampled only as
 /// often as its own noise needs; branches of one replica in one pixel see nearly the same
@@ -192,18 +323,12 @@ pub(super) struct Resampled<'a> {
     world: &'a World,
     seed: u64,
     padded: bool,
-    /// Spectral bins are written (the selection weights then leave out the response).
-    spectral_bins: bool,
     window_branches: usize,
     sums: PixelSums<'a>,
-    /// The window's camera samples, in order.
-    samples: Vec<CameraSample>,
-    /// The window's branches waiting for the user side.
-    branches: Vec<PendingBranch>,
+    /// The window's camera samples and branches.
+    gathered: Gathered<'a>,
     /// The window's sample indices, [start, end).
     window: (u64, u64),
-    /// The current sample's selection scale, cos⁴θ/p(λ)·Σ_c R_c(λ).
-    sel_scale: f64,
 }
 
 impl<'a> Resampled<'a> {
@@ -219,13 +344,10 @@ impl<'a> Resampled<'a> {
             world,
             seed: set.seed,
             padded: set.sampler != SamplerKind::Independent,
-            spectral_bins: set.spectral_bins.is_some(),
             window_branches,
             sums: PixelSums::new(sys, set),
-            samples: Vec::new(),
-            branches: Vec::new(),
+            gathered: Gathered::new(sys, set.spectral_bins.is_some()),
             window: (0, 0),
-            sel_scale: 0.0,
         }
     }
 
@@ -233,87 +355,49 @@ impl<'a> Resampled<'a> {
     /// empties the window.
     fn trace_window(&mut self, stats: &mut RenderStats) {
         let (sys, window) = (self.sys, self.window);
-        if self.branches.is_empty() {
-            self.samples.clear();
-            return;
-        }
-        self.branches
-            .sort_unstable_by_key(|p| (p.replica, p.sample));
-        let total: f64 = self.branches.iter().map(|p| p.sel).sum();
         let paths = USER_SIDE_PATHS_PER_SAMPLE * (window.1 - window.0) as f64;
         let pol = sys.display.polarization_weights;
-        for group in self.branches.chunk_by(|a, b| a.replica == b.replica) {
+        let (seed, pixel, padded, world) = (self.seed, self.sums.pixel, self.padded, self.world);
+        let sums = &mut self.sums;
+        let samples = std::mem::take(&mut self.gathered.samples);
+        self.gathered.by_replica(|group, total| {
             // The replica's key (grating, contact); the contact alone for grating 0.
             let contact = group[0].replica;
             let s_c: f64 = group.iter().map(|p| p.sel).sum();
-            let q = paths * s_c / total;
             let tag = RESAMPLED_TAG ^ window.0;
-            let h = crate::sampler::hash(&[self.seed, self.sums.pixel, tag, contact]);
-            // K paths, each standing for S_c/K_eff of selection weight.
-            let (k, k_eff) = if q >= 1.0 {
-                let k = q.round() as u64;
-                (k, k as f64)
-            } else if crate::sampler::to_unit(h) < q {
-                (1, q)
-            } else {
-                continue;
-            };
-            let offset = crate::sampler::to_unit(crate::sampler::mix64(h));
-            let pad_key = PathRng::padded_key(&[self.seed, self.sums.pixel, contact, tag]);
-            let step = s_c / k as f64;
-            let mut j = 0;
-            let mut cum = group[0].sel;
-            for kk in 0..k {
-                // Systematic resampling: the branch whose cumulative weight passes
-                // (kk + offset)·step.
-                let t = (kk as f64 + offset) * step;
-                while cum <= t && j + 1 < group.len() {
-                    j += 1;
-                    cum += group[j].sel;
-                }
-                let p = &group[j];
-                let s = &self.samples[p.sample as usize];
-                let mut rng = PathRng::new(&[self.seed, self.sums.pixel, tag, contact, kk]);
-                if self.padded && k <= u64::from(u32::MAX) {
-                    rng = rng.with_padded(pad_key, kk, k as u32);
-                }
-                let l = trace_exit(sys, self.world, s, p.exit, &mut rng, stats);
-                let (wd, wo) = branch_weights(p.weight, pol);
-                let base =
-                    (s_c / k_eff) * (wd * l.display + wo * l.other) / p.sel * s.ray.cos4 / s.pdf;
-                self.sums.add(base, s.lambda_nm, stats);
-            }
-        }
-        self.samples.clear();
-        self.branches.clear();
+            let h = crate::sampler::hash(&[seed, pixel, tag, contact]);
+            let pad_key = PathRng::padded_key(&[seed, pixel, contact, tag]);
+            resample_group(
+                group,
+                s_c,
+                paths * s_c / total,
+                1.0,
+                h,
+                |kk, k, share, p| {
+                    let s = &samples[p.sample as usize];
+                    let mut rng = PathRng::new(&[seed, pixel, tag, contact, kk]);
+                    if padded && k <= u64::from(u32::MAX) {
+                        rng = rng.with_padded(pad_key, kk, k as u32);
+                    }
+                    let l = trace_exit(sys, world, s.ray.dir, s.lambda_nm, p.exit, &mut rng, stats);
+                    let (wd, wo) = branch_weights(p.weight, pol);
+                    let base = share * (wd * l.display + wo * l.other) / p.sel * s.ray.cos4 / s.pdf;
+                    sums.add(base, s.lambda_nm, stats);
+                },
+            );
+        });
+        self.gathered.samples = samples;
+        self.gathered.clear();
     }
 }
 
 impl SampleConsumer for Resampled<'_> {
     fn begin(&mut self, s: &CameraSample, _i: u64) {
-        let response = if self.spectral_bins {
-            1.0
-        } else {
-            channel_weights(self.sys, s.lambda_nm)
-                .iter()
-                .take(self.sys.response.curves.len())
-                .sum()
-        };
-        self.sel_scale = s.ray.cos4 / s.pdf * response;
-        self.samples.push(*s);
+        self.gathered.begin(s);
     }
 
     fn branch(&mut self, _s: &CameraSample, b: &Branch) -> ControlFlow<()> {
-        let sel = 0.5 * (b.weight[0] + b.weight[1]) * self.sel_scale;
-        if sel > 0.0 && sel.is_finite() {
-            self.branches.push(PendingBranch {
-                replica: b.replica_key(),
-                sample: (self.samples.len() - 1) as u32,
-                exit: b.exit_point_mm,
-                weight: b.weight,
-                sel,
-            });
-        }
+        self.gathered.branch(b);
         ControlFlow::Continue(())
     }
 
@@ -321,7 +405,7 @@ impl SampleConsumer for Resampled<'_> {
 
     fn after(&mut self, i: u64, stats: &mut RenderStats) {
         self.window.1 = i + 1;
-        if self.branches.len() >= self.window_branches {
+        if self.gathered.branches.len() >= self.window_branches {
             self.trace_window(stats);
             self.window.0 = self.window.1;
         }
@@ -335,8 +419,7 @@ impl<'a> PixelEstimator<'a> for Resampled<'a> {
 
     fn start(&mut self, pixel: u64) {
         self.sums.start(pixel);
-        self.samples.clear();
-        self.branches.clear();
+        self.gathered.clear();
         self.window = (0, 0);
     }
 

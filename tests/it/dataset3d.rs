@@ -543,3 +543,53 @@ fn meshes_frontal_space_writes_xyz_and_linear_srgb() {
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("objects.frontal_space"), "{err}");
 }
+
+/// `[camera_table]`: the run draws the design's camera-side table once and renders every
+/// capture from it; two shards merged give the whole run's bytes (the table is seeded by the
+/// recipe), the captures differ from the direct estimator's, and a zero count or an unknown
+/// key in the section is refused naming the key.
+#[test]
+fn meshes_with_a_camera_table_keep_shards_and_refuse_bad_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let table = "\n[camera_table]\nspp = 16\nreps = 8\n";
+    let text = meshes_recipe("table3d", 4, 4) + table;
+    let r = write(dir.path(), "r.toml", &text);
+    let whole = dir.path().join("whole");
+    build(&r, &whole, &[]);
+    let mut shards = Vec::new();
+    for i in 0..2 {
+        let d = dir.path().join(format!("s{i}"));
+        build(&r, &d, &["--shard", &format!("{i}/2")]);
+        shards.push(d);
+    }
+    let merged = dir.path().join("merged");
+    crate::common::merge_shards(&shards, &merged);
+    assert_same_tree(&whole, &merged);
+    let plain = dir.path().join("plain");
+    build(
+        &write(dir.path(), "p.toml", &meshes_recipe("table3d", 4, 4)),
+        &plain,
+        &[],
+    );
+    let (a, b) = (metadata(&whole), metadata(&plain));
+    assert_eq!(a[0].1["position_mm"], b[0].1["position_mm"]);
+    let file = a[0].1["capture_npy"].as_str().unwrap().to_string();
+    let cap = |root: &Path| npy(&root.join(&a[0].0).join(&file)).1;
+    assert_ne!(cap(&whole), cap(&plain));
+    for (i, (bad, key)) in [
+        (text.replace("spp = 16", "spp = 0"), "camera_table.spp"),
+        (text.replace("reps = 8", "reps = 0"), "camera_table.reps"),
+        (text.replace("reps = 8", "repz = 8"), "repz"),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let r = write(dir.path(), &format!("b{i}.toml"), bad);
+        let o = dir.path().join(format!("b{i}"));
+        let out = stscam(&["dataset", r.to_str().unwrap(), "--out", o.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{key}: {err}");
+        assert!(err.contains(key), "{key}: {err}");
+        assert!(!o.exists());
+    }
+}

@@ -37,6 +37,7 @@ fn render_job_returns_what_the_cli_writes() {
         user_side: Default::default(),
         frontal_px: None,
         frontal_space: Default::default(),
+        table: Default::default(),
     };
     let cap = jobs::render::run(&opts, &Console::Silent).expect("render job");
     let cli_out = dir.path().join("cli");

@@ -3,6 +3,7 @@
 mod analytic_field;
 mod asset_features;
 mod bvh;
+mod camera_table;
 mod cancel;
 mod cli_errors;
 mod common;

@@ -1,0 +1,457 @@
+//! The camera side of a design, paid once: a per-pixel table of the waveguide's exit rays
+//! that every 3-D scene seen through the same design reuses, so that a further scene traces
+//! only its user side.
+//!
+//! Model. Everything from the sensor to the plate's front face (thin lens, plate, vHOEs,
+//! Bragg selection, replica weights) depends on the design, not on the scene. A pixel's value
+//! is (1/N)·Σ_i Σ_b v_ib·L(x_ib) over its N camera samples i and their branches b, where the
+//! branch's weight v_ib (TE/TM weights, cos⁴θ/p(λ), the channel responses at λ_i) comes from
+//! the waveguide and L(x_ib) is the radiance arriving along its exit ray x_ib (front-face exit
+//! point, direction, wavelength) from the scene. The table holds, per pixel, R representative
+//! exit rays drawn from the branches of N_t camera samples (`--table-spp`, 1,024 by default)
+//! exactly as the resampled user side draws them (`super::user_side::resample_group`):
+//! replicas (grating, plate contact) get R·S_c/ΣS representatives for their selection weight
+//! S_c (Russian roulette below one), and a replica's representatives are drawn by systematic
+//! resampling in proportion to each branch's selection weight s_j. Representative r carries
+//! its exit ray and the coefficients c_r = (S_c/K_c)/N_t·(w_display, w_other)/s_j·cos⁴θ/p(λ)
+//! that turn the radiance along it into the pixel's value, so Σ_r c_r·L(x_r) has the
+//! expectation of the direct estimator over the table's draw (docs/design.md, "The camera side
+//! is scene-independent"). A render of a scene then traces M user-side paths per pixel
+//! (`--spp`): path k takes representative ⌊(k + u)·R/M⌋ (systematic, one uniform u per pixel),
+//! is weighted R/M, and draws its first-vertex numbers from padded sets over its replica's
+//! paths, like the resampled user side. Each representative is taken M/R times in expectation
+//! and each path's radiance is an unbiased path estimate, so the render is unbiased for any M.
+//!
+//! What the table costs: its noise is shared by every scene rendered with it (one draw of the
+//! camera side, N_t samples per pixel, R exit rays), so a dataset's captures share that
+//! fixed pattern; it is ≈ 1/√N_t of the waveguide's own noise and R exit rays of the pixel's
+//! footprint. Its memory is 72 bytes per representative (f64 throughout).
+//!
+//! Sources: resampling, Douc, Cappé & Moulines (2005), "Comparison of resampling schemes for
+//! particle filtering"; Russian roulette, Arvo & Kirk (1990); the precomputed light transport
+//! of a fixed optical system is the idea of precomputed radiance transfer (Sloan, Kautz &
+//! Snyder 2002), here as a sample set rather than a basis.
+
+use std::ops::ControlFlow;
+
+use rayon::prelude::*;
+
+use super::samples::{CameraSample, PixelSums, SampleConsumer};
+use super::user_side::{Gathered, resample_group, trace_exit};
+use super::{PixelJob, RenderSettings, RenderStats};
+use crate::sampler::{PathRng, SamplerKind};
+use crate::system::System;
+use crate::trace::Branch;
+use crate::world::World;
+use crate::world::integrator::branch_weights;
+
+/// Camera samples per pixel of a table by default (`--table-spp`).
+pub const DEFAULT_TABLE_SPP: u32 = 1024;
+
+/// Representative exit rays per pixel by default (`--table-reps`).
+pub const DEFAULT_TABLE_REPS: u32 = 32;
+
+/// A replica whose share of the pixel's representatives is at least this gets one for sure;
+/// below it, one with probability share/this (Russian roulette). Weak replicas then cost a
+/// representative only when they matter, and a replica with a share near one is not left
+/// out of the table by chance (that was the table's largest fixed error: 1.94 % at 32
+/// representatives with roulette below a share of 1, eye contact at 128 × 128).
+pub const TABLE_MIN_SHARE: f64 = 0.1;
+
+/// Bytes of one representative in memory and on disk.
+pub const REP_BYTES: usize = 72;
+
+/// Tag of the table's random streams (keeps them apart from the renders' own).
+const TABLE_TAG: u64 = 0x7AB1_E000_CA5E_0000;
+
+/// How a camera-side table is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct TableSettings {
+    /// Camera samples per pixel (lattice sequence).
+    pub spp: u32,
+    /// Representative exit rays per pixel (on average: each replica gets its share).
+    pub reps: u32,
+    /// Seed of the camera samples and of the draw.
+    pub seed: u64,
+}
+
+impl Default for TableSettings {
+    fn default() -> Self {
+        TableSettings {
+            spp: DEFAULT_TABLE_SPP,
+            reps: DEFAULT_TABLE_REPS,
+            seed: 1,
+        }
+    }
+}
+
+/// One representative exit ray of a pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Rep {
+    /// Front-face exit point (x, y), mm.
+    pub(crate) exit_mm: [f64; 2],
+    /// Direction of the exit ray (the camera ray's, unit).
+    pub(crate) dir: [f64; 3],
+    /// Wavelength, nm.
+    pub(crate) lambda_nm: f64,
+    /// Coefficients of the display seen directly (polarised) and of all other radiance.
+    pub(crate) coef: [f64; 2],
+    /// The replica (grating, contact), as [`crate::trace::replica_key`].
+    pub(crate) replica: u64,
+}
+
+/// A design's camera side: per pixel, its representative exit rays ([`Rep`]), for the
+/// sensor crop and the settings it was drawn with.
+#[derive(Clone, Debug)]
+pub struct CameraTable {
+    /// The design's key ([`design_key`]).
+    pub(crate) key: [u64; 2],
+    /// How it was drawn.
+    pub settings: TableSettings,
+    /// Crop width, px.
+    pub width: usize,
+    /// Crop height, px.
+    pub height: usize,
+    /// Pixel p's representatives are `reps[offsets[p]..offsets[p + 1]]`.
+    pub(crate) offsets: Vec<u64>,
+    pub(crate) reps: Vec<Rep>,
+    /// The build's counters (zero for a table read from disk).
+    pub stats: RenderStats,
+}
+
+/// Why a table cannot be built, read or used.
+#[derive(Debug, thiserror::Error)]
+pub enum TableError {
+    /// The table or its render is too big, or the settings are out of range.
+    #[error(transparent)]
+    Limit(#[from] crate::limits::LimitError),
+    /// The scene or render cannot use a table.
+    #[error("{0}")]
+    Unsupported(String),
+    /// The table's file could not be read or written.
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+    /// The job was cancelled ([`crate::cancel`]) while the table was drawn: nothing is kept.
+    #[error("interrupted")]
+    Cancelled,
+}
+
+impl CameraTable {
+    /// Representatives in all.
+    pub fn len(&self) -> usize {
+        self.reps.len()
+    }
+
+    /// True when no pixel has a representative (no light reaches the front face).
+    pub fn is_empty(&self) -> bool {
+        self.reps.is_empty()
+    }
+
+    /// Pixel `p`'s representatives (row-major index).
+    #[inline]
+    pub(crate) fn pixel(&self, p: usize) -> &[Rep] {
+        &self.reps[self.offsets[p] as usize..self.offsets[p + 1] as usize]
+    }
+
+    /// Whether the table was drawn for `sys`'s design and crop.
+    pub fn matches(&self, sys: &System) -> bool {
+        self.key == design_key(sys)
+            && self.width == sys.camera.width_px
+            && self.height == sys.camera.height_px
+    }
+}
+
+/// Checks a table's settings and size against [`crate::limits`] before it is drawn.
+pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableError> {
+    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
+    if ts.spp == 0 || ts.reps == 0 {
+        return Err(TableError::Unsupported(format!(
+            "--table-spp and --table-reps must be at least 1 (got {} and {})",
+            ts.spp, ts.reps
+        )));
+    }
+    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
+    // Rounding gives a pixel at most one more representative per replica than its share;
+    // twice the share bounds it for any design with fewer replicas than representatives.
+    crate::limits::check_bytes(
+        "--table-reps",
+        "the camera-side table",
+        pixels * (2 * u128::from(ts.reps) + 64) * REP_BYTES as u128,
+    )?;
+    Ok(())
+}
+
+/// The key of everything the camera side depends on: the waveguide (plate, films, gratings
+/// and their efficiency model), camera and sensor crop, sensor response, wavelength sampler,
+/// trace limits, the object plane's distance and the display's polarisation, and the film's
+/// recording (two independent 64-bit hashes of their full `Debug` text, which prints every
+/// f64 exactly).
+pub fn design_key(sys: &System) -> [u64; 2] {
+    let text = format!(
+        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
+        sys.waveguide,
+        sys.camera,
+        sys.response,
+        sys.wavelengths,
+        sys.limits,
+        sys.display.z_mm,
+        sys.display.polarization_weights,
+        sys.scene.hoe,
+    );
+    [
+        hash_bytes(text.as_bytes(), 0x243F_6A88_85A3_08D3),
+        hash_bytes(text.as_bytes(), 0x1319_8A2E_0370_7344),
+    ]
+}
+
+/// A 64-bit hash of `bytes` (8-byte words through the sampler's mixer, then the length).
+pub(crate) fn hash_bytes(bytes: &[u8], seed: u64) -> u64 {
+    let mut h = seed;
+    let mut chunks = bytes.chunks_exact(8);
+    for c in &mut chunks {
+        let w = u64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
+        h = crate::sampler::mix64(h ^ crate::sampler::mix64(w));
+    }
+    let mut last = [0u8; 8];
+    last[..chunks.remainder().len()].copy_from_slice(chunks.remainder());
+    h = crate::sampler::mix64(h ^ crate::sampler::mix64(u64::from_le_bytes(last)));
+    crate::sampler::mix64(h ^ bytes.len() as u64)
+}
+
+/// Gathers a pixel's camera samples and branches for the table.
+struct TablePixel<'a> {
+    gathered: Gathered<'a>,
+}
+
+impl SampleConsumer for TablePixel<'_> {
+    #[inline]
+    fn begin(&mut self, s: &CameraSample, _i: u64) {
+        self.gathered.begin(s);
+    }
+
+    #[inline]
+    fn branch(&mut self, _s: &CameraSample, b: &Branch) -> ControlFlow<()> {
+        self.gathered.branch(b);
+        ControlFlow::Continue(())
+    }
+
+    #[inline]
+    fn end(&mut self, _s: &CameraSample, _i: u64, _stats: &mut RenderStats) {}
+}
+
+/// Draws `sys`'s camera-side table with `ts` (rows in parallel, collected in order: the same
+/// table for any thread count). Shows a progress bar when `progress`.
+pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraTable, TableError> {
+    check_table_limits(sys, ts)?;
+    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+    let set = RenderSettings::lattice(ts.spp, ts.seed, false);
+    let rule = super::lattice_rule(&set);
+    let pol = sys.display.polarization_weights;
+    let inv_n = 1.0 / f64::from(ts.spp);
+    let pb = super::row_progress(progress, h, "camera-side table rows");
+    let cancel = crate::cancel::current();
+    let rows: Vec<(Vec<u64>, Vec<Rep>, RenderStats)> = (0..h)
+        .into_par_iter()
+        .map(|row| {
+            let mut stats = RenderStats::default();
+            let mut counts = Vec::with_capacity(w);
+            let mut reps = Vec::new();
+            if cancel.is_cancelled() {
+                return (vec![0; w], reps, stats);
+            }
+            let mut px = TablePixel {
+                gathered: Gathered::new(sys, false),
+            };
+            for col in 0..w {
+                let pixel = (row * w + col) as u64;
+                let before = reps.len();
+                px.gathered.clear();
+                super::drive_pixel(sys, &set, rule, (col, row), &mut stats, &mut px);
+                let samples = std::mem::take(&mut px.gathered.samples);
+                px.gathered.by_replica(|group, total| {
+                    let replica = group[0].replica;
+                    let s_c: f64 = group.iter().map(|p| p.sel).sum();
+                    let q = f64::from(ts.reps) * s_c / total;
+                    let hsh = crate::sampler::hash(&[ts.seed, pixel, TABLE_TAG, replica]);
+                    resample_group(group, s_c, q, TABLE_MIN_SHARE, hsh, |_, _, share, p| {
+                        let s = &samples[p.sample as usize];
+                        let (wd, wo) = branch_weights(p.weight, pol);
+                        let scale = share / p.sel * s.ray.cos4 / s.pdf * inv_n;
+                        reps.push(Rep {
+                            exit_mm: p.exit.to_array(),
+                            dir: s.ray.dir.to_array(),
+                            lambda_nm: s.lambda_nm,
+                            coef: [scale * wd, scale * wo],
+                            replica,
+                        });
+                    });
+                });
+                px.gathered.samples = samples;
+                counts.push((reps.len() - before) as u64);
+            }
+            pb.inc(1);
+            (counts, reps, stats)
+        })
+        .collect();
+    pb.finish_and_clear();
+    if cancel.is_cancelled() {
+        return Err(TableError::Cancelled);
+    }
+    let mut offsets = Vec::with_capacity(w * h + 1);
+    offsets.push(0u64);
+    let mut all = Vec::with_capacity(rows.iter().map(|r| r.1.len()).sum());
+    let mut stats = RenderStats::default();
+    for (counts, reps, st) in rows {
+        for c in counts {
+            offsets.push(offsets[offsets.len() - 1] + c);
+        }
+        all.extend(reps);
+        stats.merge(&st);
+    }
+    Ok(CameraTable {
+        key: design_key(sys),
+        settings: *ts,
+        width: w,
+        height: h,
+        offsets,
+        reps: all,
+        stats,
+    })
+}
+
+/// That a render of `sys` with `set` can take its camera side from a table (not with spectral
+/// bins); gives the scene's world (None for a display-only scene).
+pub fn check_usable<'a>(
+    sys: &'a System,
+    set: &RenderSettings,
+) -> Result<Option<&'a World>, TableError> {
+    if set.spectral_bins.is_some() {
+        return Err(TableError::Unsupported(
+            "--spectral cannot use a camera-side table (its representatives are drawn for the sensor's channels)".into(),
+        ));
+    }
+    Ok(sys.world.as_deref())
+}
+
+/// Renders `sys` with its camera side taken from `table`: in a 3-D scene `set.spp` user-side
+/// paths per pixel (module docs); in a display-only scene every representative's display
+/// radiance, looked up where its exit ray meets the display (no further sampling: `set.spp`
+/// only scales the sums). Deterministic for a given seed and table, whatever the thread count.
+pub fn render_with_table(
+    sys: &System,
+    set: &RenderSettings,
+    table: &CameraTable,
+) -> Result<super::Capture, TableError> {
+    let world = check_usable(sys, set)?;
+    if !table.matches(sys) {
+        return Err(TableError::Unsupported(
+            "the camera-side table was drawn for another design or sensor crop".into(),
+        ));
+    }
+    crate::limits::check_paths(
+        "--spp",
+        (table.width * table.height) as u128 * u128::from(set.spp),
+    )?;
+    Ok(super::job_rows(sys, set, || TableJob {
+        sys,
+        world,
+        table,
+        seed: set.seed,
+        paths: set.spp,
+        padded: set.sampler != SamplerKind::Independent,
+        sums: PixelSums::new(sys, set),
+        picks: Vec::new(),
+    }))
+}
+
+/// The user side of one pixel from the table ([`render_with_table`]).
+struct TableJob<'a> {
+    sys: &'a System,
+    /// The 3-D scene (None: the display alone).
+    world: Option<&'a World>,
+    table: &'a CameraTable,
+    seed: u64,
+    /// User-side paths per pixel, M.
+    paths: u32,
+    padded: bool,
+    sums: PixelSums<'a>,
+    /// The representative of each path.
+    picks: Vec<u32>,
+}
+
+impl<'a> PixelJob<'a> for TableJob<'a> {
+    fn pixel(&mut self, (col, row): (usize, usize), stats: &mut RenderStats) -> &PixelSums<'a> {
+        let p = row * self.table.width + col;
+        self.sums.start(p as u64);
+        let reps = self.table.pixel(p);
+        if reps.is_empty() || self.paths == 0 {
+            return &self.sums;
+        }
+        let Some(world) = self.world else {
+            self.display_only(reps, stats);
+            return &self.sums;
+        };
+        let (r, m) = (reps.len(), self.paths);
+        let pixel = p as u64;
+        // Systematic choice: path k takes representative ⌊(k + u)·R/M⌋.
+        let u = crate::sampler::to_unit(crate::sampler::hash(&[self.seed, pixel, TABLE_TAG]));
+        let ratio = r as f64 / f64::from(m);
+        self.picks.clear();
+        self.picks
+            .extend((0..m).map(|k| (((f64::from(k) + u) * ratio) as usize).min(r - 1) as u32));
+        // The paths of one replica are consecutive (representatives are sorted by replica).
+        let mut k0 = 0usize;
+        while k0 < self.picks.len() {
+            let replica = reps[self.picks[k0] as usize].replica;
+            let k1 = k0
+                + self.picks[k0..]
+                    .iter()
+                    .take_while(|&&j| reps[j as usize].replica == replica)
+                    .count();
+            let n = (k1 - k0) as u32;
+            let pad_key = PathRng::padded_key(&[self.seed, pixel, replica, TABLE_TAG]);
+            for k in k0..k1 {
+                let rep = &reps[self.picks[k] as usize];
+                let mut rng = PathRng::new(&[self.seed, pixel, TABLE_TAG, k as u64]);
+                if self.padded {
+                    rng = rng.with_padded(pad_key, (k - k0) as u64, n);
+                }
+                let l = trace_exit(
+                    self.sys,
+                    world,
+                    glam::DVec3::from_array(rep.dir),
+                    rep.lambda_nm,
+                    glam::DVec2::from_array(rep.exit_mm),
+                    &mut rng,
+                    stats,
+                );
+                let base = r as f64 * (rep.coef[0] * l.display + rep.coef[1] * l.other);
+                self.sums.add(base, rep.lambda_nm, stats);
+            }
+            k0 = k1;
+        }
+        &self.sums
+    }
+}
+
+impl TableJob<'_> {
+    /// A display-only pixel: Σ_r c_r·S(λ_r)·L_rel(object point of r) (times the path count,
+    /// which the row loop divides out).
+    fn display_only(&mut self, reps: &[Rep], stats: &mut RenderStats) {
+        let d = &self.sys.display;
+        let z = d.z_mm;
+        let m = f64::from(self.paths);
+        for rep in reps {
+            let dir = glam::DVec3::from_array(rep.dir);
+            // Where the exit ray meets the display plane, as the tracer computes it.
+            let object = glam::DVec2::from_array(rep.exit_mm)
+                - crate::optics::interface::lateral_shift(-dir.truncate(), 1.0, -z);
+            let radiance = match d.primaries {
+                Some(_) => d.radiance_weighted_at(object, &d.primary_weights(rep.lambda_nm)),
+                None => d.radiance_at(object),
+            };
+            let value = m * rep.coef[0] * d.spectrum.eval(rep.lambda_nm) * radiance;
+            self.sums.add(value, rep.lambda_nm, stats);
+        }
+    }
+}

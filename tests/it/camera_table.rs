@@ -1,0 +1,227 @@
+//! The camera-side table (`render --camera-table`): a render that takes its camera side from a
+//! per-design table estimates the same image as the direct estimator (4-SEM rule on per-pixel
+//! differences, and a 3 % too bright table render must fail it) on the paper scene, eye
+//! contact, gesture and a mesh scene through the waveguide; the table is the same for any
+//! thread count, survives its file, is rebuilt when the file is damaged, and is keyed by the
+//! design only.
+
+use std::path::Path;
+
+use stscam::render::camera_table::{TableSettings, build, design_key, render_with_table};
+use stscam::render::table_file::{TableOrigin, cached, read, to_bytes};
+use stscam::render::{RenderSettings, render};
+use stscam::scene::load_scene;
+use stscam::system::System;
+
+use crate::common::stscam;
+
+/// `scene` (relative to the repository) at a `crop`×`crop` crop with the paper's field of view.
+fn system(scene: &str, crop: u32, extra: &[&str]) -> System {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
+    let mut sets = vec![
+        format!("sensor.crop_px=[{crop},{crop}]"),
+        format!("sensor.pitch_um={}", 4.8 * 440.0 / f64::from(crop)),
+    ];
+    sets.extend(extra.iter().map(|s| s.to_string()));
+    System::build(&load_scene(Some(&path), &sets).expect("scene")).expect("system")
+}
+
+/// Mean and standard error of the mean.
+fn mean_sem(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+/// The table render (table seed 11, `paths` user-side paths, render seed 12) against the
+/// direct estimator (`spp`, seed 13): per-pixel differences within 4 standard errors of zero,
+/// and the table render made 3 % brighter outside them. Returns (relative mean difference,
+/// its standard error).
+fn check_unbiased(name: &str, sys: &System, ts: TableSettings, paths: u32, spp: u32) -> (f64, f64) {
+    let table = build(sys, &ts, false).expect("table");
+    assert!(!table.is_empty());
+    let tabled = render_with_table(sys, &RenderSettings::lattice(paths, 12, false), &table)
+        .expect("table render");
+    let direct = render(sys, &RenderSettings::lattice(spp, 13, false));
+    let (a, b): (Vec<f64>, Vec<f64>) = tabled
+        .channels
+        .iter()
+        .flatten()
+        .zip(direct.channels.iter().flatten())
+        .map(|(&x, &y)| (f64::from(x), f64::from(y)))
+        .unzip();
+    let level = b.iter().sum::<f64>() / b.len() as f64;
+    assert!(level > 0.0);
+    let diff = |scale: f64| {
+        let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| scale * x - y).collect();
+        let (m, sem) = mean_sem(&d);
+        (m / level, sem / level)
+    };
+    let (m, sem) = diff(1.0);
+    assert!(m.abs() < 4.0 * sem, "table vs direct: {m} ± {sem}");
+    let (m3, sem3) = diff(1.03);
+    eprintln!(
+        "{name}: table − direct {:+.3} % ± {:.3} % (3 % brighter: {:+.3} %)",
+        100.0 * m,
+        100.0 * sem,
+        100.0 * m3
+    );
+    assert!(
+        m3.abs() > 4.0 * sem3,
+        "3 % too bright must fail: {m3} ± {sem3}"
+    );
+    (m, sem)
+}
+
+const SMALL: TableSettings = TableSettings {
+    spp: 64,
+    reps: 16,
+    seed: 11,
+};
+
+#[test]
+fn table_render_is_unbiased_on_eye_contact() {
+    let sys = system("scenes/eye-contact.toml", 40, &[]);
+    check_unbiased("eye contact", &sys, SMALL, 32, 64);
+}
+
+#[test]
+fn table_render_is_unbiased_on_gesture() {
+    let sys = system("scenes/gesture.toml", 40, &[]);
+    check_unbiased("gesture", &sys, SMALL, 32, 64);
+}
+
+#[test]
+fn table_render_is_unbiased_on_a_mesh_through_the_waveguide() {
+    let sys = system("validation/mitsuba/mesh-waveguide.toml", 40, &[]);
+    check_unbiased("mesh through the waveguide", &sys, SMALL, 32, 64);
+}
+
+/// The paper's display scene (a white target, so that every pixel carries signal): the
+/// table's representatives looked up on the display (no user-side sampling at all).
+#[test]
+fn table_render_is_unbiased_on_the_paper_scene() {
+    let sys = system("scenes/paper-2022.toml", 40, &["display.image=white"]);
+    assert!(sys.world.is_none());
+    let ts = TableSettings {
+        spp: 256,
+        reps: 32,
+        seed: 11,
+    };
+    check_unbiased("paper scene", &sys, ts, 1, 256);
+}
+
+/// One and two threads draw the same table and render the same image from it.
+#[test]
+fn table_and_its_render_are_the_same_for_any_thread_count() {
+    let sys = system("scenes/eye-contact.toml", 24, &[]);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let t = build(&sys, &SMALL, false).unwrap();
+            let img = render_with_table(&sys, &RenderSettings::lattice(8, 3, false), &t)
+                .unwrap()
+                .channels;
+            (to_bytes(&t), img)
+        })
+    };
+    assert!(run(1) == run(2));
+}
+
+/// The file round trip, the cache's read / build / rebuild, and the key: a damaged file is
+/// rebuilt, another design gets another file, a light does not change the key.
+#[test]
+fn table_file_round_trip_and_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = system("scenes/eye-contact.toml", 16, &[]);
+    let ts = TableSettings {
+        spp: 16,
+        reps: 8,
+        seed: 5,
+    };
+    let first = cached(&sys, &ts, dir.path(), false).unwrap();
+    assert_eq!(first.origin, TableOrigin::Built);
+    let again = cached(&sys, &ts, dir.path(), false).unwrap();
+    assert_eq!(again.origin, TableOrigin::Read);
+    assert_eq!(to_bytes(&again.table), to_bytes(&first.table));
+    // Other table settings are refused by the reader.
+    assert!(read(&first.path, &sys, &TableSettings { seed: 6, ..ts }).is_err());
+    // One flipped bit in the middle: the check word catches it and the cache rebuilds.
+    let mut bytes = std::fs::read(&first.path).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x10;
+    std::fs::write(&first.path, &bytes).unwrap();
+    assert!(read(&first.path, &sys, &ts).is_err());
+    let rebuilt = cached(&sys, &ts, dir.path(), false).unwrap();
+    assert_eq!(rebuilt.origin, TableOrigin::Rebuilt);
+    assert_eq!(to_bytes(&rebuilt.table), to_bytes(&first.table));
+    // A truncated file is refused before anything is allocated for it.
+    std::fs::write(&first.path, &bytes[..bytes.len() - 3]).unwrap();
+    assert!(read(&first.path, &sys, &ts).is_err());
+    // The key follows the design, not the scene's user side.
+    let thicker = system("scenes/eye-contact.toml", 16, &["plate.thickness_mm=3.2"]);
+    assert_ne!(design_key(&thicker), design_key(&sys));
+    let brighter = system("scenes/eye-contact.toml", 16, &["light.0.scale=0.8"]);
+    assert_eq!(design_key(&brighter), design_key(&sys));
+    // A table of another design is not used.
+    let t = build(&sys, &ts, false).unwrap();
+    assert!(render_with_table(&thicker, &RenderSettings::lattice(4, 1, false), &t).is_err());
+}
+
+/// The CLI: the second render reads the table the first one wrote and gives the same capture;
+/// `--spectral` is refused with exit 2 before any table is drawn.
+#[test]
+fn cli_writes_then_reads_the_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |s: &str| dir.path().join(s).to_string_lossy().into_owned();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
+    let scene = scene.to_string_lossy();
+    let args = |out: &str| {
+        vec![
+            "render".to_string(),
+            scene.to_string(),
+            "--set".into(),
+            "sensor.crop_px=16".into(),
+            "--set".into(),
+            "sensor.pitch_um=132".into(),
+            "--spp".into(),
+            "8".into(),
+            "--camera-table".into(),
+            d("cache"),
+            "--table-spp".into(),
+            "16".into(),
+            "--out".into(),
+            d(out),
+        ]
+    };
+    let run = |out: &str, extra: &[&str]| {
+        let mut a = args(out);
+        a.extend(extra.iter().map(|s| s.to_string()));
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        stscam(&a)
+    };
+    let spectral = run("s", &["--spectral"]);
+    assert_eq!(spectral.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&spectral.stderr).contains("--spectral"));
+    assert!(!dir.path().join("cache").exists());
+    for out in ["a", "b"] {
+        let o = run(out, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let side = |out: &str| -> serde_json::Value {
+        serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(out).join("capture.json")).unwrap(),
+        )
+        .unwrap()
+    };
+    assert_eq!(side("a")["camera_table"]["origin"], "built");
+    assert_eq!(side("b")["camera_table"]["origin"], "read");
+    assert_eq!(
+        std::fs::read(dir.path().join("a/capture.exr")).unwrap(),
+        std::fs::read(dir.path().join("b/capture.exr")).unwrap()
+    );
+}

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Time as users feel it, with and without the camera-side table (render --camera-table):
+#  1. eye contact at 440x440: run time against relative RMSE for the direct estimator and for
+#     renders from a table (the table's time apart), against a 1,024-spp reference
+#     -> validation/results/camera-table/eye-contact/bench-render.{md,json,png};
+#  2. the paper scene (display only): the first render of the design with a table (drawn and
+#     written) and a further display target read from it, against a direct 212-spp render;
+#  3. the 3-D dataset datasets/meshes-small.toml (24 samples) with and without [camera_table];
+#  4. a 15-point sweep with --psnr (designs vary, so every point pays its own camera side).
+# Whole-process wall times from `date`; the machine's cores are printed first.
+# Usage: validation/bench-camera-table.sh [BUDGET_S]     (default 60)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+budget=${1:-60}
+cargo build --release --quiet
+bin=target/release/stscam
+res=validation/results/camera-table
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+mkdir -p "$res"
+echo "cores: $(nproc)"
+secs() { local t0=$SECONDS; "$@" >/dev/null 2>"$tmp/err" || { cat "$tmp/err"; exit 1; }; echo $((SECONDS - t0)); }
+ms() { local t0; t0=$(date +%s.%N); "$@" >/dev/null 2>"$tmp/err" || { cat "$tmp/err"; exit 1; }; python3 -c "print(round($(date +%s.%N) - $t0, 3))"; }
+
+"$bin" bench render scenes/eye-contact.toml --crop 440 --ref-spp 1024 --budget-s "$budget" \
+    --out "$res/eye-contact" >/dev/null
+
+echo "paper scene, direct render at 212 spp (1 %): $(ms "$bin" render --spp 212 --out "$tmp/direct") s"
+echo "paper scene, first render with a table (drawn, 1,024 samples/pixel): $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --out "$tmp/first") s"
+echo "paper scene, further target from the table: $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --set display.image=siemens:16 --out "$tmp/further") s"
+
+sed 's/^name = .*/name = "meshes-small-table"/' datasets/meshes-small.toml > "$tmp/table.toml"
+printf '\n[camera_table]\n' >> "$tmp/table.toml"
+echo "meshes-small, 24 samples, direct: $(secs "$bin" dataset datasets/meshes-small.toml --out "$tmp/ds-direct") s"
+echo "meshes-small, 24 samples, [camera_table]: $(secs "$bin" dataset "$tmp/table.toml" --out "$tmp/ds-table") s"
+
+echo "sweep, 15 points, --psnr letter:A: $(secs "$bin" sweep --vary bottom_hoe.height_mm=10:80:15 --psnr letter:A --out "$tmp/sweep") s"
+cat "$res/eye-contact/bench-render.md"
