@@ -341,14 +341,14 @@ fn render<'py>(
                 use stscam::render::camera_table::{TableSettings, check_usable};
                 check_usable(&sys, &settings).map_err(|e| format!("camera_table: {e}"))?;
                 let ts = TableSettings { spp: *tspp, reps: *treps, seed };
-                let c = stscam::render::table_file::cached(&sys, &ts, dir, false)
-                    .map_err(|e| format!("camera_table: {e}"))?;
-                Some(c.table)
+                let (t, _) =
+                    stscam::render::table_file::CachedTable::load_or_build(&sys, &ts, dir, false)
+                        .map_err(|e| format!("camera_table: {e}"))?;
+                Some(t)
             }
         };
         let render_one = |s: &stscam::system::System| match &table {
-            Some(t) => stscam::render::camera_table::render_with_table(s, &settings, t)
-                .map_err(|e| format!("camera_table: {e}")),
+            Some(t) => t.render(s, &settings).map_err(|e| format!("camera_table: {e}")),
             None => Ok(stscam::render::render(s, &settings)),
         };
         let t0 = std::time::Instant::now();

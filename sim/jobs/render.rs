@@ -328,7 +328,8 @@ fn render_tabled(
     dir: &std::path::Path,
     con: &Console,
 ) -> Result<(crate::render::Capture, Option<serde_json::Value>), Failure> {
-    use crate::render::camera_table::{TableError, render_with_table};
+    use crate::render::camera_table::TableError;
+    use crate::render::table_file::{CachedTable, TableOrigin};
     let failure = |e: TableError| match e {
         TableError::Io(e @ crate::io::IoError::Io { .. }) => Failure {
             code: 1,
@@ -341,33 +342,39 @@ fn render_tabled(
     crate::render::camera_table::check_usable(sys, settings).map_err(failure)?;
     let ts = table.settings(settings.seed);
     let t0 = Instant::now();
-    let c = crate::render::table_file::cached(sys, &ts, dir, settings.progress).map_err(failure)?;
+    let (t, info) =
+        CachedTable::load_or_build(sys, &ts, dir, settings.progress).map_err(failure)?;
     let table_s = t0.elapsed().as_secs_f64();
-    if let Some(note) = &c.note {
+    if let Some(note) = &info.note {
         con.err(format_args!("warning: camera-side table rebuilt: {note}"));
     }
-    let (t, origin, path) = (c.table, c.origin, c.path);
     con.err(format_args!(
-        "camera-side table {}: {} ({} representatives, {:.3} s)",
-        match origin {
-            crate::render::table_file::TableOrigin::Read => "read",
-            crate::render::table_file::TableOrigin::Built => "built",
-            crate::render::table_file::TableOrigin::Rebuilt => "rebuilt",
+        "camera-side table {}: {} ({} {}, {:.3} s)",
+        match info.origin {
+            TableOrigin::Read => "read",
+            TableOrigin::Built => "built",
+            TableOrigin::Rebuilt => "rebuilt",
         },
-        path.display(),
-        t.len(),
+        info.file.display(),
+        info.entries,
+        if info.kind == "matrix" {
+            "entries of H"
+        } else {
+            "representatives"
+        },
         table_s
     ));
     let t1 = Instant::now();
-    let cap = render_with_table(sys, settings, &t).map_err(failure)?;
-    let info = serde_json::json!({
-        "file": path,
-        "origin": origin,
+    let cap = t.render(sys, settings).map_err(failure)?;
+    let out = serde_json::json!({
+        "file": info.file,
+        "kind": info.kind,
+        "origin": info.origin,
         "settings": ts,
-        "representatives": t.len(),
+        "entries": info.entries,
         "table_time_s": table_s,
-        "user_side_time_s": t1.elapsed().as_secs_f64(),
-        "build_camera_paths": t.stats.camera_paths,
+        "render_time_s": t1.elapsed().as_secs_f64(),
+        "build_camera_paths": info.build_camera_paths,
     });
-    Ok((cap, Some(info)))
+    Ok((cap, Some(out)))
 }

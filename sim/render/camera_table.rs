@@ -171,8 +171,9 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
         )));
     }
     crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
-    // Rounding gives a pixel at most one more representative per replica than its share;
-    // twice the share bounds it for any design with fewer replicas than representatives.
+    // A pixel holds about R representatives (rounding and the one-per-replica floor add up to
+    // one per replica: 33.2 on average for R = 32 in the eye-contact scene); the estimate
+    // allows 2R + 64.
     crate::limits::check_bytes(
         "--table-reps",
         "the camera-side table",
@@ -320,29 +321,31 @@ pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraT
 }
 
 /// That a render of `sys` with `set` can take its camera side from a table (not with spectral
-/// bins); gives the scene's world (None for a display-only scene).
-pub fn check_usable<'a>(
-    sys: &'a System,
-    set: &RenderSettings,
-) -> Result<Option<&'a World>, TableError> {
+/// bins).
+pub fn check_usable(_sys: &System, set: &RenderSettings) -> Result<(), TableError> {
     if set.spectral_bins.is_some() {
         return Err(TableError::Unsupported(
-            "--spectral cannot use a camera-side table (its representatives are drawn for the sensor's channels)".into(),
+            "--spectral cannot use a camera-side table (it is drawn for the sensor's channels)"
+                .into(),
         ));
     }
-    Ok(sys.world.as_deref())
+    Ok(())
 }
 
-/// Renders `sys` with its camera side taken from `table`: in a 3-D scene `set.spp` user-side
-/// paths per pixel (module docs); in a display-only scene every representative's display
-/// radiance, looked up where its exit ray meets the display (no further sampling: `set.spp`
-/// only scales the sums). Deterministic for a given seed and table, whatever the thread count.
+/// Renders `sys` (a 3-D scene) with its camera side taken from `table`: `set.spp` user-side
+/// paths per pixel (module docs). Deterministic for a given seed and table, whatever the
+/// thread count. (A display-only scene's table is its H: [`super::table_file::CachedTable`].)
 pub fn render_with_table(
     sys: &System,
     set: &RenderSettings,
     table: &CameraTable,
 ) -> Result<super::Capture, TableError> {
-    let world = check_usable(sys, set)?;
+    check_usable(sys, set)?;
+    let world = sys.world.as_deref().ok_or_else(|| {
+        TableError::Unsupported(
+            "representatives are for 3-D scenes; a display-only scene's table is its H".into(),
+        )
+    })?;
     if !table.matches(sys) {
         return Err(TableError::Unsupported(
             "the camera-side table was drawn for another design or sensor crop".into(),
@@ -367,8 +370,7 @@ pub fn render_with_table(
 /// The user side of one pixel from the table ([`render_with_table`]).
 struct TableJob<'a> {
     sys: &'a System,
-    /// The 3-D scene (None: the display alone).
-    world: Option<&'a World>,
+    world: &'a World,
     table: &'a CameraTable,
     seed: u64,
     /// User-side paths per pixel, M.
@@ -387,10 +389,6 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
         if reps.is_empty() || self.paths == 0 {
             return &self.sums;
         }
-        let Some(world) = self.world else {
-            self.display_only(reps, stats);
-            return &self.sums;
-        };
         let (r, m) = (reps.len(), self.paths);
         let pixel = p as u64;
         // Systematic choice: path k takes representative ⌊(k + u)·R/M⌋.
@@ -418,7 +416,7 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
                 }
                 let l = trace_exit(
                     self.sys,
-                    world,
+                    self.world,
                     glam::DVec3::from_array(rep.dir),
                     rep.lambda_nm,
                     glam::DVec2::from_array(rep.exit_mm),
@@ -431,27 +429,5 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
             k0 = k1;
         }
         &self.sums
-    }
-}
-
-impl TableJob<'_> {
-    /// A display-only pixel: Σ_r c_r·S(λ_r)·L_rel(object point of r) (times the path count,
-    /// which the row loop divides out).
-    fn display_only(&mut self, reps: &[Rep], stats: &mut RenderStats) {
-        let d = &self.sys.display;
-        let z = d.z_mm;
-        let m = f64::from(self.paths);
-        for rep in reps {
-            let dir = glam::DVec3::from_array(rep.dir);
-            // Where the exit ray meets the display plane, as the tracer computes it.
-            let object = glam::DVec2::from_array(rep.exit_mm)
-                - crate::optics::interface::lateral_shift(-dir.truncate(), 1.0, -z);
-            let radiance = match d.primaries {
-                Some(_) => d.radiance_weighted_at(object, &d.primary_weights(rep.lambda_nm)),
-                None => d.radiance_at(object),
-            };
-            let value = m * rep.coef[0] * d.spectrum.eval(rep.lambda_nm) * radiance;
-            self.sums.add(value, rep.lambda_nm, stats);
-        }
     }
 }

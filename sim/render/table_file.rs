@@ -222,3 +222,292 @@ pub fn read(path: &Path, sys: &System, ts: &TableSettings) -> Result<CameraTable
         stats: Default::default(),
     })
 }
+
+/// The display's part of the key of a display-only scene's table: everything of the display
+/// but its content (plane, image grid and size, black level, LCD extent, spectra,
+/// polarisation), so that every target shown on it shares the table.
+pub fn display_key(sys: &System) -> [u64; 2] {
+    let d = &sys.display;
+    let text = format!(
+        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
+        d.z_mm,
+        d.center_mm,
+        d.image_pixel_mm,
+        d.width_px,
+        d.height_px,
+        d.black_level,
+        d.half_extent_mm,
+        d.spectrum,
+        d.primaries,
+        d.polarization_weights,
+    );
+    let k = super::camera_table::design_key(sys);
+    [
+        hash_bytes(text.as_bytes(), k[0]),
+        hash_bytes(text.as_bytes(), k[1]),
+    ]
+}
+
+/// A display-only scene's table: its system matrix H and offset at `ts.spp` camera samples
+/// per pixel ([`crate::matrix::compute_matrix`]), so that a target's capture is H·f + offset,
+/// equal to a render of the same samples to float rounding. Cached in `dir` like the
+/// representatives of 3-D scenes ([`cached`]; the representatives count is not used).
+pub fn cached_display(
+    sys: &System,
+    ts: &TableSettings,
+    dir: &Path,
+    progress: bool,
+) -> Result<
+    (
+        crate::matrix::SystemMatrix,
+        TableOrigin,
+        PathBuf,
+        Option<String>,
+    ),
+    TableError,
+> {
+    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
+    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp.max(1)))?;
+    if ts.spp == 0 {
+        return Err(TableError::Unsupported(
+            "--table-spp must be at least 1".into(),
+        ));
+    }
+    let key = display_key(sys);
+    let path = dir.join(format!(
+        "display-table-v{FORMAT_VERSION}-{:016x}{:016x}-{}x{}-spp{}-seed{}.bin",
+        key[0], key[1], sys.camera.width_px, sys.camera.height_px, ts.spp, ts.seed
+    ));
+    let mut origin = TableOrigin::Built;
+    let mut note = None;
+    if path.exists() {
+        match read_display(&path, sys, key) {
+            Ok(m) => return Ok((m, TableOrigin::Read, path, None)),
+            Err(TableError::Io(e @ IoError::Format { .. })) => {
+                origin = TableOrigin::Rebuilt;
+                note = Some(e.to_string());
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    let set = crate::render::RenderSettings::lattice(ts.spp, ts.seed, progress);
+    let m = crate::matrix::compute_matrix(sys, &set);
+    if crate::cancel::current().is_cancelled() {
+        return Err(TableError::Cancelled);
+    }
+    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
+    crate::io::atomic::write_atomic(&path, &display_bytes(&m, key))?;
+    Ok((m, origin, path, note))
+}
+
+const DISPLAY_MAGIC: &[u8; 8] = b"STSCAMCH";
+
+/// The file's bytes of a display table: magic, version, key (2), rows, cols, nnz, crop w, h,
+/// object w, h, planes (u64 each); indptr (u64), indices (u32), data (f32), offset (f32), each
+/// padded to 8 bytes; the check word.
+fn display_bytes(m: &crate::matrix::SystemMatrix, key: [u64; 2]) -> Vec<u8> {
+    let h = &m.h;
+    let mut b = Vec::with_capacity(8 * (13 + h.indptr.len()) + 8 * (h.nnz() + m.offset.len()));
+    b.extend_from_slice(DISPLAY_MAGIC);
+    for w in [
+        FORMAT_VERSION,
+        key[0],
+        key[1],
+        h.rows as u64,
+        h.cols as u64,
+        h.nnz() as u64,
+        m.crop.0 as u64,
+        m.crop.1 as u64,
+        m.object.0 as u64,
+        m.object.1 as u64,
+        m.planes as u64,
+    ] {
+        b.extend_from_slice(&w.to_le_bytes());
+    }
+    let pad = |b: &mut Vec<u8>| b.resize(b.len().next_multiple_of(8), 0);
+    h.indptr
+        .iter()
+        .for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+    h.indices
+        .iter()
+        .for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+    pad(&mut b);
+    h.data
+        .iter()
+        .for_each(|v| b.extend_from_slice(&v.to_bits().to_le_bytes()));
+    pad(&mut b);
+    m.offset
+        .iter()
+        .for_each(|v| b.extend_from_slice(&v.to_bits().to_le_bytes()));
+    pad(&mut b);
+    let check = hash_bytes(&b, CHECK_SEED);
+    b.extend_from_slice(&check.to_le_bytes());
+    b
+}
+
+/// Reads a display table, checked against `sys` and `key` (sizes before allocation).
+fn read_display(
+    path: &Path,
+    sys: &System,
+    key: [u64; 2],
+) -> Result<crate::matrix::SystemMatrix, TableError> {
+    let bad = |m: &str| TableError::Io(IoError::format(path, m));
+    let len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    crate::limits::check_bytes("--camera-table", "the display table", u128::from(len) * 2)?;
+    let b = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    if b.len() < 8 * 13 || b.len() % 8 != 0 || &b[..8] != DISPLAY_MAGIC {
+        return Err(bad("not a display table (magic or size)"));
+    }
+    let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+    let body = b.len() - 8;
+    if hash_bytes(&b[..body], CHECK_SEED) != word(body / 8) {
+        return Err(bad("check word mismatch (damaged or partly written)"));
+    }
+    let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
+    let crop = (sys.camera.width_px, sys.camera.height_px);
+    let channels = sys.response.names.clone();
+    let r8 = |n: usize, size: usize| (n * size).next_multiple_of(8);
+    let expect = 8 * 12 + 8 * (rows + 1) + r8(nnz, 4) + r8(nnz, 4) + r8(rows, 4) + 8;
+    if word(1) != FORMAT_VERSION
+        || [word(2), word(3)] != key
+        || (word(7) as usize, word(8) as usize) != crop
+        || rows != crop.0 * crop.1 * channels.len()
+        || cols != sys.display.intensity.len()
+        || b.len() != expect
+    {
+        return Err(bad("drawn for another design, display or crop (header)"));
+    }
+    let mut at = 8 * 12;
+    let indptr: Vec<u64> = (0..=rows).map(|i| word(12 + i)).collect();
+    at += 8 * (rows + 1);
+    let u32s = |at: usize, n: usize| -> Vec<u32> {
+        (0..n)
+            .map(|i| u32::from_le_bytes(b[at + 4 * i..at + 4 * i + 4].try_into().unwrap_or([0; 4])))
+            .collect()
+    };
+    let indices = u32s(at, nnz);
+    at += r8(nnz, 4);
+    let data: Vec<f32> = u32s(at, nnz).into_iter().map(f32::from_bits).collect();
+    at += r8(nnz, 4);
+    let offset: Vec<f32> = u32s(at, rows).into_iter().map(f32::from_bits).collect();
+    let h = crate::sparse::CsrMatrix {
+        rows,
+        cols,
+        indptr,
+        indices,
+        data,
+    };
+    h.check().map_err(|e| bad(&e))?;
+    Ok(crate::matrix::SystemMatrix {
+        h,
+        offset,
+        crop,
+        object: (word(9) as usize, word(10) as usize),
+        planes: word(11) as usize,
+        channels,
+        stats: Default::default(),
+    })
+}
+
+/// A design's cached camera side, as a render uses it.
+#[derive(Debug)]
+pub enum CachedTable {
+    /// 3-D scenes: each pixel's representative exit rays.
+    Rays(CameraTable),
+    /// Display-only scenes: H and the offset (a target's capture is H·f + offset).
+    Display(crate::matrix::SystemMatrix),
+}
+
+/// Where a cached table came from, for the sidecar and the log.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TableInfo {
+    /// `representatives` (3-D) or `matrix` (display only).
+    pub kind: &'static str,
+    /// Read, built or rebuilt.
+    pub origin: TableOrigin,
+    /// The file.
+    pub file: PathBuf,
+    /// Why a cached file was rebuilt.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// Representatives (3-D) or stored entries of H (display only).
+    pub entries: usize,
+    /// Camera paths traced to build it (0 when read).
+    pub build_camera_paths: u64,
+}
+
+impl CachedTable {
+    /// `sys`'s table with `ts` from the cache directory `dir` (read, or drawn and written):
+    /// representatives for a 3-D scene ([`cached`]), H for a display-only one
+    /// ([`cached_display`]).
+    pub fn load_or_build(
+        sys: &System,
+        ts: &TableSettings,
+        dir: &Path,
+        progress: bool,
+    ) -> Result<(CachedTable, TableInfo), TableError> {
+        if sys.world.is_some() {
+            let c = cached(sys, ts, dir, progress)?;
+            let info = TableInfo {
+                kind: "representatives",
+                origin: c.origin,
+                file: c.path,
+                note: c.note,
+                entries: c.table.len(),
+                build_camera_paths: c.table.stats.camera_paths,
+            };
+            Ok((CachedTable::Rays(c.table), info))
+        } else {
+            let (m, origin, file, note) = cached_display(sys, ts, dir, progress)?;
+            let info = TableInfo {
+                kind: "matrix",
+                origin,
+                file,
+                note,
+                entries: m.h.nnz(),
+                build_camera_paths: m.stats.camera_paths,
+            };
+            Ok((CachedTable::Display(m), info))
+        }
+    }
+
+    /// The capture of `sys` (the design the table was drawn for) with `set`: a 3-D scene's
+    /// user side from the representatives
+    /// ([`super::camera_table::render_with_table`]), a display's H·f + offset.
+    pub fn render(
+        &self,
+        sys: &System,
+        set: &crate::render::RenderSettings,
+    ) -> Result<crate::render::Capture, TableError> {
+        super::camera_table::check_usable(sys, set)?;
+        match self {
+            CachedTable::Rays(t) => super::camera_table::render_with_table(sys, set, t),
+            CachedTable::Display(m) => {
+                if sys.world.is_some()
+                    || m.h.cols != sys.display.intensity.len()
+                    || m.crop != (sys.camera.width_px, sys.camera.height_px)
+                {
+                    return Err(TableError::Unsupported(
+                        "the display table was drawn for another scene kind, display or crop"
+                            .into(),
+                    ));
+                }
+                let channels = m
+                    .capture_of(&sys.display.intensity)
+                    .into_iter()
+                    .map(|c| c.into_iter().map(|v| v as f32).collect())
+                    .collect();
+                Ok(crate::render::Capture {
+                    width: m.crop.0,
+                    height: m.crop.1,
+                    channel_names: sys.response.names.clone(),
+                    channels,
+                    spectral: Vec::new(),
+                    stats: Default::default(),
+                })
+            }
+        }
+    }
+}

@@ -184,7 +184,13 @@ pub(super) struct Gathered<'a> {
     pub(super) branches: Vec<PendingBranch>,
     /// The current sample's selection scale, cos⁴θ/p(λ)·Σ_c R_c(λ).
     sel_scale: f64,
+    /// Scratch space of the sort: the distinct replicas, the sorted branches.
+    keys: Vec<u64>,
+    scratch: Vec<PendingBranch>,
 }
+
+/// Most distinct replicas the counting sort of [`Gathered`] handles (more: a comparison sort).
+const MAX_COUNTED_REPLICAS: usize = 64;
 
 impl<'a> Gathered<'a> {
     /// Nothing gathered yet.
@@ -195,6 +201,8 @@ impl<'a> Gathered<'a> {
             samples: Vec::new(),
             branches: Vec::new(),
             sel_scale: 0.0,
+            keys: Vec::new(),
+            scratch: Vec::new(),
         }
     }
 
@@ -234,11 +242,45 @@ impl<'a> Gathered<'a> {
         }
     }
 
+    /// Orders the branches by (replica, sample): a counting sort over the few distinct
+    /// replicas (the branches arrive in sample order, and a sample has at most one branch per
+    /// replica), a comparison sort where there are many.
+    fn sort_by_replica(&mut self) {
+        let keys = &mut self.keys;
+        keys.clear();
+        for p in &self.branches {
+            if !keys.contains(&p.replica) {
+                keys.push(p.replica);
+                if keys.len() > MAX_COUNTED_REPLICAS {
+                    self.branches
+                        .sort_unstable_by_key(|p| (p.replica, p.sample));
+                    return;
+                }
+            }
+        }
+        keys.sort_unstable();
+        let mut start = [0usize; MAX_COUNTED_REPLICAS + 1];
+        let slot = |r: u64| keys.binary_search(&r).unwrap_or(0);
+        for p in &self.branches {
+            start[slot(p.replica) + 1] += 1;
+        }
+        for i in 1..=keys.len() {
+            start[i] += start[i - 1];
+        }
+        // Same length; every entry is overwritten below.
+        self.scratch.clone_from(&self.branches);
+        for p in &self.branches {
+            let k = slot(p.replica);
+            self.scratch[start[k]] = *p;
+            start[k] += 1;
+        }
+        std::mem::swap(&mut self.branches, &mut self.scratch);
+    }
+
     /// Sorts the branches by (replica, sample) and calls `group` for each replica's run with
     /// the selection weight of all branches.
     pub(super) fn by_replica(&mut self, mut group: impl FnMut(&[PendingBranch], f64)) {
-        self.branches
-            .sort_unstable_by_key(|p| (p.replica, p.sample));
+        self.sort_by_replica();
         let total: f64 = self.branches.iter().map(|p| p.sel).sum();
         for g in self.branches.chunk_by(|a, b| a.replica == b.replica) {
             group(g, total);

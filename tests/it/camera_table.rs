@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use stscam::render::camera_table::{TableSettings, build, design_key, render_with_table};
-use stscam::render::table_file::{TableOrigin, cached, read, to_bytes};
+use stscam::render::table_file::{CachedTable, TableOrigin, cached, read, to_bytes};
 use stscam::render::{RenderSettings, render};
 use stscam::scene::load_scene;
 use stscam::system::System;
@@ -39,9 +39,11 @@ fn mean_sem(v: &[f64]) -> (f64, f64) {
 /// and the table render made 3 % brighter outside them. Returns (relative mean difference,
 /// its standard error).
 fn check_unbiased(name: &str, sys: &System, ts: TableSettings, paths: u32, spp: u32) -> (f64, f64) {
-    let table = build(sys, &ts, false).expect("table");
-    assert!(!table.is_empty());
-    let tabled = render_with_table(sys, &RenderSettings::lattice(paths, 12, false), &table)
+    let dir = tempfile::tempdir().unwrap();
+    let (table, info) = CachedTable::load_or_build(sys, &ts, dir.path(), false).expect("table");
+    assert!(info.entries > 0);
+    let tabled = table
+        .render(sys, &RenderSettings::lattice(paths, 12, false))
         .expect("table render");
     let direct = render(sys, &RenderSettings::lattice(spp, 13, false));
     let (a, b): (Vec<f64>, Vec<f64>) = tabled
@@ -98,8 +100,8 @@ fn table_render_is_unbiased_on_a_mesh_through_the_waveguide() {
     check_unbiased("mesh through the waveguide", &sys, SMALL, 32, 64);
 }
 
-/// The paper's display scene (a white target, so that every pixel carries signal): the
-/// table's representatives looked up on the display (no user-side sampling at all).
+/// The paper's display scene (a white target, so that every pixel carries signal): its table
+/// is H at the table's samples, and a target's capture H·f + offset.
 #[test]
 fn table_render_is_unbiased_on_the_paper_scene() {
     let sys = system("scenes/paper-2022.toml", 40, &["display.image=white"]);
@@ -170,6 +172,27 @@ fn table_file_round_trip_and_cache() {
     // A table of another design is not used.
     let t = build(&sys, &ts, false).unwrap();
     assert!(render_with_table(&thicker, &RenderSettings::lattice(4, 1, false), &t).is_err());
+    // A display-only scene's table (H) is cached the same way: built, read, rebuilt when
+    // damaged, and shared by every target on the display.
+    let paper = system("scenes/paper-2022.toml", 16, &[]);
+    let set = RenderSettings::lattice(1, 1, false);
+    let (t1, i1) = CachedTable::load_or_build(&paper, &ts, dir.path(), false).unwrap();
+    assert_eq!((i1.kind, i1.origin), ("matrix", TableOrigin::Built));
+    let (t2, i2) = CachedTable::load_or_build(&paper, &ts, dir.path(), false).unwrap();
+    assert_eq!(i2.origin, TableOrigin::Read);
+    assert_eq!(
+        t1.render(&paper, &set).unwrap().channels,
+        t2.render(&paper, &set).unwrap().channels
+    );
+    let mut bytes = std::fs::read(&i1.file).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x01;
+    std::fs::write(&i1.file, &bytes).unwrap();
+    let (_, i3) = CachedTable::load_or_build(&paper, &ts, dir.path(), false).unwrap();
+    assert_eq!(i3.origin, TableOrigin::Rebuilt);
+    let other = system("scenes/paper-2022.toml", 16, &["display.image=siemens:16"]);
+    let (_, i4) = CachedTable::load_or_build(&other, &ts, dir.path(), false).unwrap();
+    assert_eq!((i4.origin, &i4.file), (TableOrigin::Read, &i1.file));
 }
 
 /// The CLI: the second render reads the table the first one wrote and gives the same capture;
