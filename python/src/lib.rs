@@ -340,7 +340,11 @@ fn render<'py>(
             Some((dir, tspp, treps)) => {
                 use stscam::render::camera_table::{TableSettings, check_usable};
                 check_usable(&sys, &settings).map_err(|e| format!("camera_table: {e}"))?;
-                let ts = TableSettings { spp: *tspp, reps: *treps, seed };
+                let ts = TableSettings {
+                    spp: *tspp,
+                    reps: *treps,
+                    seed,
+                };
                 let (t, _) =
                     stscam::render::table_file::CachedTable::load_or_build(&sys, &ts, dir, false)
                         .map_err(|e| format!("camera_table: {e}"))?;
@@ -348,7 +352,9 @@ fn render<'py>(
             }
         };
         let render_one = |s: &stscam::system::System| match &table {
-            Some(t) => t.render(s, &settings).map_err(|e| format!("camera_table: {e}")),
+            Some(t) => t
+                .render(s, &settings)
+                .map_err(|e| format!("camera_table: {e}")),
             None => Ok(stscam::render::render(s, &settings)),
         };
         let t0 = std::time::Instant::now();

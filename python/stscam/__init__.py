@@ -375,8 +375,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     ``camera_table`` (a cache directory) takes the camera side from the design's table there,
     drawn with ``table_spp`` camera samples and ``table_reps`` exit rays per pixel on first use
     and read by every later call with the same design, crop and seed, as ``stscam render
-    --camera-table``: a 3-D scene then traces ``spp`` user-side paths per pixel, a display-only
-    scene sums the table's exit rays on the display (no sampling at all)."""
+    --camera-table``: a 3-D scene then traces ``spp`` user-side paths per pixel from the table's
+    exit rays; a display-only scene's table is H at ``table_spp``, and the capture H·f + offset."""
     s = _scene(scene)
     _check_noise(noise)
     if target is not None:
@@ -421,8 +421,8 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
     (h, w) arrays) on the scene's display in one call, the scene built once: float32
     (n, h, w) or (n, c, h, w), image i equal to ``render(scene, target=targets[i], ...).image``
     (same ``seed`` for each). ``noise="sensor"`` gives each its noise with seed ``seed + i``.
-    With ``camera_table`` (as :func:`render`) the camera side is read once and every target is
-    a sum over the table's exit rays."""
+    With ``camera_table`` (as :func:`render`) H is read (or built) once and each target's
+    image is H·f + offset."""
     s = _scene(scene)
     _check_noise(noise)
     args = [_image_arg(t, encoding, f"targets[{i}]") for i, t in enumerate(targets)]

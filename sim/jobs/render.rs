@@ -49,16 +49,16 @@ pub struct RenderOptions {
 pub struct TableArgs {
     /// Take the camera side (sensor to front face) from this design's table in the cache
     /// directory DIR, drawing and writing it there on first use; every later scene with the
-    /// same design, crop, seed and table options reads it. In 3-D scenes `--spp` then counts
-    /// user-side paths per pixel; a display-only scene needs no further sampling (every
-    /// representative's display value is summed). The sidecar records whether the table was
-    /// read or built, and its time.
+    /// same design, crop, seed and table options reads it. In 3-D scenes the table holds each
+    /// pixel's representative exit rays and `--spp` counts user-side paths per pixel; in a
+    /// display-only scene it is H at `--table-spp` and a target's capture is H·f + offset. The
+    /// sidecar records whether the table was read or built, and its time.
     #[arg(long, value_name = "DIR")]
     pub camera_table: Option<PathBuf>,
     /// Camera samples per pixel drawn for the table.
     #[arg(long, default_value_t = crate::render::camera_table::DEFAULT_TABLE_SPP, requires = "camera_table")]
     pub table_spp: u32,
-    /// Representative exit rays per pixel kept in the table (72 bytes each).
+    /// 3-D scenes: representative exit rays per pixel kept in the table (72 bytes each).
     #[arg(long, default_value_t = crate::render::camera_table::DEFAULT_TABLE_REPS, requires = "camera_table")]
     pub table_reps: u32,
 }
