@@ -431,3 +431,21 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
         &self.sums
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The byte hash depends on every byte and on the length (a trailing zero byte, which the
+    /// last word's padding would otherwise hide, changes it), and on the seed.
+    #[test]
+    fn hash_bytes_sees_every_byte_and_the_length() {
+        let a = hash_bytes(b"camera side", 1);
+        assert_ne!(a, hash_bytes(b"camera sidf", 1));
+        assert_ne!(a, hash_bytes(b"camera side\0", 1));
+        assert_ne!(a, hash_bytes(b"camera side", 2));
+        assert_ne!(hash_bytes(b"", 1), hash_bytes(b"\0", 1));
+        // Independent of how the input is held.
+        assert_eq!(a, hash_bytes(&b"camera side".to_vec(), 1));
+    }
+}
