@@ -91,8 +91,8 @@ pub fn cached(
             Err(e) => return Err(e),
         }
     }
+    writable_dir(dir)?;
     let table = super::camera_table::build(sys, ts, progress)?;
-    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
     crate::io::atomic::write_atomic(&path, &to_bytes(&table))?;
     Ok(Cached {
         table,
@@ -100,6 +100,23 @@ pub fn cached(
         path,
         note,
     })
+}
+
+/// Makes the cache directory `dir` (and its parents) and checks that a file can be created in
+/// it, before minutes are spent drawing a table that could not be kept: a path that is not a
+/// directory is bad input, an unwritable one an I/O error.
+fn writable_dir(dir: &Path) -> Result<(), TableError> {
+    if dir.as_os_str().is_empty() || (dir.exists() && !dir.is_dir()) {
+        return Err(TableError::Unsupported(format!(
+            "{}: not a directory",
+            dir.display()
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
+    let probe = dir.join(format!(".camera-table-probe-{}", std::process::id()));
+    std::fs::File::create(&probe).map_err(|e| IoError::io(dir, e))?;
+    std::fs::remove_file(&probe).map_err(|e| IoError::io(&probe, e))?;
+    Ok(())
 }
 
 /// The file's bytes of `t`.
@@ -290,12 +307,12 @@ pub fn cached_display(
             Err(e) => return Err(e),
         }
     }
+    writable_dir(dir)?;
     let set = crate::render::RenderSettings::lattice(ts.spp, ts.seed, progress);
     let m = crate::matrix::compute_matrix(sys, &set);
     if crate::cancel::current().is_cancelled() {
         return Err(TableError::Cancelled);
     }
-    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
     crate::io::atomic::write_atomic(&path, &display_bytes(&m, key))?;
     Ok((m, origin, path, note))
 }
