@@ -231,6 +231,15 @@ fn cli_writes_then_reads_the_table() {
     assert_eq!(spectral.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&spectral.stderr).contains("--spectral"));
     assert!(!dir.path().join("cache").exists());
+    // A cache path that is a file: bad input, refused before any table is drawn.
+    std::fs::write(dir.path().join("file"), b"x").unwrap();
+    let mut a = args("f");
+    let at = a.iter().position(|s| s == "--camera-table").unwrap() + 1;
+    a[at] = d("file");
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    let o = stscam(&a);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a directory"));
     for out in ["a", "b"] {
         let o = run(out, &[]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
