@@ -1385,7 +1385,7 @@ impl Generation<'_> {
     fn camera_table(
         &self,
         sys: &System,
-        t: recipe::TableRecipe,
+        t: &recipe::TableRecipe,
     ) -> Result<std::sync::Arc<crate::render::camera_table::CameraTable>, DatasetError> {
         let key = crate::render::camera_table::design_key(sys);
         let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
@@ -1397,8 +1397,24 @@ impl Generation<'_> {
             reps: t.reps,
             seed: self.plan.recipe.seed,
         };
-        let table = crate::render::camera_table::build(sys, &ts, false)
-            .map_err(|e| recipe_err(&self.plan.recipe_path, "camera_table", e.to_string()))?;
+        let err = |k: &str, e: crate::render::camera_table::TableError| {
+            recipe_err(&self.plan.recipe_path, k, e.to_string())
+        };
+        let table = match &t.dir {
+            None => crate::render::camera_table::build(sys, &ts, false)
+                .map_err(|e| err("camera_table", e))?,
+            Some(d) => {
+                let dir = self
+                    .plan
+                    .recipe_path
+                    .parent()
+                    .unwrap_or(Path::new("."))
+                    .join(d);
+                crate::render::table_file::cached(sys, &ts, &dir, false)
+                    .map_err(|e| err("camera_table.dir", e))?
+                    .table
+            }
+        };
         let table = std::sync::Arc::new(table);
         tables.insert(key, table.clone());
         Ok(table)
@@ -1441,6 +1457,7 @@ impl Generation<'_> {
         }
         let table = recipe
             .camera_table
+            .as_ref()
             .map(|t| self.camera_table(&sys, t))
             .transpose()?;
         let (clean, frontal) = meshes::render_sample(

@@ -506,7 +506,7 @@ pub struct Recipe {
 
 /// `[camera_table]`: the camera-side table of a 3-D dataset (docs/design.md, "The camera side
 /// is scene-independent"); its seed is the recipe's.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TableRecipe {
     /// Camera samples per pixel drawn for the table.
@@ -515,6 +515,10 @@ pub struct TableRecipe {
     /// Representative exit rays per pixel.
     #[serde(default = "default_table_reps")]
     pub reps: u32,
+    /// Cache directory (relative to the recipe) shared by runs and shards: the table is read
+    /// from there when present, else drawn and written there; none: drawn in memory per run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dir: Option<String>,
 }
 
 fn default_table_spp() -> u32 {

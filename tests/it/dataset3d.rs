@@ -565,6 +565,20 @@ fn meshes_with_a_camera_table_keep_shards_and_refuse_bad_keys() {
     let merged = dir.path().join("merged");
     crate::common::merge_shards(&shards, &merged);
     assert_same_tree(&whole, &merged);
+    // With a cache directory the first run writes the table and a later one reads it: the
+    // same samples either way.
+    let cached_text = text.replace("reps = 8", "reps = 8\ndir = \"tables\"");
+    let rc = write(dir.path(), "rc.toml", &cached_text);
+    for out in ["c1", "c2"] {
+        build(&rc, &dir.path().join(out), &[]);
+    }
+    assert_eq!(crate::common::files_in(&dir.path().join("tables")).len(), 1);
+    let (c1, c2) = (metadata(&dir.path().join("c1")), metadata(&whole));
+    assert_eq!(c1.len(), c2.len());
+    let file = c1[0].1["capture_npy"].as_str().unwrap().to_string();
+    let cap_at = |root: &Path| npy(&root.join(&c1[0].0).join(&file)).1;
+    assert_eq!(cap_at(&dir.path().join("c1")), cap_at(&whole));
+    assert_eq!(cap_at(&dir.path().join("c2")), cap_at(&whole));
     let plain = dir.path().join("plain");
     build(
         &write(dir.path(), "p.toml", &meshes_recipe("table3d", 4, 4)),
