@@ -156,14 +156,17 @@ pub fn measure_curve(
     );
     // The camera-side tables, drawn before the curve (their time reported apart).
     let t_pre = Instant::now();
+    // Tables per curve (one per half); a table curve whose tables could not be drawn has no
+    // points (rather than the direct estimator's under its name).
+    let wanted = match sampler {
+        CurveSampler::CameraTable(_) if measure == ErrorMeasure::Halves => 2,
+        CurveSampler::CameraTable(_) => 1,
+        _ => 0,
+    };
     let tables: Vec<CameraTable> = match sampler {
         CurveSampler::CameraTable(ts) => [7u64, 8]
             .iter()
-            .take(if measure == ErrorMeasure::Halves {
-                2
-            } else {
-                1
-            })
+            .take(wanted)
             .filter_map(|&seed| {
                 crate::render::camera_table::build(sys, &TableSettings { seed, ..ts }, false).ok()
             })
@@ -173,6 +176,7 @@ pub fn measure_curve(
     let precompute_seconds =
         (!tables.is_empty()).then(|| t_pre.elapsed().as_secs_f64() / tables.len() as f64);
     let (table_a, table_b) = (tables.first(), tables.get(1));
+    let max_spp = if tables.len() < wanted { 0 } else { max_spp };
     let mut points = Vec::new();
     let mut spent = 0.0;
     let mut spp = if measure == ErrorMeasure::Halves {

@@ -339,7 +339,7 @@ fn render<'py>(
             None => None,
             Some((dir, tspp, treps)) => {
                 use stscam::render::camera_table::{TableSettings, check_usable};
-                check_usable(&sys, &settings).map_err(|e| format!("camera_table: {e}"))?;
+                check_usable(&settings).map_err(|e| format!("camera_table: {e}"))?;
                 let ts = TableSettings {
                     spp: *tspp,
                     reps: *treps,

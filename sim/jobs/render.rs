@@ -339,7 +339,7 @@ fn render_tabled(
         other => bad_input(format!("--camera-table: {other}")),
     };
     // Refused before a table is drawn for nothing.
-    crate::render::camera_table::check_usable(sys, settings).map_err(failure)?;
+    crate::render::camera_table::check_usable(settings).map_err(failure)?;
     let ts = table.settings(settings.seed);
     let t0 = Instant::now();
     let (t, info) =

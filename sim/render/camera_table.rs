@@ -185,8 +185,8 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
 /// The key of everything the camera side depends on: the waveguide (plate, films, gratings
 /// and their efficiency model), camera and sensor crop, sensor response, wavelength sampler,
 /// trace limits, the object plane's distance and the display's polarisation, and the film's
-/// recording (two independent 64-bit hashes of their full `Debug` text, which prints every
-/// f64 exactly).
+/// recording (128 bits of the SHA-256 of their full `Debug` text, which prints every f64
+/// exactly).
 pub fn design_key(sys: &System) -> [u64; 2] {
     let text = format!(
         "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
@@ -199,24 +199,16 @@ pub fn design_key(sys: &System) -> [u64; 2] {
         sys.display.polarization_weights,
         sys.scene.hoe,
     );
-    [
-        hash_bytes(text.as_bytes(), 0x243F_6A88_85A3_08D3),
-        hash_bytes(text.as_bytes(), 0x1319_8A2E_0370_7344),
-    ]
+    digest128(text.as_bytes())
 }
 
-/// A 64-bit hash of `bytes` (8-byte words through the sampler's mixer, then the length).
-pub(crate) fn hash_bytes(bytes: &[u8], seed: u64) -> u64 {
-    let mut h = seed;
-    let mut chunks = bytes.chunks_exact(8);
-    for c in &mut chunks {
-        let w = u64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
-        h = crate::sampler::mix64(h ^ crate::sampler::mix64(w));
-    }
-    let mut last = [0u8; 8];
-    last[..chunks.remainder().len()].copy_from_slice(chunks.remainder());
-    h = crate::sampler::mix64(h ^ crate::sampler::mix64(u64::from_le_bytes(last)));
-    crate::sampler::mix64(h ^ bytes.len() as u64)
+/// The first 128 bits of the SHA-256 of `bytes` (FIPS 180-4), as two little-endian words:
+/// the key of a table and the check word of its file.
+pub(crate) fn digest128(bytes: &[u8]) -> [u64; 2] {
+    use sha2::{Digest, Sha256};
+    let d = Sha256::digest(bytes);
+    let word = |i: usize| u64::from_le_bytes(d[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+    [word(0), word(1)]
 }
 
 /// Gathers a pixel's camera samples and branches for the table.
@@ -243,6 +235,16 @@ impl SampleConsumer for TablePixel<'_> {
 /// Draws `sys`'s camera-side table with `ts` (rows in parallel, collected in order: the same
 /// table for any thread count). Shows a progress bar when `progress`.
 pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraTable, TableError> {
+    build_keyed(sys, design_key(sys), ts, progress)
+}
+
+/// [`build`] for `sys` whose [`design_key`] is `key`.
+pub(crate) fn build_keyed(
+    sys: &System,
+    key: [u64; 2],
+    ts: &TableSettings,
+    progress: bool,
+) -> Result<CameraTable, TableError> {
     check_table_limits(sys, ts)?;
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let set = RenderSettings::lattice(ts.spp, ts.seed, false);
@@ -310,7 +312,7 @@ pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraT
         stats.merge(&st);
     }
     Ok(CameraTable {
-        key: design_key(sys),
+        key,
         settings: *ts,
         width: w,
         height: h,
@@ -320,9 +322,8 @@ pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraT
     })
 }
 
-/// That a render of `sys` with `set` can take its camera side from a table (not with spectral
-/// bins).
-pub fn check_usable(_sys: &System, set: &RenderSettings) -> Result<(), TableError> {
+/// That a render with `set` can take its camera side from a table (not with spectral bins).
+pub fn check_usable(set: &RenderSettings) -> Result<(), TableError> {
     if set.spectral_bins.is_some() {
         return Err(TableError::Unsupported(
             "--spectral cannot use a camera-side table (it is drawn for the sensor's channels)"
@@ -340,7 +341,7 @@ pub fn render_with_table(
     set: &RenderSettings,
     table: &CameraTable,
 ) -> Result<super::Capture, TableError> {
-    check_usable(sys, set)?;
+    check_usable(set)?;
     let world = sys.world.as_deref().ok_or_else(|| {
         TableError::Unsupported(
             "representatives are for 3-D scenes; a display-only scene's table is its H".into(),
@@ -436,16 +437,19 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
 mod tests {
     use super::*;
 
-    /// The byte hash depends on every byte and on the length (a trailing zero byte, which the
-    /// last word's padding would otherwise hide, changes it), and on the seed.
+    /// The digest depends on every byte and on the length (a trailing zero byte changes it),
+    /// and is SHA-256's: the standard test vector of "abc" (FIPS 180-4, appendix B.1) begins
+    /// ba7816bf8f01cfea.
     #[test]
-    fn hash_bytes_sees_every_byte_and_the_length() {
-        let a = hash_bytes(b"camera side", 1);
-        assert_ne!(a, hash_bytes(b"camera sidf", 1));
-        assert_ne!(a, hash_bytes(b"camera side\0", 1));
-        assert_ne!(a, hash_bytes(b"camera side", 2));
-        assert_ne!(hash_bytes(b"", 1), hash_bytes(b"\0", 1));
-        // Independent of how the input is held.
-        assert_eq!(a, hash_bytes(&b"camera side".to_vec(), 1));
+    fn digest_sees_every_byte_and_the_length() {
+        let a = digest128(b"camera side");
+        assert_ne!(a, digest128(b"camera sidf"));
+        assert_ne!(a, digest128(b"camera side\0"));
+        assert_ne!(digest128(b""), digest128(b"\0"));
+        assert_eq!(a, digest128(&b"camera side".to_vec()));
+        assert_eq!(
+            digest128(b"abc")[0].to_le_bytes(),
+            [0xba, 0x78, 0x16, 0xbf, 0x8f, 0x01, 0xcf, 0xea]
+        );
     }
 }

@@ -14,7 +14,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::camera_table::{CameraTable, REP_BYTES, Rep, TableError, TableSettings, hash_bytes};
+use super::camera_table::{CameraTable, REP_BYTES, Rep, TableError, TableSettings, digest128};
 use crate::io::IoError;
 use crate::system::System;
 
@@ -25,9 +25,6 @@ const MAGIC: &[u8; 8] = b"STSCAMCT";
 
 /// Header words after the magic.
 const HEADER_WORDS: usize = 10;
-
-/// Seed of the check word.
-const CHECK_SEED: u64 = 0x5EED_C4EC_0000_0001;
 
 /// Where a table came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -56,7 +53,11 @@ pub struct Cached {
 
 /// The cache file of `sys`'s table with `ts` in `dir`.
 pub fn table_path(sys: &System, ts: &TableSettings, dir: &Path) -> PathBuf {
-    let key = super::camera_table::design_key(sys);
+    table_path_keyed(sys, super::camera_table::design_key(sys), ts, dir)
+}
+
+/// [`table_path`] for `sys` whose design key is `key`.
+fn table_path_keyed(sys: &System, key: [u64; 2], ts: &TableSettings, dir: &Path) -> PathBuf {
     dir.join(format!(
         "camera-table-v{FORMAT_VERSION}-{:016x}{:016x}-{}x{}-spp{}-reps{}-seed{}.bin",
         key[0], key[1], sys.camera.width_px, sys.camera.height_px, ts.spp, ts.reps, ts.seed
@@ -72,18 +73,37 @@ pub fn cached(
     progress: bool,
 ) -> Result<Cached, TableError> {
     super::camera_table::check_table_limits(sys, ts)?;
-    let path = table_path(sys, ts, dir);
+    let key = super::camera_table::design_key(sys);
+    let path = table_path_keyed(sys, key, ts, dir);
+    let (table, origin, path, note) = read_or_build(
+        path,
+        dir,
+        |p| read_keyed(p, sys, key, ts),
+        || super::camera_table::build_keyed(sys, key, ts, progress),
+        to_bytes,
+    )?;
+    Ok(Cached {
+        table,
+        origin,
+        path,
+        note,
+    })
+}
+
+/// One cache file: read with `read` when it is there and valid; else (missing, or failing its
+/// checks: `IoError::Format`, noted) drawn with `build` and written (`bytes`) under a
+/// temporary name and renamed, the directory made and checked writable first.
+fn read_or_build<T>(
+    path: PathBuf,
+    dir: &Path,
+    read: impl FnOnce(&Path) -> Result<T, TableError>,
+    build: impl FnOnce() -> Result<T, TableError>,
+    bytes: impl FnOnce(&T) -> Vec<u8>,
+) -> Result<(T, TableOrigin, PathBuf, Option<String>), TableError> {
     let (mut origin, mut note) = (TableOrigin::Built, None);
     if path.exists() {
-        match read(&path, sys, ts) {
-            Ok(table) => {
-                return Ok(Cached {
-                    table,
-                    origin: TableOrigin::Read,
-                    path,
-                    note,
-                });
-            }
+        match read(&path) {
+            Ok(t) => return Ok((t, TableOrigin::Read, path, None)),
             Err(TableError::Io(e @ IoError::Format { .. })) => {
                 origin = TableOrigin::Rebuilt;
                 note = Some(e.to_string());
@@ -92,14 +112,43 @@ pub fn cached(
         }
     }
     writable_dir(dir)?;
-    let table = super::camera_table::build(sys, ts, progress)?;
-    crate::io::atomic::write_atomic(&path, &to_bytes(&table))?;
-    Ok(Cached {
-        table,
-        origin,
-        path,
-        note,
-    })
+    let t = build()?;
+    crate::io::atomic::write_atomic(&path, &bytes(&t))?;
+    Ok((t, origin, path, note))
+}
+
+/// The bytes of the cache file at `path` after the checks every table file gets: a size the
+/// limits allow, a whole number of 8-byte words, the magic `magic`, and the check word (the
+/// last word: the first 64 bits of the SHA-256 of everything before it).
+fn read_checked(path: &Path, magic: &[u8; 8]) -> Result<Vec<u8>, TableError> {
+    let len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    crate::limits::check_bytes(
+        "--camera-table",
+        "the camera-side table",
+        u128::from(len) * 2,
+    )?;
+    let b = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    if b.len() < 16 || b.len() % 8 != 0 || &b[..8] != magic {
+        return Err(
+            IoError::format(path, "not a camera-side table of this kind (magic or size)").into(),
+        );
+    }
+    let body = b.len() - 8;
+    if digest128(&b[..body])[0].to_le_bytes() != b[body..] {
+        return Err(
+            IoError::format(path, "check word mismatch (damaged or partly written)").into(),
+        );
+    }
+    Ok(b)
+}
+
+/// Appends the check word of [`read_checked`] to `b`.
+fn seal(mut b: Vec<u8>) -> Vec<u8> {
+    let check = digest128(&b)[0];
+    b.extend_from_slice(&check.to_le_bytes());
+    b
 }
 
 /// Makes the cache directory `dir` (and its parents) and checks that a file can be created in
@@ -157,41 +206,33 @@ pub fn to_bytes(t: &CameraTable) -> Vec<u8> {
         }
         b.extend_from_slice(&r.replica.to_le_bytes());
     }
-    let check = hash_bytes(&b, CHECK_SEED);
-    b.extend_from_slice(&check.to_le_bytes());
-    b
+    seal(b)
 }
 
-/// Reads the table at `path`, checking it against `sys` (design key, crop) and `ts`; sizes are
-/// checked before anything is allocated. A file in the wrong form gives
-/// `TableError::Io(IoError::Format)`.
+/// Reads the table at `path`, checking it against `sys` (design key, crop) and `ts`. A file
+/// in the wrong form gives `TableError::Io(IoError::Format)`.
 pub fn read(path: &Path, sys: &System, ts: &TableSettings) -> Result<CameraTable, TableError> {
+    read_keyed(path, sys, super::camera_table::design_key(sys), ts)
+}
+
+/// [`read`] for `sys` whose design key is `key`.
+fn read_keyed(
+    path: &Path,
+    sys: &System,
+    key: [u64; 2],
+    ts: &TableSettings,
+) -> Result<CameraTable, TableError> {
     let bad = |m: &str| TableError::Io(IoError::format(path, m));
-    let len = std::fs::metadata(path)
-        .map_err(|e| IoError::io(path, e))?
-        .len();
+    let b = read_checked(path, MAGIC)?;
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let pixels = (w * h) as u64;
+    let len = b.len() as u64;
     let fixed = 8 * (1 + HEADER_WORDS as u64 + pixels + 1 + 1);
     if len < fixed || (len - fixed) % REP_BYTES as u64 != 0 {
         return Err(bad("not a camera-side table of this sensor crop (size)"));
     }
     let n_reps = (len - fixed) / REP_BYTES as u64;
-    crate::limits::check_bytes(
-        "--camera-table",
-        "the camera-side table",
-        u128::from(len) * 2,
-    )?;
-    let b = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
-    if b.len() as u64 != len || &b[..8] != MAGIC {
-        return Err(bad("not a camera-side table (magic)"));
-    }
     let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
-    let body = b.len() - 8;
-    if hash_bytes(&b[..body], CHECK_SEED) != word(body / 8) {
-        return Err(bad("check word mismatch (damaged or partly written)"));
-    }
-    let key = crate::render::camera_table::design_key(sys);
     let expect = [
         FORMAT_VERSION,
         key[0],
@@ -246,7 +287,8 @@ pub fn read(path: &Path, sys: &System, ts: &TableSettings) -> Result<CameraTable
 pub fn display_key(sys: &System) -> [u64; 2] {
     let d = &sys.display;
     let text = format!(
-        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
+        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
+        super::camera_table::design_key(sys),
         d.z_mm,
         d.center_mm,
         d.image_pixel_mm,
@@ -258,11 +300,7 @@ pub fn display_key(sys: &System) -> [u64; 2] {
         d.primaries,
         d.polarization_weights,
     );
-    let k = super::camera_table::design_key(sys);
-    [
-        hash_bytes(text.as_bytes(), k[0]),
-        hash_bytes(text.as_bytes(), k[1]),
-    ]
+    digest128(text.as_bytes())
 }
 
 /// A display-only scene's table: its system matrix H and offset at `ts.spp` camera samples
@@ -283,38 +321,32 @@ pub fn cached_display(
     ),
     TableError,
 > {
-    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
-    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp.max(1)))?;
     if ts.spp == 0 {
         return Err(TableError::Unsupported(
             "--table-spp must be at least 1".into(),
         ));
     }
+    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
+    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
     let key = display_key(sys);
     let path = dir.join(format!(
         "display-table-v{FORMAT_VERSION}-{:016x}{:016x}-{}x{}-spp{}-seed{}.bin",
         key[0], key[1], sys.camera.width_px, sys.camera.height_px, ts.spp, ts.seed
     ));
-    let mut origin = TableOrigin::Built;
-    let mut note = None;
-    if path.exists() {
-        match read_display(&path, sys, key) {
-            Ok(m) => return Ok((m, TableOrigin::Read, path, None)),
-            Err(TableError::Io(e @ IoError::Format { .. })) => {
-                origin = TableOrigin::Rebuilt;
-                note = Some(e.to_string());
+    read_or_build(
+        path,
+        dir,
+        |p| read_display(p, sys, key),
+        || {
+            let set = crate::render::RenderSettings::lattice(ts.spp, ts.seed, progress);
+            let m = crate::matrix::compute_matrix(sys, &set);
+            if crate::cancel::current().is_cancelled() {
+                return Err(TableError::Cancelled);
             }
-            Err(e) => return Err(e),
-        }
-    }
-    writable_dir(dir)?;
-    let set = crate::render::RenderSettings::lattice(ts.spp, ts.seed, progress);
-    let m = crate::matrix::compute_matrix(sys, &set);
-    if crate::cancel::current().is_cancelled() {
-        return Err(TableError::Cancelled);
-    }
-    crate::io::atomic::write_atomic(&path, &display_bytes(&m, key))?;
-    Ok((m, origin, path, note))
+            Ok(m)
+        },
+        |m| display_bytes(m, key),
+    )
 }
 
 const DISPLAY_MAGIC: &[u8; 8] = b"STSCAMCH";
@@ -357,31 +389,21 @@ fn display_bytes(m: &crate::matrix::SystemMatrix, key: [u64; 2]) -> Vec<u8> {
         .iter()
         .for_each(|v| b.extend_from_slice(&v.to_bits().to_le_bytes()));
     pad(&mut b);
-    let check = hash_bytes(&b, CHECK_SEED);
-    b.extend_from_slice(&check.to_le_bytes());
-    b
+    seal(b)
 }
 
-/// Reads a display table, checked against `sys` and `key` (sizes before allocation).
+/// Reads a display table, checked against `sys` and `key`.
 fn read_display(
     path: &Path,
     sys: &System,
     key: [u64; 2],
 ) -> Result<crate::matrix::SystemMatrix, TableError> {
     let bad = |m: &str| TableError::Io(IoError::format(path, m));
-    let len = std::fs::metadata(path)
-        .map_err(|e| IoError::io(path, e))?
-        .len();
-    crate::limits::check_bytes("--camera-table", "the display table", u128::from(len) * 2)?;
-    let b = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
-    if b.len() < 8 * 13 || b.len() % 8 != 0 || &b[..8] != DISPLAY_MAGIC {
-        return Err(bad("not a display table (magic or size)"));
+    let b = read_checked(path, DISPLAY_MAGIC)?;
+    if b.len() < 8 * 13 {
+        return Err(bad("not a display table (size)"));
     }
     let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
-    let body = b.len() - 8;
-    if hash_bytes(&b[..body], CHECK_SEED) != word(body / 8) {
-        return Err(bad("check word mismatch (damaged or partly written)"));
-    }
     let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
     let crop = (sys.camera.width_px, sys.camera.height_px);
     let channels = sys.response.names.clone();
@@ -498,7 +520,7 @@ impl CachedTable {
         sys: &System,
         set: &crate::render::RenderSettings,
     ) -> Result<crate::render::Capture, TableError> {
-        super::camera_table::check_usable(sys, set)?;
+        super::camera_table::check_usable(set)?;
         match self {
             CachedTable::Rays(t) => super::camera_table::render_with_table(sys, set, t),
             CachedTable::Display(m) => {
