@@ -293,18 +293,21 @@ pub fn sample_system(
 }
 
 /// The capture (channel-major, f64) and the frontal ground truth (`size`², in `space`) of a
-/// sample; the capture's camera side from `table` when given (drawn for `sys`'s design).
+/// sample; the capture's camera side from `table` when given (drawn for `sys`'s design, whose
+/// [`crate::render::camera_table::design_key`] comes with it).
 pub fn render_sample(
     sys: &System,
     size: usize,
     spp: u32,
     seed: u64,
     space: crate::world::colour::FrontalSpace,
-    table: Option<&crate::render::camera_table::CameraTable>,
+    table: Option<(&crate::render::camera_table::CameraTable, [u64; 2])>,
 ) -> Result<(Vec<f64>, Frontal), crate::render::camera_table::TableError> {
     let settings = crate::render::RenderSettings::lattice(spp, seed, false);
     let cap = match table {
-        Some(t) => crate::render::camera_table::render_with_table(sys, &settings, t)?,
+        Some((t, key)) => {
+            crate::render::camera_table::render_with_table_keyed(sys, key, &settings, t)?
+        }
         None => crate::render::render(sys, &settings),
     };
     let capture = cap

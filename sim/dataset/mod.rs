@@ -1099,6 +1099,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
         root: &opts.out,
         cancel: crate::cancel::current(),
         tables: Default::default(),
+        keys: Default::default(),
     };
     let t0 = Instant::now();
     let specs: Vec<SampleSpec> = ids.clone().map(|i| plan.sample(i)).collect();
@@ -1153,6 +1154,9 @@ struct Generation<'a> {
     tables: std::sync::Mutex<
         BTreeMap<[u64; 2], std::sync::Arc<crate::render::camera_table::CameraTable>>,
     >,
+    /// Design keys of the planned scenes, by scene index (computed once: a key prints the
+    /// whole camera side, milliseconds a sample otherwise).
+    keys: std::sync::Mutex<BTreeMap<usize, [u64; 2]>>,
 }
 
 /// The scenes of a run: H and offset of each scene a matrix-mode sample needs, and the
@@ -1323,10 +1327,18 @@ impl Generation<'_> {
                 })?;
             }
             CaptureMode::Render if recipe.is_meshes() => {
-                for s in todo {
-                    if self.mesh_sample(s, scenes.crop, exposure)? {
-                        made();
-                    }
+                // A few samples at a time: one sample's serial steps (its world and BVH, the
+                // frontal view, the files) overlap another's render, and memory stays bounded
+                // (at most `chunk` worlds alive). Each sample's bytes depend on its seed only.
+                let chunk = 2 * rayon::current_num_threads();
+                for group in todo.chunks(chunk) {
+                    group.par_iter().try_for_each(|s| {
+                        self.check_cancel()?;
+                        if self.mesh_sample(s, scenes.crop, exposure)? {
+                            made();
+                        }
+                        Ok::<(), DatasetError>(())
+                    })?;
                 }
             }
             CaptureMode::Render => {
@@ -1380,14 +1392,15 @@ impl Generation<'_> {
         )
     }
 
-    /// The camera-side table of `sys`'s design (drawn on first use, then shared by every
-    /// sample of the run with that design; seeded by the recipe, so every shard draws the same).
+    /// The camera-side table of `sys`'s design, whose key is `key` (drawn on first use, then
+    /// shared by every sample of the run with that design; seeded by the recipe, so every shard
+    /// draws the same).
     fn camera_table(
         &self,
         sys: &System,
+        key: [u64; 2],
         t: &recipe::TableRecipe,
     ) -> Result<std::sync::Arc<crate::render::camera_table::CameraTable>, DatasetError> {
-        let key = crate::render::camera_table::design_key(sys);
         let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(t) = tables.get(&key) {
             return Ok(t.clone());
@@ -1433,6 +1446,17 @@ impl Generation<'_> {
         let Some((src, files)) = plan.mesh_source(s) else {
             return Ok(false);
         };
+        // A mesh draw adds objects and lights, which the design key leaves out: a planned
+        // scene's key serves all its samples; a design drawn per sample (`vary`) has its own.
+        let key = recipe.camera_table.as_ref().map(|_| match &sys {
+            Cow::Borrowed(base) => *self
+                .keys
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .entry(s.scene)
+                .or_insert_with(|| crate::render::camera_table::design_key(base)),
+            Cow::Owned(own) => crate::render::camera_table::design_key(own),
+        });
         let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
         let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
             .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;
@@ -1458,7 +1482,8 @@ impl Generation<'_> {
         let table = recipe
             .camera_table
             .as_ref()
-            .map(|t| self.camera_table(&sys, t))
+            .zip(key)
+            .map(|(t, key)| self.camera_table(&sys, key, t).map(|t| (t, key)))
             .transpose()?;
         let (clean, frontal) = meshes::render_sample(
             &sys,
@@ -1466,7 +1491,7 @@ impl Generation<'_> {
             recipe.spp,
             s.seed,
             space,
-            table.as_deref(),
+            table.as_ref().map(|(t, key)| (&**t, *key)),
         )
         .map_err(|e| recipe_err(&plan.recipe_path, "camera_table", e.to_string()))?;
         let capture = exposure.measure(&clean, s.seed);

@@ -155,9 +155,12 @@ impl CameraTable {
 
     /// Whether the table was drawn for `sys`'s design and crop.
     pub fn matches(&self, sys: &System) -> bool {
-        self.key == design_key(sys)
-            && self.width == sys.camera.width_px
-            && self.height == sys.camera.height_px
+        self.matches_keyed(sys, design_key(sys))
+    }
+
+    /// [`Self::matches`] for `sys` whose [`design_key`] is `key`.
+    fn matches_keyed(&self, sys: &System, key: [u64; 2]) -> bool {
+        self.key == key && self.width == sys.camera.width_px && self.height == sys.camera.height_px
     }
 }
 
@@ -341,13 +344,24 @@ pub fn render_with_table(
     set: &RenderSettings,
     table: &CameraTable,
 ) -> Result<super::Capture, TableError> {
+    render_with_table_keyed(sys, design_key(sys), set, table)
+}
+
+/// [`render_with_table`] for `sys` whose [`design_key`] is `key`: many scenes of one design
+/// (a dataset's samples) compute the key once.
+pub fn render_with_table_keyed(
+    sys: &System,
+    key: [u64; 2],
+    set: &RenderSettings,
+    table: &CameraTable,
+) -> Result<super::Capture, TableError> {
     check_usable(set)?;
     let world = sys.world.as_deref().ok_or_else(|| {
         TableError::Unsupported(
             "representatives are for 3-D scenes; a display-only scene's table is its H".into(),
         )
     })?;
-    if !table.matches(sys) {
+    if !table.matches_keyed(sys, key) {
         return Err(TableError::Unsupported(
             "the camera-side table was drawn for another design or sensor crop".into(),
         ));
