@@ -186,14 +186,21 @@ fn cmd_render(
         message: e.to_string(),
     })?;
     warn_stats(&cap.stats, con);
+    // From a camera-side table no camera path is traced: the rate is the user side's.
+    let (paths, what) = if cap.stats.camera_paths == 0 && cap.stats.scene_paths > 0 {
+        (cap.stats.scene_paths, "user-side paths/s")
+    } else {
+        (cap.stats.camera_paths, "paths/s")
+    };
     con.err(format_args!(
-        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {:.2} M paths/s ({} threads)",
+        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {:.2} M {} ({} threads)",
         out.display(),
         cap.width,
         cap.height,
         spp,
         render_s,
-        cap.stats.camera_paths as f64 / render_s / 1e6,
+        paths as f64 / render_s / 1e6,
+        what,
         pool.current_num_threads()
     ));
     Ok(cap)
