@@ -206,6 +206,44 @@ impl TableSet {
 }
 
 impl WavelengthSampler {
+    /// Appends every number of the sampler to `out`, exactly (f64 as their bits, little
+    /// endian, with the lengths of its arrays): what a cache key of the camera side hashes
+    /// (`render::camera_table::design_key`). `first` is a copy of `sets[0]` and is left out.
+    pub fn key_bytes(&self, out: &mut Vec<u8>) {
+        let f = |out: &mut Vec<u8>, v: f64| out.extend_from_slice(&v.to_bits().to_le_bytes());
+        let n = |out: &mut Vec<u8>, v: usize| out.extend_from_slice(&(v as u64).to_le_bytes());
+        for v in [
+            self.lo_nm,
+            self.hi_nm,
+            self.uniform_fraction,
+            self.table_start_nm,
+            self.bin_nm,
+        ] {
+            f(out, v);
+        }
+        n(out, self.sets.len());
+        for set in &self.sets {
+            out.push(u8::from(set.active));
+            f(out, set.key_cells_per_nm);
+            n(out, set.keys_nm.len());
+            set.keys_nm.iter().for_each(|&k| f(out, k));
+            n(out, set.key_guide.len());
+            set.key_guide
+                .iter()
+                .for_each(|&g| out.extend_from_slice(&g.to_le_bytes()));
+            for t in &set.tables {
+                n(out, t.density.len());
+                t.density.iter().for_each(|&v| f(out, v));
+                n(out, t.cdf.len());
+                t.cdf.iter().for_each(|&v| f(out, v));
+                n(out, t.guide.len());
+                t.guide
+                    .iter()
+                    .for_each(|&g| out.extend_from_slice(&g.to_le_bytes()));
+            }
+        }
+    }
+
     /// Builds the sampler of a one-grating film from non-negative shapes, each tabulated on
     /// equal bins starting at Δλ = `table_start_nm` and measured for a field whose Bragg
     /// wavelength is the key. A shape that sums to zero falls back to a flat table; no shapes
@@ -426,6 +464,25 @@ impl WavelengthSampler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The key bytes hold every number: equal samplers give equal bytes; one density value
+    /// changed by one ulp, a shifted key or another bin width give other bytes.
+    #[test]
+    fn key_bytes_see_every_number() {
+        let shape = |k: f64, bump: f64| (k, vec![1.0, 2.0 + bump, 3.0, 0.5]);
+        let make = |k: f64, bump: f64, bin: f64| {
+            let s = WavelengthSampler::new(400.0, 700.0, 0.1, -1.0, bin, &[shape(k, bump)]);
+            let mut b = Vec::new();
+            s.key_bytes(&mut b);
+            b
+        };
+        let base = make(532.0, 0.0, 0.5);
+        assert_eq!(base, make(532.0, 0.0, 0.5));
+        let ulp = f64::from_bits(2.0f64.to_bits() + 1) - 2.0;
+        assert_ne!(base, make(532.0, ulp, 0.5));
+        assert_ne!(base, make(532.5, 0.0, 0.5));
+        assert_ne!(base, make(532.0, 0.0, 0.25));
+    }
 
     fn sampler() -> WavelengthSampler {
         // Triangle shapes over Δλ ∈ [−10, 10) nm in 0.5 nm bins, for two fields.

@@ -187,20 +187,28 @@ fn cmd_render(
     })?;
     warn_stats(&cap.stats, con);
     // From a camera-side table no camera path is traced: the rate is the user side's.
-    let (paths, what) = if cap.stats.camera_paths == 0 && cap.stats.scene_paths > 0 {
-        (cap.stats.scene_paths, "user-side paths/s")
+    // A display target from H traces nothing at all.
+    let rate = if cap.stats.camera_paths > 0 {
+        format!(
+            "{:.2} M paths/s",
+            cap.stats.camera_paths as f64 / render_s / 1e6
+        )
+    } else if cap.stats.scene_paths > 0 {
+        format!(
+            "{:.2} M user-side paths/s",
+            cap.stats.scene_paths as f64 / render_s / 1e6
+        )
     } else {
-        (cap.stats.camera_paths, "paths/s")
+        "H times the target".to_string()
     };
     con.err(format_args!(
-        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {:.2} M {} ({} threads)",
+        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {} ({} threads)",
         out.display(),
         cap.width,
         cap.height,
         spp,
         render_s,
-        paths as f64 / render_s / 1e6,
-        what,
+        rate,
         pool.current_num_threads()
     ));
     Ok(cap)

@@ -189,20 +189,23 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
 /// and their efficiency model), camera and sensor crop, sensor response, wavelength sampler,
 /// trace limits, the object plane's distance and the display's polarisation, and the film's
 /// recording (128 bits of the SHA-256 of their full `Debug` text, which prints every f64
-/// exactly).
+/// exactly, followed by the wavelength sampler's numbers as bits).
 pub fn design_key(sys: &System) -> [u64; 2] {
     let text = format!(
-        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}",
+        "{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n{:?}\n",
         sys.waveguide,
         sys.camera,
         sys.response,
-        sys.wavelengths,
         sys.limits,
         sys.display.z_mm,
         sys.display.polarization_weights,
         sys.scene.hoe,
     );
-    digest128(text.as_bytes())
+    // The wavelength sampler's tables as bits: their `Debug` text is megabytes (tens of
+    // milliseconds a key), their bits a few hundred kilobytes.
+    let mut bytes = text.into_bytes();
+    sys.wavelengths.key_bytes(&mut bytes);
+    digest128(&bytes)
 }
 
 /// The first 128 bits of the SHA-256 of `bytes` (FIPS 180-4), as two little-endian words:
