@@ -212,34 +212,35 @@ impl WavelengthSampler {
     pub fn key_bytes(&self, out: &mut Vec<u8>) {
         let f = |out: &mut Vec<u8>, v: f64| out.extend_from_slice(&v.to_bits().to_le_bytes());
         let n = |out: &mut Vec<u8>, v: usize| out.extend_from_slice(&(v as u64).to_le_bytes());
-        for v in [
-            self.lo_nm,
-            self.hi_nm,
-            self.uniform_fraction,
-            self.table_start_nm,
-            self.bin_nm,
-        ] {
-            f(out, v);
-        }
+        let floats = |out: &mut Vec<u8>, v: &[f64]| {
+            n(out, v.len());
+            v.iter().for_each(|&x| f(out, x));
+        };
+        let words = |out: &mut Vec<u8>, v: &[u32]| {
+            n(out, v.len());
+            v.iter()
+                .for_each(|&x| out.extend_from_slice(&x.to_le_bytes()));
+        };
+        floats(
+            out,
+            &[
+                self.lo_nm,
+                self.hi_nm,
+                self.uniform_fraction,
+                self.table_start_nm,
+                self.bin_nm,
+            ],
+        );
         n(out, self.sets.len());
         for set in &self.sets {
             out.push(u8::from(set.active));
             f(out, set.key_cells_per_nm);
-            n(out, set.keys_nm.len());
-            set.keys_nm.iter().for_each(|&k| f(out, k));
-            n(out, set.key_guide.len());
-            set.key_guide
-                .iter()
-                .for_each(|&g| out.extend_from_slice(&g.to_le_bytes()));
+            floats(out, &set.keys_nm);
+            words(out, &set.key_guide);
             for t in &set.tables {
-                n(out, t.density.len());
-                t.density.iter().for_each(|&v| f(out, v));
-                n(out, t.cdf.len());
-                t.cdf.iter().for_each(|&v| f(out, v));
-                n(out, t.guide.len());
-                t.guide
-                    .iter()
-                    .for_each(|&g| out.extend_from_slice(&g.to_le_bytes()));
+                floats(out, &t.density);
+                floats(out, &t.cdf);
+                words(out, &t.guide);
             }
         }
     }
