@@ -117,10 +117,16 @@ fn read_or_build<T>(
     Ok((t, origin, path, note))
 }
 
-/// The bytes of the cache file at `path` after the checks every table file gets: a size the
-/// limits allow, a whole number of 8-byte words, the magic `magic`, and the check word (the
-/// last word: the first 64 bits of the SHA-256 of everything before it).
-fn read_checked(path: &Path, magic: &[u8; 8]) -> Result<Vec<u8>, TableError> {
+/// The cache file at `path`, parsed by `parse`, after the checks every table file gets: a size
+/// the limits allow, a whole number of 8-byte words, the magic `magic`, and the check word
+/// (the last word: the first 64 bits of the SHA-256 of everything before it). The check word
+/// is computed while `parse` runs (the SHA-256 of a 30 MB H takes tens of milliseconds, as long
+/// as the parse); a mismatch is reported whatever the parse found.
+fn read_checked<T: Send>(
+    path: &Path,
+    magic: &[u8; 8],
+    parse: impl FnOnce(&[u8]) -> Result<T, TableError> + Send,
+) -> Result<T, TableError> {
     let len = std::fs::metadata(path)
         .map_err(|e| IoError::io(path, e))?
         .len();
@@ -136,12 +142,13 @@ fn read_checked(path: &Path, magic: &[u8; 8]) -> Result<Vec<u8>, TableError> {
         );
     }
     let body = b.len() - 8;
-    if digest128(&b[..body])[0].to_le_bytes() != b[body..] {
+    let (check, parsed) = rayon::join(|| digest128(&b[..body])[0], || parse(&b));
+    if check.to_le_bytes() != b[body..] {
         return Err(
             IoError::format(path, "check word mismatch (damaged or partly written)").into(),
         );
     }
-    Ok(b)
+    parsed
 }
 
 /// Appends the check word of [`read_checked`] to `b`.
@@ -223,61 +230,62 @@ fn read_keyed(
     ts: &TableSettings,
 ) -> Result<CameraTable, TableError> {
     let bad = |m: &str| TableError::Io(IoError::format(path, m));
-    let b = read_checked(path, MAGIC)?;
-    let (w, h) = (sys.camera.width_px, sys.camera.height_px);
-    let pixels = (w * h) as u64;
-    let len = b.len() as u64;
-    let fixed = 8 * (1 + HEADER_WORDS as u64 + pixels + 1 + 1);
-    if len < fixed || (len - fixed) % REP_BYTES as u64 != 0 {
-        return Err(bad("not a camera-side table of this sensor crop (size)"));
-    }
-    let n_reps = (len - fixed) / REP_BYTES as u64;
-    let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
-    let expect = [
-        FORMAT_VERSION,
-        key[0],
-        key[1],
-        w as u64,
-        h as u64,
-        u64::from(ts.spp),
-        u64::from(ts.reps),
-        ts.seed,
-        n_reps,
-        0,
-    ];
-    if (0..HEADER_WORDS).any(|i| word(1 + i) != expect[i]) {
-        return Err(bad("drawn for another design, crop or table settings"));
-    }
-    let first = 1 + HEADER_WORDS;
-    let offsets: Vec<u64> = (0..=pixels as usize).map(|i| word(first + i)).collect();
-    if offsets[0] != 0
-        || offsets.windows(2).any(|p| p[1] < p[0])
-        || offsets[pixels as usize] != n_reps
-    {
-        return Err(bad("pixel offsets out of order"));
-    }
-    let base = first + pixels as usize + 1;
-    let f = |i: usize| f64::from_bits(word(i));
-    let reps = (0..n_reps as usize)
-        .map(|r| {
-            let o = base + r * (REP_BYTES / 8);
-            Rep {
-                exit_mm: [f(o), f(o + 1)],
-                dir: [f(o + 2), f(o + 3), f(o + 4)],
-                lambda_nm: f(o + 5),
-                coef: [f(o + 6), f(o + 7)],
-                replica: word(o + 8),
-            }
+    read_checked(path, MAGIC, |b| {
+        let (w, h) = (sys.camera.width_px, sys.camera.height_px);
+        let pixels = (w * h) as u64;
+        let len = b.len() as u64;
+        let fixed = 8 * (1 + HEADER_WORDS as u64 + pixels + 1 + 1);
+        if len < fixed || (len - fixed) % REP_BYTES as u64 != 0 {
+            return Err(bad("not a camera-side table of this sensor crop (size)"));
+        }
+        let n_reps = (len - fixed) / REP_BYTES as u64;
+        let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+        let expect = [
+            FORMAT_VERSION,
+            key[0],
+            key[1],
+            w as u64,
+            h as u64,
+            u64::from(ts.spp),
+            u64::from(ts.reps),
+            ts.seed,
+            n_reps,
+            0,
+        ];
+        if (0..HEADER_WORDS).any(|i| word(1 + i) != expect[i]) {
+            return Err(bad("drawn for another design, crop or table settings"));
+        }
+        let first = 1 + HEADER_WORDS;
+        let offsets: Vec<u64> = (0..=pixels as usize).map(|i| word(first + i)).collect();
+        if offsets[0] != 0
+            || offsets.windows(2).any(|p| p[1] < p[0])
+            || offsets[pixels as usize] != n_reps
+        {
+            return Err(bad("pixel offsets out of order"));
+        }
+        let base = first + pixels as usize + 1;
+        let f = |i: usize| f64::from_bits(word(i));
+        let reps = (0..n_reps as usize)
+            .map(|r| {
+                let o = base + r * (REP_BYTES / 8);
+                Rep {
+                    exit_mm: [f(o), f(o + 1)],
+                    dir: [f(o + 2), f(o + 3), f(o + 4)],
+                    lambda_nm: f(o + 5),
+                    coef: [f(o + 6), f(o + 7)],
+                    replica: word(o + 8),
+                }
+            })
+            .collect();
+        Ok(CameraTable {
+            key,
+            settings: *ts,
+            width: w,
+            height: h,
+            offsets,
+            reps,
+            stats: Default::default(),
         })
-        .collect();
-    Ok(CameraTable {
-        key,
-        settings: *ts,
-        width: w,
-        height: h,
-        offsets,
-        reps,
-        stats: Default::default(),
     })
 }
 
@@ -399,54 +407,57 @@ fn read_display(
     key: [u64; 2],
 ) -> Result<crate::matrix::SystemMatrix, TableError> {
     let bad = |m: &str| TableError::Io(IoError::format(path, m));
-    let b = read_checked(path, DISPLAY_MAGIC)?;
-    if b.len() < 8 * 13 {
-        return Err(bad("not a display table (size)"));
-    }
-    let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
-    let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
-    let crop = (sys.camera.width_px, sys.camera.height_px);
-    let channels = sys.response.names.clone();
-    let r8 = |n: usize, size: usize| (n * size).next_multiple_of(8);
-    let expect = 8 * 12 + 8 * (rows + 1) + r8(nnz, 4) + r8(nnz, 4) + r8(rows, 4) + 8;
-    if word(1) != FORMAT_VERSION
-        || [word(2), word(3)] != key
-        || (word(7) as usize, word(8) as usize) != crop
-        || rows != crop.0 * crop.1 * channels.len()
-        || cols != sys.display.intensity.len()
-        || b.len() != expect
-    {
-        return Err(bad("drawn for another design, display or crop (header)"));
-    }
-    let mut at = 8 * 12;
-    let indptr: Vec<u64> = (0..=rows).map(|i| word(12 + i)).collect();
-    at += 8 * (rows + 1);
-    let u32s = |at: usize, n: usize| -> Vec<u32> {
-        (0..n)
-            .map(|i| u32::from_le_bytes(b[at + 4 * i..at + 4 * i + 4].try_into().unwrap_or([0; 4])))
-            .collect()
-    };
-    let indices = u32s(at, nnz);
-    at += r8(nnz, 4);
-    let data: Vec<f32> = u32s(at, nnz).into_iter().map(f32::from_bits).collect();
-    at += r8(nnz, 4);
-    let offset: Vec<f32> = u32s(at, rows).into_iter().map(f32::from_bits).collect();
-    let h = crate::sparse::CsrMatrix {
-        rows,
-        cols,
-        indptr,
-        indices,
-        data,
-    };
-    h.check().map_err(|e| bad(&e))?;
-    Ok(crate::matrix::SystemMatrix {
-        h,
-        offset,
-        crop,
-        object: (word(9) as usize, word(10) as usize),
-        planes: word(11) as usize,
-        channels,
-        stats: Default::default(),
+    read_checked(path, DISPLAY_MAGIC, |b| {
+        if b.len() < 8 * 13 {
+            return Err(bad("not a display table (size)"));
+        }
+        let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+        let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
+        let crop = (sys.camera.width_px, sys.camera.height_px);
+        let channels = sys.response.names.clone();
+        let r8 = |n: usize, size: usize| (n * size).next_multiple_of(8);
+        let expect = 8 * 12 + 8 * (rows + 1) + r8(nnz, 4) + r8(nnz, 4) + r8(rows, 4) + 8;
+        if word(1) != FORMAT_VERSION
+            || [word(2), word(3)] != key
+            || (word(7) as usize, word(8) as usize) != crop
+            || rows != crop.0 * crop.1 * channels.len()
+            || cols != sys.display.intensity.len()
+            || b.len() != expect
+        {
+            return Err(bad("drawn for another design, display or crop (header)"));
+        }
+        let mut at = 8 * 12;
+        let indptr: Vec<u64> = (0..=rows).map(|i| word(12 + i)).collect();
+        at += 8 * (rows + 1);
+        let u32s = |at: usize, n: usize| -> Vec<u32> {
+            (0..n)
+                .map(|i| {
+                    u32::from_le_bytes(b[at + 4 * i..at + 4 * i + 4].try_into().unwrap_or([0; 4]))
+                })
+                .collect()
+        };
+        let indices = u32s(at, nnz);
+        at += r8(nnz, 4);
+        let data: Vec<f32> = u32s(at, nnz).into_iter().map(f32::from_bits).collect();
+        at += r8(nnz, 4);
+        let offset: Vec<f32> = u32s(at, rows).into_iter().map(f32::from_bits).collect();
+        let h = crate::sparse::CsrMatrix {
+            rows,
+            cols,
+            indptr,
+            indices,
+            data,
+        };
+        h.check().map_err(|e| bad(&e))?;
+        Ok(crate::matrix::SystemMatrix {
+            h,
+            offset,
+            crop,
+            object: (word(9) as usize, word(10) as usize),
+            planes: word(11) as usize,
+            channels,
+            stats: Default::default(),
+        })
     })
 }
 
