@@ -149,7 +149,7 @@ pub struct CacheInfo {
 }
 
 /// The RCWA coupling tables of one film (one per grating).
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct RcwaCouplings {
     film: Film,
     set: GratingSet,
@@ -161,6 +161,33 @@ pub struct RcwaCouplings {
     data: Vec<Vec<f64>>,
     max_error: f64,
     cache: CacheInfo,
+}
+
+/// Everything that decides the tables' values, with the node data as the SHA-256 of their bits
+/// (as text they are megabytes) and without where they came from (`cache`: tables read from
+/// the cache are the same design as tables just built). The camera side's cache key
+/// (`render::camera_table::design_key`) is made from this text.
+impl std::fmt::Debug for RcwaCouplings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut h = Sha256::new();
+        for d in &self.data {
+            h.update((d.len() as u64).to_le_bytes());
+            for v in d {
+                h.update(v.to_bits().to_le_bytes());
+            }
+        }
+        let digest = h.finalize();
+        let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+        f.debug_struct("RcwaCouplings")
+            .field("film", &self.film)
+            .field("set", &self.set)
+            .field("grid", &self.grid)
+            .field("settings", &self.settings)
+            .field("orders", &self.orders)
+            .field("data_sha256", &hex)
+            .field("max_error", &self.max_error)
+            .finish()
+    }
 }
 
 /// The baseline of a node or a query (module notes): what carries the sharp Bragg shape, from
@@ -716,6 +743,12 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert_eq!(bits(&a), bits(&b));
+        // The text a design key is made from: the same for built and read tables (where they
+        // came from is not the design), another for one node value changed by one ulp.
+        assert_eq!(format!("{a:?}"), format!("{b:?}"));
+        let mut e = b.clone();
+        e.data[0][3] = f64::from_bits(e.data[0][3].to_bits() + 1);
+        assert_ne!(format!("{e:?}"), format!("{b:?}"));
         std::fs::write(&path, b"not a table").unwrap();
         let c = RcwaCouplings::load_or_build(Some(dir.path()), &set, &grid, &s, 4).unwrap();
         assert!(!c.cache().from_cache);
