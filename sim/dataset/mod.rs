@@ -1330,6 +1330,7 @@ impl Generation<'_> {
                 // A few samples at a time: one sample's serial steps (its world and BVH, the
                 // frontal view, the files) overlap another's render, and memory stays bounded
                 // (at most `chunk` worlds alive). Each sample's bytes depend on its seed only.
+                self.draw_scene_tables(todo)?;
                 let chunk = 2 * rayon::current_num_threads();
                 for group in todo.chunks(chunk) {
                     group.par_iter().try_for_each(|s| {
@@ -1401,10 +1402,16 @@ impl Generation<'_> {
         key: [u64; 2],
         t: &recipe::TableRecipe,
     ) -> Result<std::sync::Arc<crate::render::camera_table::CameraTable>, DatasetError> {
-        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(t) = tables.get(&key) {
-            return Ok(t.clone());
+        let known = {
+            let tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+            tables.get(&key).cloned()
+        };
+        if let Some(t) = known {
+            return Ok(t);
         }
+        // Drawn without the lock: the draw's own rayon work may run a sibling sample on this
+        // thread, which must not wait for a lock its own thread holds. (`samples` draws each
+        // planned scene's table before the parallel loop, so a table is drawn once.)
         let ts = crate::render::camera_table::TableSettings {
             spp: t.spp,
             reps: t.reps,
@@ -1428,9 +1435,47 @@ impl Generation<'_> {
                     .table
             }
         };
-        let table = std::sync::Arc::new(table);
-        tables.insert(key, table.clone());
-        Ok(table)
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        Ok(tables
+            .entry(key)
+            .or_insert_with(|| std::sync::Arc::new(table))
+            .clone())
+    }
+
+    /// The design key of sample `s`, whose scene's system is `sys`. A mesh draw adds objects
+    /// and lights, which the key leaves out: a planned scene's key serves all its samples
+    /// (computed once); a design drawn per sample (`vary`) has its own.
+    fn sample_design_key(&self, s: &SampleSpec, sys: &Cow<'_, System>) -> [u64; 2] {
+        match sys {
+            Cow::Borrowed(base) => *self
+                .keys
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .entry(s.scene)
+                .or_insert_with(|| crate::render::camera_table::design_key(base)),
+            Cow::Owned(own) => crate::render::camera_table::design_key(own),
+        }
+    }
+
+    /// Draws (or reads) the camera-side table of every planned scene that a mesh sample of
+    /// `todo` renders, one scene at a time, before the samples run in parallel (designs drawn
+    /// per sample get theirs with the sample).
+    fn draw_scene_tables(&self, todo: &[&SampleSpec]) -> Result<(), DatasetError> {
+        let Some(t) = self.plan.recipe.camera_table.as_ref() else {
+            return Ok(());
+        };
+        let mut done = BTreeSet::new();
+        for s in todo {
+            if self.plan.mesh_source(s).is_none() || !done.insert(s.scene) {
+                continue;
+            }
+            let (_, sys) = self.plan.sample_scene(s)?;
+            if matches!(sys, Cow::Borrowed(_)) {
+                let key = self.sample_design_key(s, &sys);
+                self.camera_table(&sys, key, t)?;
+            }
+        }
+        Ok(())
     }
 
     /// A sample of a 3-D scene: its meshes drawn, rendered with the frontal view, measured and
@@ -1446,17 +1491,10 @@ impl Generation<'_> {
         let Some((src, files)) = plan.mesh_source(s) else {
             return Ok(false);
         };
-        // A mesh draw adds objects and lights, which the design key leaves out: a planned
-        // scene's key serves all its samples; a design drawn per sample (`vary`) has its own.
-        let key = recipe.camera_table.as_ref().map(|_| match &sys {
-            Cow::Borrowed(base) => *self
-                .keys
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .entry(s.scene)
-                .or_insert_with(|| crate::render::camera_table::design_key(base)),
-            Cow::Owned(own) => crate::render::camera_table::design_key(own),
-        });
+        let key = recipe
+            .camera_table
+            .as_ref()
+            .map(|_| self.sample_design_key(s, &sys));
         let (d, _) = plan.mesh_draw(s, src, files, &ls)?;
         let sys = meshes::sample_system(&ls, &sys, &d, src.units.as_deref())
             .map_err(|e| recipe_err(&plan.recipe_path, source_key(s), e.to_string()))?;

@@ -413,6 +413,10 @@ fn read_display(
         }
         let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
         let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
+        // Counts the file cannot hold are refused before any size is computed from them.
+        if rows > b.len() / 8 || nnz > b.len() / 4 {
+            return Err(bad("not a display table (counts larger than the file)"));
+        }
         let crop = (sys.camera.width_px, sys.camera.height_px);
         let channels = sys.response.names.clone();
         let r8 = |n: usize, size: usize| (n * size).next_multiple_of(8);
@@ -558,6 +562,41 @@ impl CachedTable {
                     stats: Default::default(),
                 })
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A display table whose header claims more entries than the file holds, sealed with a
+    /// valid check word (a hostile file, not a damaged one), is refused with an error and
+    /// not parsed: before the count check, a count of 2⁶² + nnz wrapped the size arithmetic
+    /// to the true size and the parse asked for an impossible allocation. The untouched
+    /// file reads.
+    #[test]
+    fn display_table_with_impossible_counts_is_refused() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper-2022.toml");
+        let sets = ["sensor.crop_px=8".to_string()];
+        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let ts = TableSettings {
+            spp: 1,
+            reps: 1,
+            seed: 1,
+        };
+        let (_, _, file, _) = cached_display(&sys, &ts, dir.path(), false).unwrap();
+        let key = display_key(&sys);
+        assert!(read_display(&file, &sys, key).is_ok());
+        let b = std::fs::read(&file).unwrap();
+        let body = &b[..b.len() - 8];
+        for (word, add) in [(6usize, 1u64 << 62), (4, 1 << 61)] {
+            let mut evil = body.to_vec();
+            let v = u64::from_le_bytes(evil[8 * word..8 * word + 8].try_into().unwrap());
+            evil[8 * word..8 * word + 8].copy_from_slice(&v.wrapping_add(add).to_le_bytes());
+            std::fs::write(&file, seal(evil)).unwrap();
+            assert!(read_display(&file, &sys, key).is_err(), "word {word}");
         }
     }
 }
