@@ -702,13 +702,19 @@ impl Plan {
         f
     }
 
+    /// Whether every sample's design is one of the planned scenes (no ranged `vary` key,
+    /// which draws a design per sample).
+    fn designs_planned(&self) -> bool {
+        self.recipe.vary.iter().all(|v| v.values.is_some())
+    }
+
     /// The scene of a sample: its discrete scene, or with ranged keys one built for it.
     #[allow(clippy::type_complexity)]
     fn sample_scene(
         &self,
         s: &SampleSpec,
     ) -> Result<(Cow<'_, LoadedScene>, Cow<'_, System>), DatasetError> {
-        if self.recipe.vary.iter().all(|v| v.values.is_some()) {
+        if self.designs_planned() {
             let ps = &self.scenes[s.scene];
             return Ok((Cow::Borrowed(&ps.loaded), Cow::Borrowed(&ps.system)));
         }
@@ -1464,16 +1470,17 @@ impl Generation<'_> {
         let Some(t) = self.plan.recipe.camera_table.as_ref() else {
             return Ok(());
         };
+        if !self.plan.designs_planned() {
+            return Ok(());
+        }
         let mut done = BTreeSet::new();
         for s in todo {
             if self.plan.mesh_source(s).is_none() || !done.insert(s.scene) {
                 continue;
             }
-            let (_, sys) = self.plan.sample_scene(s)?;
-            if matches!(sys, Cow::Borrowed(_)) {
-                let key = self.sample_design_key(s, &sys);
-                self.camera_table(&sys, key, t)?;
-            }
+            let sys = Cow::Borrowed(&self.plan.scenes[s.scene].system);
+            let key = self.sample_design_key(s, &sys);
+            self.camera_table(&sys, key, t)?;
         }
         Ok(())
     }

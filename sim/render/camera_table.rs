@@ -173,7 +173,7 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
             ts.spp, ts.reps
         )));
     }
-    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
+    check_table_spp(sys, ts)?;
     // A pixel holds about R representatives (rounding and the one-per-replica floor add up to
     // one per replica: 33.2 on average for R = 32 in the eye-contact scene); the estimate
     // allows 2R + 64.
@@ -182,6 +182,19 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
         "the camera-side table",
         pixels * (2 * u128::from(ts.reps) + 64) * REP_BYTES as u128,
     )?;
+    Ok(())
+}
+
+/// Checks the camera samples a table of `sys` draws (`ts.spp`, at least 1) against
+/// [`crate::limits`]: the part of [`check_table_limits`] that display tables (H) share.
+pub(crate) fn check_table_spp(sys: &System, ts: &TableSettings) -> Result<(), TableError> {
+    if ts.spp == 0 {
+        return Err(TableError::Unsupported(
+            "--table-spp must be at least 1".into(),
+        ));
+    }
+    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
+    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
     Ok(())
 }
 

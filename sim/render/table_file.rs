@@ -151,6 +151,13 @@ fn read_checked<T: Send>(
     parsed
 }
 
+/// Little-endian 64-bit word `i` of a table file `b` (0 past its end; callers check sizes).
+fn word_at(b: &[u8], i: usize) -> u64 {
+    b.get(8 * i..8 * i + 8)
+        .and_then(|w| w.try_into().ok())
+        .map_or(0, u64::from_le_bytes)
+}
+
 /// Appends the check word of [`read_checked`] to `b`.
 fn seal(mut b: Vec<u8>) -> Vec<u8> {
     let check = digest128(&b)[0];
@@ -239,7 +246,7 @@ fn read_keyed(
             return Err(bad("not a camera-side table of this sensor crop (size)"));
         }
         let n_reps = (len - fixed) / REP_BYTES as u64;
-        let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+        let word = |i: usize| word_at(b, i);
         let expect = [
             FORMAT_VERSION,
             key[0],
@@ -329,13 +336,7 @@ pub fn cached_display(
     ),
     TableError,
 > {
-    if ts.spp == 0 {
-        return Err(TableError::Unsupported(
-            "--table-spp must be at least 1".into(),
-        ));
-    }
-    let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
-    crate::limits::check_paths("--table-spp", pixels * u128::from(ts.spp))?;
+    super::camera_table::check_table_spp(sys, ts)?;
     let key = display_key(sys);
     let path = dir.join(format!(
         "display-table-v{FORMAT_VERSION}-{:016x}{:016x}-{}x{}-spp{}-seed{}.bin",
@@ -411,7 +412,7 @@ fn read_display(
         if b.len() < 8 * 13 {
             return Err(bad("not a display table (size)"));
         }
-        let word = |i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
+        let word = |i: usize| word_at(b, i);
         let (rows, cols, nnz) = (word(4) as usize, word(5) as usize, word(6) as usize);
         // Counts the file cannot hold are refused before any size is computed from them.
         if rows > b.len() / 8 || nnz > b.len() / 4 {
