@@ -37,7 +37,7 @@ use std::ops::ControlFlow;
 use rayon::prelude::*;
 
 use super::samples::{CameraSample, PixelSums, SampleConsumer};
-use super::user_side::{Gathered, resample_group, trace_exit};
+use super::user_side::{FirstHitCache, Gathered, resample_group, trace_exit_shared};
 use super::{PixelJob, RenderSettings, RenderStats};
 use crate::sampler::{PathRng, SamplerKind};
 use crate::system::System;
@@ -395,6 +395,7 @@ pub fn render_with_table_keyed(
         padded: set.sampler != SamplerKind::Independent,
         sums: PixelSums::new(sys, set),
         picks: Vec::new(),
+        first_hits: FirstHitCache::default(),
     }))
 }
 
@@ -410,6 +411,8 @@ struct TableJob<'a> {
     sums: PixelSums<'a>,
     /// The representative of each path.
     picks: Vec<u32>,
+    /// The first hit of the last representative traced.
+    first_hits: FirstHitCache,
 }
 
 impl<'a> PixelJob<'a> for TableJob<'a> {
@@ -445,7 +448,9 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
                 if self.padded {
                     rng = rng.with_padded(pad_key, (k - k0) as u64, n);
                 }
-                let l = trace_exit(
+                // Paths that take the same representative start on the same ray (when M > R):
+                // its first hit is traced once.
+                let l = trace_exit_shared(
                     self.sys,
                     self.world,
                     glam::DVec3::from_array(rep.dir),
@@ -453,6 +458,7 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
                     glam::DVec2::from_array(rep.exit_mm),
                     &mut rng,
                     stats,
+                    Some(&mut self.first_hits),
                 );
                 let base = r as f64 * (rep.coef[0] * l.display + rep.coef[1] * l.other);
                 self.sums.add(base, rep.lambda_nm, stats);

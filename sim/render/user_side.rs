@@ -52,15 +52,47 @@ pub(super) fn trace_exit(
     rng: &mut PathRng,
     stats: &mut RenderStats,
 ) -> crate::world::integrator::Radiance {
+    trace_exit_shared(sys, world, dir, lambda_nm, exit, rng, stats, None)
+}
+
+/// The first hit of the exit ray traced last, kept for the next path that starts on the
+/// same ray (a representative or a branch drawn more than once for a pixel): the first ray
+/// of such paths is traced once ([`crate::world::World::first_hit_shareable`]).
+#[derive(Debug, Default)]
+pub(super) struct FirstHitCache {
+    /// The ray's exit point, direction and wavelength, as bits.
+    ray: [u64; 6],
+    hit: Option<crate::world::integrator::Hit>,
+}
+
+/// [`trace_exit`] taking the path's first hit from `cache` when the cache holds this very
+/// ray, and keeping it there otherwise. The radiance is the same as without the cache.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn trace_exit_shared(
+    sys: &System,
+    world: &World,
+    dir: glam::DVec3,
+    lambda_nm: f64,
+    exit: glam::DVec2,
+    rng: &mut PathRng,
+    stats: &mut RenderStats,
+    cache: Option<&mut FirstHitCache>,
+) -> crate::world::integrator::Radiance {
     let mut counts = crate::world::integrator::PathCounts::default();
-    let l = world.radiance(
-        &sys.display,
-        crate::world::integrator::exit_point(exit),
-        dir,
-        lambda_nm,
-        rng,
-        &mut counts,
-    );
+    let o = crate::world::integrator::exit_point(exit);
+    let first = match cache {
+        Some(c) if world.first_hit_shareable() => {
+            let ray = [exit.x, exit.y, dir.x, dir.y, dir.z, lambda_nm].map(f64::to_bits);
+            if c.hit.is_none() || c.ray != ray {
+                c.ray = ray;
+                c.hit = Some(world.path_first_hit(&sys.display, o, dir, lambda_nm, rng));
+                counts.rays += 1;
+            }
+            c.hit
+        }
+        _ => None,
+    };
+    let l = world.radiance_from(&sys.display, o, dir, lambda_nm, rng, &mut counts, first);
     stats.scene_rays += counts.rays;
     stats.scene_paths += 1;
     l
@@ -402,6 +434,7 @@ impl<'a> Resampled<'a> {
         let (seed, pixel, padded, world) = (self.seed, self.sums.pixel, self.padded, self.world);
         let sums = &mut self.sums;
         let samples = std::mem::take(&mut self.gathered.samples);
+        let mut first_hits = FirstHitCache::default();
         self.gathered.by_replica(|group, total| {
             // The replica's key (grating, contact); the contact alone for grating 0.
             let contact = group[0].replica;
@@ -421,7 +454,16 @@ impl<'a> Resampled<'a> {
                     if padded && k <= u64::from(u32::MAX) {
                         rng = rng.with_padded(pad_key, kk, k as u32);
                     }
-                    let l = trace_exit(sys, world, s.ray.dir, s.lambda_nm, p.exit, &mut rng, stats);
+                    let l = trace_exit_shared(
+                        sys,
+                        world,
+                        s.ray.dir,
+                        s.lambda_nm,
+                        p.exit,
+                        &mut rng,
+                        stats,
+                        Some(&mut first_hits),
+                    );
                     let (wd, wo) = branch_weights(p.weight, pol);
                     let base = share * (wd * l.display + wo * l.other) / p.sel * s.ray.cos4 / s.pdf;
                     sums.add(base, s.lambda_nm, stats);
@@ -474,6 +516,53 @@ impl<'a> PixelEstimator<'a> for Resampled<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Paths that start on one ray get the radiance they get without the cache, bit for bit,
+    /// and the ray is traced once: three paths on a ray that meets the head (each with its own
+    /// stream) count two scene rays fewer than without the cache; a path on another ray (one
+    /// that misses the head, so its radiance differs) after them gets its own first hit, so a
+    /// cache that ignored the ray would fail the comparison.
+    #[test]
+    fn shared_first_hit_gives_the_same_radiance_and_saves_the_ray() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
+        let sets = ["sensor.crop_px=[8,8]".to_string()];
+        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let world = sys.world.as_deref().unwrap();
+        assert!(world.first_hit_shareable());
+        let head = (glam::DVec2::new(0.0, -12.0), glam::DVec3::NEG_Z);
+        let away = (
+            glam::DVec2::new(0.0, -12.0),
+            glam::DVec3::new(0.6, 0.0, -0.8),
+        );
+        let rays = [head, head, head, away, head];
+        let mut cache = FirstHitCache::default();
+        let (mut plain_stats, mut shared_stats) = (RenderStats::default(), RenderStats::default());
+        let mut values = Vec::new();
+        for (k, &(exit, dir)) in rays.iter().enumerate() {
+            let rng = || PathRng::new(&[5, k as u64]);
+            let plain = trace_exit(&sys, world, dir, 550.0, exit, &mut rng(), &mut plain_stats);
+            let shared = trace_exit_shared(
+                &sys,
+                world,
+                dir,
+                550.0,
+                exit,
+                &mut rng(),
+                &mut shared_stats,
+                Some(&mut cache),
+            );
+            assert_eq!(
+                plain.display.to_bits(),
+                shared.display.to_bits(),
+                "path {k}"
+            );
+            assert_eq!(plain.other.to_bits(), shared.other.to_bits(), "path {k}");
+            values.push(plain.other);
+        }
+        assert!(values[0] > 0.0 && values[0] != values[3], "{values:?}");
+        // The first three paths share one first ray; the fourth and fifth trace their own.
+        assert_eq!(shared_stats.scene_rays + 2, plain_stats.scene_rays);
+    }
 
     /// `resample_group` is unbiased for Σ_j v_j: over many offsets (hashes), the mean of
     /// Σ_draws share·v_j/s_j matches the exact sum within 4 standard errors, for shares q

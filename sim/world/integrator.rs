@@ -62,7 +62,7 @@ pub struct PathCounts {
 
 /// What a ray meets first.
 #[derive(Clone, Copy, Debug)]
-enum Hit {
+pub(crate) enum Hit {
     Surface { t: f64, tri: u32, bary: [f64; 3] },
     Light { t: f64, index: usize, le: f64 },
     Display { t: f64, le: f64 },
@@ -267,6 +267,44 @@ impl World {
         rng: &mut PathRng,
         counts: &mut PathCounts,
     ) -> Radiance {
+        self.radiance_from(disp, o, d, lambda_nm, rng, counts, None)
+    }
+
+    /// What the first ray of a path from `o` along `d` meets: the hit [`Self::radiance`]
+    /// finds first, for paths that start on one ray to share (see
+    /// [`Self::first_hit_shareable`]).
+    pub(crate) fn path_first_hit(
+        &self,
+        disp: &Display,
+        o: DVec3,
+        d: DVec3,
+        lambda_nm: f64,
+        rng: &PathRng,
+    ) -> Hit {
+        self.closest(disp, o, d, None, lambda_nm, rng.ray_key())
+    }
+
+    /// Whether paths that start on the same ray (origin, direction, wavelength) meet the
+    /// same first hit whatever their random numbers: always, unless a material's coverage
+    /// is stochastic (alpha blending), where the first hit depends on the path's stream.
+    pub(crate) fn first_hit_shareable(&self) -> bool {
+        !self.coverage_filter
+    }
+
+    /// [`Self::radiance`] with the path's first hit already known (`first`, from
+    /// [`Self::path_first_hit`] of the same ray; None: traced here). The same numbers are drawn
+    /// either way, so the result is the same.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn radiance_from(
+        &self,
+        disp: &Display,
+        o: DVec3,
+        d: DVec3,
+        lambda_nm: f64,
+        rng: &mut PathRng,
+        counts: &mut PathCounts,
+        mut first: Option<Hit>,
+    ) -> Radiance {
         let mut out = Radiance::default();
         let mut beta = 1.0;
         let (mut o, mut d) = (o, d);
@@ -276,8 +314,13 @@ impl World {
         let mut prev_n = DVec3::Z;
         let mut depth = 0u32;
         loop {
-            counts.rays += 1;
-            let hit = self.closest(disp, o, d, skip, lambda_nm, rng.ray_key());
+            let hit = match first.take() {
+                Some(h) => h,
+                None => {
+                    counts.rays += 1;
+                    self.closest(disp, o, d, skip, lambda_nm, rng.ray_key())
+                }
+            };
             let mis = |e: Emitter, t: f64| match prev_pdf {
                 None => 1.0,
                 Some(pb) => {
