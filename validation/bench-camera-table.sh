@@ -7,7 +7,8 @@
 #     written) and a further display target read from it, against a direct 212-spp render;
 #  3. the 3-D dataset datasets/meshes-small.toml (SAMPLES samples, default 24) direct at its 16
 #     spp and with [camera_table] at 12 user-side paths (the same capture error on its scenes,
-#     docs/datasets.md), the table drawn in the run;
+#     docs/datasets.md) and the frontal ground truth at 16 spp as in the direct run, the table
+#     drawn in the run;
 #  4. a 15-point sweep with --psnr (designs vary, so every point pays its own camera side).
 # Whole-process wall times from `date`; the machine's cores are printed first.
 # Usage: validation/bench-camera-table.sh [BUDGET_S [SAMPLES]]     (defaults 60 and 24)
@@ -33,7 +34,9 @@ echo "paper scene, first render with a table (drawn, 1,024 samples/pixel): $(ms 
 echo "paper scene, further target from the table: $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --set display.image=siemens:16 --out "$tmp/further") s"
 
 sed "s/^samples = .*/samples = $samples/" datasets/meshes-small.toml > "$tmp/direct.toml"
-sed -e 's/^name = .*/name = "meshes-small-table"/' -e 's/^spp = .*/spp = 12/' "$tmp/direct.toml" > "$tmp/table.toml"
+# The table run keeps the frontal ground truth at the direct run's 16 spp (objects.frontal_spp).
+sed -e 's/^name = .*/name = "meshes-small-table"/' -e 's/^spp = .*/spp = 12/' \
+    -e 's/^size_px = \(.*\)/size_px = \1\nfrontal_spp = 16/' "$tmp/direct.toml" > "$tmp/table.toml"
 printf '\n[camera_table]\n' >> "$tmp/table.toml"
 echo "meshes-small, $samples samples, direct 16 spp: $(secs "$bin" dataset "$tmp/direct.toml" --out "$tmp/ds-direct") s"
 echo "meshes-small, $samples samples, [camera_table], 12 paths: $(secs "$bin" dataset "$tmp/table.toml" --out "$tmp/ds-table") s"

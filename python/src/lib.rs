@@ -275,7 +275,7 @@ fn scene_json(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None, camera_table=None))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None, camera_table=None, frontal_spp=None))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -291,8 +291,13 @@ fn render<'py>(
     frontal_space: &str,
     progress: Option<Bound<'_, PyAny>>,
     camera_table: Option<(std::path::PathBuf, u32, u32)>,
+    frontal_spp: Option<u32>,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
+    if frontal_spp == Some(0) {
+        return Err(value_error("--frontal-spp: must be at least 1"));
+    }
+    let frontal_spp = frontal_spp.unwrap_or(spp);
     let frontal_space =
         stscam::world::colour::FrontalSpace::parse(frontal_space).ok_or_else(|| {
             value_error(format!(
@@ -329,8 +334,14 @@ fn render<'py>(
         let renders = batch.len().max(1) as u64;
         stscam::render::check_limits(&sys, &settings, renders, "--spp")
             .map_err(|e| e.to_string())?;
-        if let (Some((fw, fh)), true) = (frontal_px, sys.world.is_some()) {
-            stscam::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
+        if sys.world.is_some() {
+            let (fw, fh) = frontal_px.unwrap_or((sys.camera.width_px, sys.camera.height_px));
+            let key = if frontal_px.is_some() {
+                "--frontal-px"
+            } else {
+                "--frontal-spp"
+            };
+            stscam::limits::check_paths(key, fw as u128 * fh as u128 * u128::from(frontal_spp))
                 .map_err(|e| e.to_string())?;
         }
         // The camera side from the design's table (read, or drawn and written), for every
@@ -370,8 +381,14 @@ fn render<'py>(
         let cap = render_one(&sys)?;
         let render_s = t0.elapsed().as_secs_f64();
         let (fw, fh) = frontal_px.unwrap_or((cap.width, cap.height));
-        let frontal =
-            stscam::world::frontal::render_frontal_in(&sys, fw, fh, spp, seed, frontal_space);
+        let frontal = stscam::world::frontal::render_frontal_in(
+            &sys,
+            fw,
+            fh,
+            frontal_spp,
+            seed,
+            frontal_space,
+        );
         Ok::<_, String>((cap, frontal, render_s, more))
     })?
     .map_err(value_error)?;

@@ -293,12 +293,12 @@ pub fn sample_system(
 }
 
 /// The capture (channel-major, f64) and the frontal ground truth (`size`², in `space`) of a
-/// sample; the capture's camera side from `table` when given (drawn for `sys`'s design, whose
-/// [`crate::render::camera_table::design_key`] comes with it).
+/// sample, at `[capture spp, frontal spp]`; the capture's camera side from `table` when given
+/// (drawn for `sys`'s design, whose [`crate::render::camera_table::design_key`] comes with it).
 pub fn render_sample(
     sys: &System,
     size: usize,
-    spp: u32,
+    [spp, frontal_spp]: [u32; 2],
     seed: u64,
     space: crate::world::colour::FrontalSpace,
     table: Option<(&crate::render::camera_table::CameraTable, [u64; 2])>,
@@ -317,16 +317,17 @@ pub fn render_sample(
         .map(|&v| f64::from(v))
         .collect();
     // A world is always attached by `sample_system`; an empty frontal otherwise.
-    let frontal = render_frontal_in(sys, size, size, spp, seed, space).unwrap_or_else(|| Frontal {
-        width: size,
-        height: size,
-        channel_names: sys.response.names.clone(),
-        space: crate::world::colour::FrontalSpace::Sensor,
-        channels: vec![vec![0.0; size * size]; sys.response.names.len()],
-        depth_mm: vec![f32::INFINITY; size * size],
-        mask: vec![0; size * size],
-        rays: 0,
-    });
+    let frontal =
+        render_frontal_in(sys, size, size, frontal_spp, seed, space).unwrap_or_else(|| Frontal {
+            width: size,
+            height: size,
+            channel_names: sys.response.names.clone(),
+            space: crate::world::colour::FrontalSpace::Sensor,
+            channels: vec![vec![0.0; size * size]; sys.response.names.len()],
+            depth_mm: vec![f32::INFINITY; size * size],
+            mask: vec![0; size * size],
+            rays: 0,
+        });
     Ok((capture, frontal))
 }
 

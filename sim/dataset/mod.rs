@@ -556,6 +556,13 @@ fn check_run_limits(
         )
         .map_err(|e| recipe_err(recipe_path, "spp", e.message))?;
     }
+    // 3-D recipes: every sample's frontal ground truth.
+    if recipe.is_meshes() {
+        let side = recipe.objects.size_px as u128;
+        let paths = side * side * u128::from(recipe.objects.frontal_spp(recipe.spp));
+        crate::limits::check_paths("objects.frontal_spp", paths * recipe.samples as u128)
+            .map_err(|e| recipe_err(recipe_path, "objects.frontal_spp", e.message))?;
+    }
     Ok(())
 }
 
@@ -1533,7 +1540,7 @@ impl Generation<'_> {
         let (clean, frontal) = meshes::render_sample(
             &sys,
             recipe.objects.size_px,
-            recipe.spp,
+            [recipe.spp, recipe.objects.frontal_spp(recipe.spp)],
             s.seed,
             space,
             table.as_ref().map(|(t, key)| (&**t, *key)),

@@ -541,6 +541,7 @@ mod tests {
         let objects = Objects {
             size_px: 32,
             frontal_space: None,
+            frontal_spp: None,
             random_levels: true,
             sources: vec![
                 Source::Shapes { weight: 3.0 },

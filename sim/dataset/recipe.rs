@@ -21,6 +21,7 @@
 //! size_px = 64                  # objects are size_px × size_px display pixels
 //! random_levels = false         # binary patterns: random dark/bright levels instead of 0 and 1
 //! frontal_space = "sensor"      # 3-D only: frontal ground truth in "sensor" RGB, "xyz" or "linear-srgb"
+//! frontal_spp = 64              # 3-D only: samples per pixel of the frontal ground truth (default: spp)
 //! [[objects.sources]]
 //! generator = "glyphs"          # see `Source`
 //! weight = 2.0
@@ -437,9 +438,19 @@ pub struct Objects {
     /// `linear-srgb`; absent: `sensor`), as `render --frontal-space`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frontal_space: Option<String>,
+    /// 3-D recipes: samples per pixel of the frontal ground truth (absent: the recipe's
+    /// `spp`), as `render --frontal-spp`. With `[camera_table]`, `spp` counts user-side paths
+    /// of the capture, and this keeps the ground truth's quality apart from it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frontal_spp: Option<u32>,
 }
 
 impl Objects {
+    /// Samples per pixel of the frontal ground truth of a recipe whose `spp` is `spp`.
+    pub fn frontal_spp(&self, spp: u32) -> u32 {
+        self.frontal_spp.unwrap_or(spp)
+    }
+
     /// The frontal ground truth's colour space (sensor unless `frontal_space` says otherwise;
     /// the recipe check refuses other spellings).
     pub fn frontal_space(&self) -> crate::world::colour::FrontalSpace {
@@ -671,6 +682,19 @@ fn check_objects(r: &Recipe) -> Result<(), (String, String)> {
         if !r.is_meshes() && space != "sensor" {
             return err(
                 "objects.frontal_space",
+                "applies to 3-D (generator = \"meshes\") recipes only, which have a frontal \
+                 ground truth"
+                    .to_string(),
+            );
+        }
+    }
+    if let Some(n) = o.frontal_spp {
+        if n == 0 {
+            return err("objects.frontal_spp", "must be at least 1".into());
+        }
+        if !r.is_meshes() {
+            return err(
+                "objects.frontal_spp",
                 "applies to 3-D (generator = \"meshes\") recipes only, which have a frontal \
                  ground truth"
                     .to_string(),

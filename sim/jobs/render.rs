@@ -34,6 +34,10 @@ pub struct RenderOptions {
     /// capture's crop size).
     #[arg(long, value_name = "N|WxH")]
     pub frontal_px: Option<String>,
+    /// 3-D scenes: samples per pixel of frontal.exr (default: `--spp`; with `--camera-table`
+    /// `--spp` counts user-side paths of the capture).
+    #[arg(long, value_name = "N")]
+    pub frontal_spp: Option<u32>,
     /// 3-D scenes: colour space of frontal.exr: `sensor` (the capture's response, raw camera
     /// RGB), `xyz` (CIE 1931 2°, Y = 1 for a flat radiance at display white) or `linear-srgb`
     /// (Rec. 709 primaries, D65 white).
@@ -95,13 +99,17 @@ fn cmd_render(
     spectral: bool,
     sampler: SamplerKind,
     user_side: UserSideSampler,
-    frontal_px: Option<&str>,
+    (frontal_px, frontal_spp): (Option<&str>, Option<u32>),
     frontal_space: crate::world::colour::FrontalSpace,
     table: &TableArgs,
     con: &Console,
 ) -> Result<crate::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
     let frontal_size = frontal_px.map(parse_frontal_px).transpose()?;
+    if frontal_spp == Some(0) {
+        return Err(bad_input("--frontal-spp: must be at least 1".to_string()));
+    }
+    let frontal_spp = frontal_spp.unwrap_or(spp);
     let start = Instant::now();
     if out.exists() && !out.is_dir() {
         return Err(bad_input(format!(
@@ -122,9 +130,15 @@ fn cmd_render(
         estimator: Default::default(),
     };
     crate::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
-    if let (Some((fw, fh)), true) = (frontal_size, sys.world.is_some()) {
-        crate::limits::check_paths("--frontal-px", fw as u128 * fh as u128 * u128::from(spp))
-            .map_err(limit)?;
+    if sys.world.is_some() {
+        let (fw, fh) = frontal_size.unwrap_or((sys.camera.width_px, sys.camera.height_px));
+        let paths = fw as u128 * fh as u128 * u128::from(frontal_spp);
+        let key = if frontal_size.is_some() {
+            "--frontal-px"
+        } else {
+            "--frontal-spp"
+        };
+        crate::limits::check_paths(key, paths).map_err(limit)?;
     }
     let t0 = Instant::now();
     let (cap, table_info) = match &table.camera_table {
@@ -136,7 +150,7 @@ fn cmd_render(
     let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
     check_frontal_space(&sys, frontal_space)?;
     let frontal = pool.install(|| {
-        crate::world::frontal::render_frontal_in(&sys, fw, fh, spp, seed, frontal_space)
+        crate::world::frontal::render_frontal_in(&sys, fw, fh, frontal_spp, seed, frontal_space)
     });
     let frontal_s = t1.elapsed().as_secs_f64();
     let scene_json = serde_json::to_string(&sys.scene).map_err(|e| Failure {
@@ -168,7 +182,13 @@ fn cmd_render(
         sidecar["camera_table"] = info;
     }
     if let (Some(world), Some(f)) = (sys.world.as_deref(), frontal.as_ref()) {
-        world_sidecar(&mut sidecar, &sys, world, &settings, f, frontal_s);
+        world_sidecar(
+            &mut sidecar,
+            &sys,
+            world,
+            &settings,
+            (f, frontal_spp, frontal_s),
+        );
     }
     // A missing or unwritable output location is the user's to fix, but it is not bad input
     // to the simulator: exit 1.
@@ -245,10 +265,8 @@ fn world_sidecar(
     sys: &System,
     world: &crate::world::World,
     settings: &RenderSettings,
-    f: &crate::world::frontal::Frontal,
-    frontal_s: f64,
+    (f, frontal_spp, frontal_s): (&crate::world::frontal::Frontal, u32, f64),
 ) {
-    let spp = settings.spp;
     sidecar["world"] = serde_json::json!({
         "objects": world.objects,
         "triangles": world.mesh.triangles.len(),
@@ -271,7 +289,7 @@ fn world_sidecar(
         "space": f.space.name(),
         "width": f.width,
         "height": f.height,
-        "spp": spp,
+        "spp": frontal_spp,
         "camera": "pinhole at (0, 0, 0) mm (front face, bottom vHOE centre) looking along -z; pixel (c, r) looks along the capture's chief ray at crop position ((c + 0.5) * crop_w / w, (r + 0.5) * crop_h / h)",
         "rays": f.rays,
         "render_time_s": frontal_s,
@@ -327,7 +345,7 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, J
         o.spectral,
         o.sampler,
         o.user_side,
-        o.frontal_px.as_deref(),
+        (o.frontal_px.as_deref(), o.frontal_spp),
         o.frontal_space,
         &o.table,
         con,

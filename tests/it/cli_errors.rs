@@ -170,3 +170,36 @@ fn failed_write_leaves_nothing_new() {
         vec!["capture.png".to_string(), "keep.txt".to_string()]
     );
 }
+
+/// `render --frontal-spp`: 0 and a count past the path limit are refused in one line naming
+/// the flag, with nothing written; a valid count is recorded as the sidecar's `frontal.spp`
+/// while the capture keeps `--spp`.
+#[test]
+fn frontal_spp_is_checked_and_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/gesture.toml");
+    let s = scene.to_str().unwrap();
+    let out = dir.path().join("out");
+    for n in ["0", "4294967295"] {
+        let e = fails(&[s, "--frontal-spp", n], &out);
+        assert!(e.contains("--frontal-spp"), "{n}: {e}");
+    }
+    let ok = dir.path().join("ok");
+    let o = stscam(&[
+        "render",
+        s,
+        "--spp",
+        "1",
+        "--frontal-spp",
+        "3",
+        "--set",
+        "sensor.crop_px=[16,16]",
+        "--out",
+        ok.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let side: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(ok.join("capture.json")).unwrap()).unwrap();
+    assert_eq!(side["frontal"]["spp"], 3);
+    assert_eq!(side["spp"], 1);
+}

@@ -409,7 +409,7 @@ fn depth_samples_use_the_h_of_matrix_depth_mm_at_their_depth() {
 #[test]
 fn bad_depth_and_meshes_keys_are_refused_with_one_line() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(String, &str); 6] = [
+    let cases: [(String, &str); 9] = [
         (depth_recipe("grid_mm = \"300:700\""), "depth.grid_mm"),
         (depth_recipe("values_mm = [300.0, -1.0]"), "depth.values_mm"),
         (
@@ -428,6 +428,20 @@ fn bad_depth_and_meshes_keys_are_refused_with_one_line() {
         (
             meshes_recipe("b", 3, 2).replace("\"render\"", "\"matrix\""),
             "objects.sources[0].generator",
+        ),
+        (
+            meshes_recipe("b", 3, 2).replace("size_px = 24", "size_px = 24\nfrontal_spp = 0"),
+            "objects.frontal_spp",
+        ),
+        (
+            meshes_recipe("b", 3, 2)
+                .replace("size_px = 24", "size_px = 1024\nfrontal_spp = 4000000000"),
+            "objects.frontal_spp",
+        ),
+        (
+            depth_recipe("values_mm = [300.0]")
+                .replace("size_px = 16", "size_px = 16\nfrontal_spp = 4"),
+            "objects.frontal_spp",
         ),
     ];
     for (i, (text, key)) in cases.iter().enumerate() {
@@ -606,4 +620,48 @@ fn meshes_with_a_camera_table_keep_shards_and_refuse_bad_keys() {
         assert!(err.contains(key), "{key}: {err}");
         assert!(!o.exists());
     }
+}
+
+/// `objects.frontal_spp` sets the frontal ground truth's samples apart from the capture's:
+/// the captures keep the bytes of the run without it, the frontal images change, and at 8
+/// samples against 2 they lie closer to 32-sample ones (their error is about half: the test
+/// asks for less than 0.75 of it); the card's recipe records the key.
+#[test]
+fn meshes_frontal_spp_changes_only_the_frontal() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = meshes_recipe("fspp", 4, 2);
+    let with = |n: u32| base.replace("size_px = 24", &format!("size_px = 24\nfrontal_spp = {n}"));
+    let mut outs = Vec::new();
+    for (name, text) in [("plain", base.clone()), ("f8", with(8)), ("f32", with(32))] {
+        let r = write(dir.path(), &format!("{name}.toml"), &text);
+        let out = dir.path().join(name);
+        build(&r, &out, &[]);
+        outs.push(out);
+    }
+    let card: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(outs[1].join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(card["recipe"]["objects"]["frontal_spp"], 8);
+    let meta = metadata(&outs[0]);
+    assert_eq!(meta.len(), 4);
+    let (mut err2, mut err8, mut seen) = (0.0, 0.0, 0);
+    for (split, v) in &meta {
+        let file = |out: &Path, k: &str| npy(&out.join(split).join(v[k].as_str().unwrap())).1;
+        let caps: Vec<_> = outs.iter().map(|o| file(o, "capture_npy")).collect();
+        assert_eq!(caps[0], caps[1]);
+        assert_eq!(caps[0], caps[2]);
+        let fr: Vec<_> = outs.iter().map(|o| file(o, "frontal_npy")).collect();
+        // A sample whose mesh is outside the frontal field is black at any spp.
+        if fr[2].iter().all(|&x| x == 0.0) {
+            continue;
+        }
+        seen += 1;
+        assert!(fr[0] != fr[1], "{split}: the frontal did not change");
+        let sq = |a: &[f32], b: &[f32]| -> f64 {
+            a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum()
+        };
+        err2 += sq(&fr[0], &fr[2]);
+        err8 += sq(&fr[1], &fr[2]);
+    }
+    assert!(seen >= 2, "{seen} samples with a visible mesh");
+    assert!(err2 > 0.0 && err8 < 0.75 * err2, "{err8} vs {err2}");
 }

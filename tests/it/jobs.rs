@@ -36,6 +36,7 @@ fn render_job_returns_what_the_cli_writes() {
         sampler: SamplerKind::Lattice,
         user_side: Default::default(),
         frontal_px: None,
+        frontal_spp: None,
         frontal_space: Default::default(),
         table: Default::default(),
     };

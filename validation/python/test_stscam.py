@@ -668,6 +668,19 @@ def test_python_warns_as_the_cli_when_part_of_the_object_is_unseen(tmp_path):
         stscam.matrix(stscam.Scene(overrides={"sensor.crop_px": [96, 160], "display.image": "letter:F@16"}), spp=1)
 
 
+def test_frontal_spp_equals_cli_and_leaves_the_capture(tmp_path):
+    path = ROOT / "scenes" / "gesture.toml"
+    sets = {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0}
+    cli("render", path, "--out", tmp_path, "--spp", 1, "--frontal-spp", 4, *set_args(sets))
+    s = stscam.Scene(path, sets)
+    r = stscam.render(s, spp=1, frontal_spp=4)
+    assert same_bits(r.frontal, stscam.read_exr(tmp_path / "frontal.exr")["Y"])
+    plain = stscam.render(s, spp=1)
+    assert same_bits(r.image, plain.image) and not same_bits(r.frontal, plain.frontal)
+    with pytest.raises(ValueError, match="frontal-spp"):
+        stscam.render(s, spp=1, frontal_spp=0)
+
+
 def test_frontal_px_takes_one_number_like_the_cli(tmp_path):
     path = ROOT / "scenes" / "gesture.toml"
     s = stscam.Scene(path, {"sensor.crop_px": [16, 16], "sensor.pitch_um": 60.0})
