@@ -156,6 +156,7 @@ impl SampleConsumer for Scene<'_> {
                     b.exit_point_mm,
                     &mut self.rng,
                     stats,
+                    None,
                 );
                 let pol = self.outcome.pol;
                 2.0 * self.sys.display.polarization_weights[pol] * l.display + l.other

@@ -37,7 +37,7 @@ use std::ops::ControlFlow;
 use rayon::prelude::*;
 
 use super::samples::{CameraSample, PixelSums, SampleConsumer};
-use super::user_side::{FirstHitCache, Gathered, resample_group, trace_exit_shared};
+use super::user_side::{FirstHitCache, Gathered, resample_group, trace_exit};
 use super::{PixelJob, RenderSettings, RenderStats};
 use crate::sampler::{PathRng, SamplerKind};
 use crate::system::System;
@@ -450,7 +450,7 @@ impl<'a> PixelJob<'a> for TableJob<'a> {
                 }
                 // Paths that take the same representative start on the same ray (when M > R):
                 // its first hit is traced once.
-                let l = trace_exit_shared(
+                let l = trace_exit(
                     self.sys,
                     self.world,
                     glam::DVec3::from_array(rep.dir),

@@ -41,20 +41,6 @@ pub const USER_SIDE_PATHS_PER_SAMPLE: f64 = 1.0;
 /// bounding its memory whatever the spp and the contact limit.
 pub const RESAMPLE_WINDOW_BRANCHES: usize = 16_384;
 
-/// Traces one branch's exit ray (front-face exit point `exit`, the camera ray's direction
-/// `dir`, wavelength `lambda_nm`) on the user side and counts its rays.
-pub(super) fn trace_exit(
-    sys: &System,
-    world: &World,
-    dir: glam::DVec3,
-    lambda_nm: f64,
-    exit: glam::DVec2,
-    rng: &mut PathRng,
-    stats: &mut RenderStats,
-) -> crate::world::integrator::Radiance {
-    trace_exit_shared(sys, world, dir, lambda_nm, exit, rng, stats, None)
-}
-
 /// The first hit of the exit ray traced last, kept for the next path that starts on the
 /// same ray (a representative or a branch drawn more than once for a pixel): the first ray
 /// of such paths is traced once ([`crate::world::World::first_hit_shareable`]).
@@ -65,10 +51,12 @@ pub(super) struct FirstHitCache {
     hit: Option<crate::world::integrator::Hit>,
 }
 
-/// [`trace_exit`] taking the path's first hit from `cache` when the cache holds this very
-/// ray, and keeping it there otherwise. The radiance is the same as without the cache.
+/// Traces one branch's exit ray (front-face exit point `exit`, the camera ray's direction
+/// `dir`, wavelength `lambda_nm`) on the user side and counts its rays; with a `cache`, the
+/// path's first hit comes from it when it holds this very ray, and is kept there otherwise.
+/// The radiance is the same with or without the cache.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn trace_exit_shared(
+pub(super) fn trace_exit(
     sys: &System,
     world: &World,
     dir: glam::DVec3,
@@ -92,7 +80,7 @@ pub(super) fn trace_exit_shared(
         }
         _ => None,
     };
-    let l = world.radiance_from(&sys.display, o, dir, lambda_nm, rng, &mut counts, first);
+    let l = world.radiance(&sys.display, o, dir, lambda_nm, rng, &mut counts, first);
     stats.scene_rays += counts.rays;
     stats.scene_paths += 1;
     l
@@ -169,6 +157,7 @@ impl SampleConsumer for EveryBranch<'_> {
                 exit,
                 &mut rng,
                 stats,
+                None,
             );
             let (wd, wo) = branch_weights(weight, pol);
             total += (wd * l.display + wo * l.other) / keep;
@@ -454,7 +443,7 @@ impl<'a> Resampled<'a> {
                     if padded && k <= u64::from(u32::MAX) {
                         rng = rng.with_padded(pad_key, kk, k as u32);
                     }
-                    let l = trace_exit_shared(
+                    let l = trace_exit(
                         sys,
                         world,
                         s.ray.dir,
@@ -539,18 +528,12 @@ mod tests {
         let (mut plain_stats, mut shared_stats) = (RenderStats::default(), RenderStats::default());
         let mut values = Vec::new();
         for (k, &(exit, dir)) in rays.iter().enumerate() {
-            let rng = || PathRng::new(&[5, k as u64]);
-            let plain = trace_exit(&sys, world, dir, 550.0, exit, &mut rng(), &mut plain_stats);
-            let shared = trace_exit_shared(
-                &sys,
-                world,
-                dir,
-                550.0,
-                exit,
-                &mut rng(),
-                &mut shared_stats,
-                Some(&mut cache),
-            );
+            let mut trace = |stats: &mut RenderStats, cache: Option<&mut FirstHitCache>| {
+                let mut rng = PathRng::new(&[5, k as u64]);
+                trace_exit(&sys, world, dir, 550.0, exit, &mut rng, stats, cache)
+            };
+            let plain = trace(&mut plain_stats, None);
+            let shared = trace(&mut shared_stats, Some(&mut cache));
             assert_eq!(
                 plain.display.to_bits(),
                 shared.display.to_bits(),

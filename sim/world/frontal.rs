@@ -202,7 +202,7 @@ pub fn render_frontal_in(
                     if pdf.is_nan() || pdf <= 0.0 {
                         continue;
                     }
-                    let l = world.radiance(disp, origin, d, lambda, &mut rng, &mut counts);
+                    let l = world.radiance(disp, origin, d, lambda, &mut rng, &mut counts, None);
                     let v = (l.display + l.other) / pdf;
                     if !v.is_finite() {
                         continue;

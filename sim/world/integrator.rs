@@ -250,26 +250,6 @@ impl World {
         }
     }
 
-    /// Spectral radiance arriving at `o` from direction −`d` (unit `d` is the ray's
-    /// direction), at `lambda_nm`.
-    ///
-    /// Longer than the project's ~120-line guide on purpose: it is the one bounce loop of the
-    /// user-side path (emission with MIS, next-event estimation, BSDF sampling, Russian
-    /// roulette), whose state (throughput, previous pdf, frame, counters) lives across every
-    /// step of an iteration; its steps already call out to named functions (`closest`,
-    /// `light_pdf`, `sample_emitter`, `visible`, the BSDF's `sample`).
-    pub fn radiance(
-        &self,
-        disp: &Display,
-        o: DVec3,
-        d: DVec3,
-        lambda_nm: f64,
-        rng: &mut PathRng,
-        counts: &mut PathCounts,
-    ) -> Radiance {
-        self.radiance_from(disp, o, d, lambda_nm, rng, counts, None)
-    }
-
     /// What the first ray of a path from `o` along `d` meets: the hit [`Self::radiance`]
     /// finds first, for paths that start on one ray to share (see
     /// [`Self::first_hit_shareable`]).
@@ -291,11 +271,18 @@ impl World {
         !self.coverage_filter
     }
 
-    /// [`Self::radiance`] with the path's first hit already known (`first`, from
-    /// [`Self::path_first_hit`] of the same ray; None: traced here). The same numbers are drawn
-    /// either way, so the result is the same.
+    /// Spectral radiance arriving at `o` from direction −`d` (unit `d` is the ray's
+    /// direction), at `lambda_nm`. `first`: the path's first hit when it is already known
+    /// (from [`Self::path_first_hit`] of the same ray; None: traced here); the same numbers are
+    /// drawn either way, so the result is the same.
+    ///
+    /// Longer than the project's ~120-line guide on purpose: it is the one bounce loop of the
+    /// user-side path (emission with MIS, next-event estimation, BSDF sampling, Russian
+    /// roulette), whose state (throughput, previous pdf, frame, counters) lives across every
+    /// step of an iteration; its steps already call out to named functions (`closest`,
+    /// `light_pdf`, `sample_emitter`, `visible`, the BSDF's `sample`).
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn radiance_from(
+    pub(crate) fn radiance(
         &self,
         disp: &Display,
         o: DVec3,
