@@ -34,9 +34,10 @@ echo "paper scene, first render with a table (drawn, 1,024 samples/pixel): $(ms 
 echo "paper scene, further target from the table: $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --set display.image=siemens:16 --out "$tmp/further") s"
 
 sed "s/^samples = .*/samples = $samples/" datasets/meshes-small.toml > "$tmp/direct.toml"
-# The table run keeps the frontal ground truth at the direct run's 16 spp (objects.frontal_spp).
+# The table run keeps the frontal ground truth at the direct run's spp (objects.frontal_spp).
+direct_spp=$(sed -n 's/^spp = \([0-9]*\).*/\1/p' "$tmp/direct.toml")
 sed -e 's/^name = .*/name = "meshes-small-table"/' -e 's/^spp = .*/spp = 12/' \
-    -e 's/^size_px = \(.*\)/size_px = \1\nfrontal_spp = 16/' "$tmp/direct.toml" > "$tmp/table.toml"
+    -e "s/^size_px = \\(.*\\)/size_px = \\1\\nfrontal_spp = $direct_spp/" "$tmp/direct.toml" > "$tmp/table.toml"
 printf '\n[camera_table]\n' >> "$tmp/table.toml"
 echo "meshes-small, $samples samples, direct 16 spp: $(secs "$bin" dataset "$tmp/direct.toml" --out "$tmp/ds-direct") s"
 echo "meshes-small, $samples samples, [camera_table], 12 paths: $(secs "$bin" dataset "$tmp/table.toml" --out "$tmp/ds-table") s"

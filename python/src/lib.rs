@@ -297,6 +297,7 @@ fn render<'py>(
     if frontal_spp == Some(0) {
         return Err(value_error("--frontal-spp: must be at least 1"));
     }
+    let frontal_spp_given = frontal_spp.is_some();
     let frontal_spp = frontal_spp.unwrap_or(spp);
     let frontal_space =
         stscam::world::colour::FrontalSpace::parse(frontal_space).ok_or_else(|| {
@@ -336,11 +337,7 @@ fn render<'py>(
             .map_err(|e| e.to_string())?;
         if sys.world.is_some() {
             let (fw, fh) = frontal_px.unwrap_or((sys.camera.width_px, sys.camera.height_px));
-            let key = if frontal_px.is_some() {
-                "--frontal-px"
-            } else {
-                "--frontal-spp"
-            };
+            let key = stscam::jobs::render::frontal_key(frontal_px.is_some(), frontal_spp_given);
             stscam::limits::check_paths(key, fw as u128 * fh as u128 * u128::from(frontal_spp))
                 .map_err(|e| e.to_string())?;
         }

@@ -560,8 +560,12 @@ fn check_run_limits(
     if recipe.is_meshes() {
         let side = recipe.objects.size_px as u128;
         let paths = side * side * u128::from(recipe.objects.frontal_spp(recipe.spp));
-        crate::limits::check_paths("objects.frontal_spp", paths * recipe.samples as u128)
-            .map_err(|e| recipe_err(recipe_path, "objects.frontal_spp", e.message))?;
+        let key = match recipe.objects.frontal_spp {
+            Some(_) => "objects.frontal_spp",
+            None => "objects.size_px",
+        };
+        crate::limits::check_paths(key, paths * recipe.samples as u128)
+            .map_err(|e| recipe_err(recipe_path, key, e.message))?;
     }
     Ok(())
 }

@@ -109,6 +109,7 @@ fn cmd_render(
     if frontal_spp == Some(0) {
         return Err(bad_input("--frontal-spp: must be at least 1".to_string()));
     }
+    let frontal_spp_given = frontal_spp.is_some();
     let frontal_spp = frontal_spp.unwrap_or(spp);
     let start = Instant::now();
     if out.exists() && !out.is_dir() {
@@ -133,11 +134,7 @@ fn cmd_render(
     if sys.world.is_some() {
         let (fw, fh) = frontal_size.unwrap_or((sys.camera.width_px, sys.camera.height_px));
         let paths = fw as u128 * fh as u128 * u128::from(frontal_spp);
-        let key = if frontal_size.is_some() {
-            "--frontal-px"
-        } else {
-            "--frontal-spp"
-        };
+        let key = frontal_key(frontal_size.is_some(), frontal_spp_given);
         crate::limits::check_paths(key, paths).map_err(limit)?;
     }
     let t0 = Instant::now();
@@ -232,6 +229,16 @@ fn cmd_render(
         pool.current_num_threads()
     ));
     Ok(cap)
+}
+
+/// The flag(s) to name when the frontal view's paths exceed the limit: the size, the samples
+/// per pixel or both, as given (`--spp` sets the samples when `--frontal-spp` is absent).
+pub fn frontal_key(px_given: bool, spp_given: bool) -> &'static str {
+    match (px_given, spp_given) {
+        (true, true) => "--frontal-px and --frontal-spp",
+        (true, false) => "--frontal-px",
+        _ => "--frontal-spp",
+    }
 }
 
 /// That the frontal view's colour space has a luminance over the sampling band (3-D scenes).

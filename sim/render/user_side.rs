@@ -509,42 +509,66 @@ mod tests {
     /// Paths that start on one ray get the radiance they get without the cache, bit for bit,
     /// and the ray is traced once: three paths on a ray that meets the head (each with its own
     /// stream) count two scene rays fewer than without the cache; a path on another ray (one
-    /// that misses the head, so its radiance differs) after them gets its own first hit, so a
-    /// cache that ignored the ray would fail the comparison.
+    /// that misses the head, so its radiance differs) after them gets its own first hit, and
+    /// so does a ray to the ceiling light that differs from the one before it only in
+    /// wavelength (the light's radiance differs), so a cache that ignored the direction or the
+    /// wavelength would fail the comparison. With a coverage filter (any non-plain material)
+    /// nothing is shared: the same radiance and as many rays as without the cache.
     #[test]
     fn shared_first_hit_gives_the_same_radiance_and_saves_the_ray() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
         let sets = ["sensor.crop_px=[8,8]".to_string()];
-        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
-        let world = sys.world.as_deref().unwrap();
-        assert!(world.first_hit_shareable());
-        let head = (glam::DVec2::new(0.0, -12.0), glam::DVec3::NEG_Z);
-        let away = (
-            glam::DVec2::new(0.0, -12.0),
-            glam::DVec3::new(0.6, 0.0, -0.8),
-        );
-        let rays = [head, head, head, away, head];
-        let mut cache = FirstHitCache::default();
-        let (mut plain_stats, mut shared_stats) = (RenderStats::default(), RenderStats::default());
-        let mut values = Vec::new();
-        for (k, &(exit, dir)) in rays.iter().enumerate() {
-            let mut trace = |stats: &mut RenderStats, cache: Option<&mut FirstHitCache>| {
-                let mut rng = PathRng::new(&[5, k as u64]);
-                trace_exit(&sys, world, dir, 550.0, exit, &mut rng, stats, cache)
-            };
-            let plain = trace(&mut plain_stats, None);
-            let shared = trace(&mut shared_stats, Some(&mut cache));
-            assert_eq!(
-                plain.display.to_bits(),
-                shared.display.to_bits(),
-                "path {k}"
-            );
-            assert_eq!(plain.other.to_bits(), shared.other.to_bits(), "path {k}");
-            values.push(plain.other);
-        }
-        assert!(values[0] > 0.0 && values[0] != values[3], "{values:?}");
-        // The first three paths share one first ray; the fourth and fifth trace their own.
-        assert_eq!(shared_stats.scene_rays + 2, plain_stats.scene_rays);
+        let mut sys =
+            System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let exit = glam::DVec2::new(0.0, -12.0);
+        let head = (exit, glam::DVec3::NEG_Z, 550.0);
+        let away = (exit, glam::DVec3::new(0.6, 0.0, -0.8), 550.0);
+        let up = glam::DVec3::new(0.0, 0.9, -0.4).normalize();
+        let rays = [
+            head,
+            head,
+            head,
+            away,
+            head,
+            (exit, up, 550.0),
+            (exit, up, 450.0),
+        ];
+        let run = |sys: &System| {
+            let world = sys.world.as_deref().unwrap();
+            let mut cache = FirstHitCache::default();
+            let (mut plain_stats, mut shared_stats) =
+                (RenderStats::default(), RenderStats::default());
+            let mut values = Vec::new();
+            for (k, &(exit, dir, lambda)) in rays.iter().enumerate() {
+                let mut trace = |stats: &mut RenderStats, cache: Option<&mut FirstHitCache>| {
+                    let mut rng = PathRng::new(&[5, k as u64]);
+                    trace_exit(sys, world, dir, lambda, exit, &mut rng, stats, cache)
+                };
+                let plain = trace(&mut plain_stats, None);
+                let shared = trace(&mut shared_stats, Some(&mut cache));
+                assert_eq!(
+                    plain.display.to_bits(),
+                    shared.display.to_bits(),
+                    "path {k}"
+                );
+                assert_eq!(plain.other.to_bits(), shared.other.to_bits(), "path {k}");
+                values.push(plain.other);
+            }
+            assert!(values[0] > 0.0 && values[0] != values[3], "{values:?}");
+            assert!(values[5] > 0.0 && values[5] != values[6], "{values:?}");
+            (plain_stats.scene_rays, shared_stats.scene_rays)
+        };
+        assert!(sys.world.as_deref().unwrap().first_hit_shareable());
+        // The first three paths share one first ray; every other path traces its own.
+        let (plain, shared) = run(&sys);
+        assert_eq!(shared + 2, plain);
+        let arc = sys.world.take().unwrap();
+        let mut world = std::sync::Arc::try_unwrap(arc).expect("one owner");
+        world.coverage_filter = true;
+        assert!(!world.first_hit_shareable());
+        sys.world = Some(std::sync::Arc::new(world));
+        let (plain, shared) = run(&sys);
+        assert_eq!(shared, plain);
     }
 
     /// `resample_group` is unbiased for Σ_j v_j: over many offsets (hashes), the mean of

@@ -265,8 +265,9 @@ impl World {
     }
 
     /// Whether paths that start on the same ray (origin, direction, wavelength) meet the
-    /// same first hit whatever their random numbers: always, unless a material's coverage
-    /// is stochastic (alpha blending), where the first hit depends on the path's stream.
+    /// same first hit whatever their random numbers: yes unless some material's coverage is
+    /// not plain (alpha cut-outs or blending, single-sided faces: `coverage_filter`), where
+    /// the hit filter sees the path's ray key (conservative: only blending draws from it).
     pub(crate) fn first_hit_shareable(&self) -> bool {
         !self.coverage_filter
     }

@@ -172,7 +172,7 @@ fn failed_write_leaves_nothing_new() {
 }
 
 /// `render --frontal-spp`: 0 and a count past the path limit are refused in one line naming
-/// the flag, with nothing written; a valid count is recorded as the sidecar's `frontal.spp`
+/// the flag (both flags when `--frontal-px` is given too), with nothing written; a valid count is recorded as the sidecar's `frontal.spp`
 /// while the capture keeps `--spp`.
 #[test]
 fn frontal_spp_is_checked_and_recorded() {
@@ -184,6 +184,12 @@ fn frontal_spp_is_checked_and_recorded() {
         let e = fails(&[s, "--frontal-spp", n], &out);
         assert!(e.contains("--frontal-spp"), "{n}: {e}");
     }
+    // Both flags given: the message names both (the product is what exceeds the limit).
+    let e = fails(
+        &[s, "--frontal-px", "4096", "--frontal-spp", "100000"],
+        &out,
+    );
+    assert!(e.contains("--frontal-px and --frontal-spp"), "{e}");
     let ok = dir.path().join("ok");
     let o = stscam(&[
         "render",
