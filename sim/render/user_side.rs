@@ -540,7 +540,7 @@ mod tests {
                 (RenderStats::default(), RenderStats::default());
             let mut values = Vec::new();
             for (k, &(exit, dir, lambda)) in rays.iter().enumerate() {
-                let mut trace = |stats: &mut RenderStats, cache: Option<&mut FirstHitCache>| {
+                let trace = |stats: &mut RenderStats, cache: Option<&mut FirstHitCache>| {
                     let mut rng = PathRng::new(&[5, k as u64]);
                     trace_exit(sys, world, dir, lambda, exit, &mut rng, stats, cache)
                 };

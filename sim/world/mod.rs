@@ -73,7 +73,8 @@ pub enum Emitter {
     Light(usize),
     /// The display.
     Display,
-    /// The environment.
+    /// The environment: never in [`World::emitters`] (it is found by BSDF sampling only; see
+    /// `integrator`), named for the multiple-importance weight of a ray that escapes to it.
     Environment,
 }
 
@@ -440,9 +441,6 @@ impl World {
         let mut emitters: Vec<Emitter> = (0..lights.len()).map(Emitter::Light).collect();
         if display_light.is_some() {
             emitters.push(Emitter::Display);
-        }
-        if environment.is_some() {
-            emitters.push(Emitter::Environment);
         }
         let coverage_filter = materials.iter().any(|m| !m.coverage.counts_every_hit());
         Ok(World {
