@@ -1572,9 +1572,7 @@ mod tests {
     use super::*;
 
     fn two_grating(sets: &[&str]) -> System {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/two-grating.toml");
-        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap()
+        crate::system::repo_system("scenes/two-grating.toml", sets)
     }
 
     /// The "multiplex" rows: each grating of the film traced with the other present has the

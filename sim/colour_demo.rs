@@ -629,17 +629,14 @@ mod tests {
 
     #[test]
     fn each_primary_comes_mostly_through_its_own_grating() {
-        let ov: Vec<String> = [
-            "sensor.crop_px=48",
-            "sensor.pitch_um=40",
-            "display.image=white@8",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        let path =
-            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/rgb-multiplex.toml");
-        let sys = System::build(&crate::scene::load_scene(Some(&path), &ov).unwrap()).unwrap();
+        let sys = crate::system::repo_system(
+            "scenes/rgb-multiplex.toml",
+            &[
+                "sensor.crop_px=48",
+                "sensor.pitch_um=40",
+                "display.image=white@8",
+            ],
+        );
         let s = grating_shares(&sys, 4, 1, 2);
         assert_eq!(s.len(), 3);
         for p in 0..3 {

@@ -447,3 +447,12 @@ impl System {
         })
     }
 }
+
+/// Tests: the system of the repository's scene file `scene` (relative to the crate root, e.g.
+/// `scenes/eye-contact.toml`) with the overrides `sets` (as `--set`).
+#[cfg(test)]
+pub(crate) fn repo_system(scene: &str, sets: &[&str]) -> System {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    System::build(&crate::scene::load_scene(Some(&path), &sets).expect("scene")).expect("system")
+}

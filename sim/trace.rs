@@ -587,14 +587,13 @@ mod tests {
     /// occur, and no two branches of a path share a replica key.
     #[test]
     fn two_gratings_conserve_energy_and_keep_replicas_apart() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/two-grating.toml");
-        let sets = [
-            "hoe.grating.0.index_modulation=0.03".to_string(),
-            "hoe.grating.1.index_modulation=0.03".to_string(),
-        ];
-        let sys =
-            crate::system::System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap())
-                .unwrap();
+        let sys = crate::system::repo_system(
+            "scenes/two-grating.toml",
+            &[
+                "hoe.grating.0.index_modulation=0.03",
+                "hoe.grating.1.index_modulation=0.03",
+            ],
+        );
         let mut seen = [0usize; 2];
         let mut state = 12345u64;
         let mut next = || {

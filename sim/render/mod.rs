@@ -469,12 +469,10 @@ mod tests {
     /// errors of zero; a window render 3 % too bright fails the same rule.
     #[test]
     fn resampled_windows_keep_the_expectation() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
-        let sets = [
-            "sensor.crop_px=[40,40]".to_string(),
-            "sensor.pitch_um=52.8".to_string(),
-        ];
-        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let sys = crate::system::repo_system(
+            "scenes/eye-contact.toml",
+            &["sensor.crop_px=[40,40]", "sensor.pitch_um=52.8"],
+        );
         let world = sys.world.as_deref().unwrap();
         let rows = |seed: u64, window: usize| -> (Vec<f64>, u64) {
             let set = RenderSettings::lattice(64, seed, false);

@@ -578,9 +578,7 @@ mod tests {
     /// file reads.
     #[test]
     fn display_table_with_impossible_counts_is_refused() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper-2022.toml");
-        let sets = ["sensor.crop_px=8".to_string()];
-        let sys = System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+        let sys = crate::system::repo_system("scenes/paper-2022.toml", &["sensor.crop_px=8"]);
         let dir = tempfile::tempdir().unwrap();
         let ts = TableSettings {
             spp: 1,

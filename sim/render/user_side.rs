@@ -516,10 +516,8 @@ mod tests {
     /// nothing is shared: the same radiance and as many rays as without the cache.
     #[test]
     fn shared_first_hit_gives_the_same_radiance_and_saves_the_ray() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/eye-contact.toml");
-        let sets = ["sensor.crop_px=[8,8]".to_string()];
         let mut sys =
-            System::build(&crate::scene::load_scene(Some(&path), &sets).unwrap()).unwrap();
+            crate::system::repo_system("scenes/eye-contact.toml", &["sensor.crop_px=[8,8]"]);
         let exit = glam::DVec2::new(0.0, -12.0);
         let head = (exit, glam::DVec3::NEG_Z, 550.0);
         let away = (exit, glam::DVec3::new(0.6, 0.0, -0.8), 550.0);
