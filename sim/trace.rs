@@ -29,9 +29,11 @@
 use std::ops::ControlFlow;
 
 use glam::{DVec2, DVec3};
+use wide::f64x4;
 
 use crate::optics::interface::{lateral_shift, path_length, reflectance, transmittance};
 use crate::optics::multiplex::MAX_GRATINGS;
+use crate::optics::packet::{self, Incident4, LANES, Vec2x4};
 use crate::optics::rcwa::coupling::{Coupling, RcwaCouplings};
 use crate::waveguide::Waveguide;
 
@@ -180,19 +182,124 @@ pub fn trace_camera_path_until(
 ) -> TraceSummary {
     // The model is resolved here, once per path: the Kogelnik instantiation carries nothing of
     // the tables.
+    let ray = (origin, dir, lambda_nm);
     match wg.rcwa.as_deref() {
-        None => trace_path(
-            wg,
-            Kogelnik,
-            display_z_mm,
-            limits,
-            origin,
-            dir,
-            lambda_nm,
-            visit,
-        ),
-        Some(t) => trace_path(wg, t, display_z_mm, limits, origin, dir, lambda_nm, visit),
+        None => trace_path(wg, Kogelnik, display_z_mm, limits, ray, None, visit),
+        Some(t) => trace_path(wg, t, display_z_mm, limits, ray, None, visit),
     }
+}
+
+/// A camera path's film and interface quantities computed ahead of its trace, several paths
+/// at once ([`prepare_paths`]): exactly what [`trace_camera_path_until`] computes for itself
+/// (bit for bit, optics::packet), for waveguides where [`packets_apply`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Prepared {
+    n_g: f64,
+    alpha: f64,
+    t_face: [f64; 2],
+    cross_shift: DVec2,
+    cross_t: f64,
+    /// The guided wave, where the top vHOE couples one out.
+    guided: Option<PreparedGuided>,
+}
+
+/// The guided wave's quantities of a [`Prepared`] path.
+#[derive(Clone, Copy, Debug)]
+struct PreparedGuided {
+    u_g: DVec2,
+    top_eta: [f64; 2],
+    leg: DVec2,
+    leg_t: f64,
+    r_face: [f64; 2],
+    r_film: [f64; 2],
+    toward_back: [f64; 2],
+    toward_front: [f64; 2],
+}
+
+/// Whether [`prepare_paths`] serves this waveguide: one grating, Kogelnik's model, a lossless
+/// film (the packet's forms, optics::packet); other films are traced by the scalar code alone.
+pub fn packets_apply(wg: &Waveguide) -> bool {
+    wg.rcwa.is_none() && wg.gratings.len() == 1 && wg.gratings.film().alpha0_per_nm == 0.0
+}
+
+/// The [`Prepared`] quantities of four camera rays (lens point, unit direction, wavelength) at
+/// once, lane by lane in one SIMD packet (optics::packet). Only for waveguides where
+/// [`packets_apply`]; any ray may be passed (a ray that does not reach the plate is traced as
+/// such), so unused lanes can repeat a used one.
+pub fn prepare_paths(wg: &Waveguide, rays: &[(DVec3, DVec3, f64); LANES]) -> [Prepared; LANES] {
+    debug_assert!(packets_apply(wg));
+    let w = wg.thickness_mm;
+    let g = wg.gratings.film();
+    let n_g: [f64; LANES] = rays.map(|r| wg.n_glass(r.2));
+    let alpha: [f64; LANES] = rays.map(|r| wg.absorption_per_mm(r.2));
+    let u: [DVec2; LANES] = rays.map(|r| -r.1.truncate());
+    let u_g: [DVec2; LANES] = std::array::from_fn(|i| u[i] - g.u_shift(rays[i].2));
+    let (nv, lv) = (f64x4::new(n_g), f64x4::new(rays.map(|r| r.2)));
+    let uv = Vec2x4::from_lanes(u);
+    let u2 = uv.length_squared();
+    let t_face = packet::transmittance(f64x4::ONE, nv, u2);
+    let cross_f = packet::shift_factor(nv, u2, w);
+    let cross_len = packet::path_length(nv, u2, w);
+    let ugv = Vec2x4::from_lanes(u_g);
+    let ug2 = ugv.length_squared();
+    // Lanes whose guided wave exists in the glass (as `top_coupling`); of those, the lanes
+    // whose order −1 is reflection-type have a guided wave to trace.
+    let in_glass = ug2.simd_lt(nv * nv);
+    let top = Incident4::new(g, &ugv, -1.0, lv).masked(in_glass);
+    let out = top.order(g, -1);
+    let top = top.masked(out.reflection);
+    let leg_f = packet::shift_factor(nv, ug2, w);
+    let leg_len = packet::path_length(nv, ug2, w);
+    let r_face = packet::reflectance(nv, f64x4::ONE, ug2);
+    let r_film = packet::reflectance(f64x4::splat(g.n_film), f64x4::ONE, ug2);
+    let toward_back = top.reversed().undiffracted(g, None);
+    let toward_front = top.undiffracted(g, Some(out.eta));
+    let refl = out.reflection.to_bitmask();
+    let lane = |v: f64x4, i: usize| v.as_array()[i];
+    let pair = |v: &[f64x4; 2], i: usize| [lane(v[0], i), lane(v[1], i)];
+    std::array::from_fn(|i| Prepared {
+        n_g: n_g[i],
+        alpha: alpha[i],
+        t_face: pair(&t_face, i),
+        cross_shift: u[i] * lane(cross_f, i),
+        cross_t: (-alpha[i] * lane(cross_len, i)).exp(),
+        // As `top_coupling`: a guided wave that exists in the glass, reflection-type order −1.
+        guided: (refl >> i & 1 == 1).then(|| PreparedGuided {
+            u_g: u_g[i],
+            top_eta: pair(&out.eta, i),
+            leg: u_g[i] * lane(leg_f, i),
+            leg_t: (-alpha[i] * lane(leg_len, i)).exp(),
+            r_face: pair(&r_face, i),
+            r_film: pair(&r_film, i),
+            toward_back: pair(&toward_back, i),
+            toward_front: pair(&toward_front, i),
+        }),
+    })
+}
+
+/// [`trace_camera_path_until`] of a path whose film quantities were [`prepare_paths`]'d for
+/// the same ray: the same branches, bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn trace_prepared_until(
+    wg: &Waveguide,
+    display_z_mm: f64,
+    limits: TraceLimits,
+    origin: DVec3,
+    dir: DVec3,
+    lambda_nm: f64,
+    prepared: &Prepared,
+    visit: impl FnMut(&Branch) -> ControlFlow<()>,
+) -> TraceSummary {
+    let ray = (origin, dir, lambda_nm);
+    trace_path(
+        wg,
+        Kogelnik,
+        display_z_mm,
+        limits,
+        ray,
+        Some(prepared),
+        visit,
+    )
 }
 
 /// Where a path's film quantities come from: Kogelnik's closed form, or the RCWA tables
@@ -255,14 +362,15 @@ fn trace_path<T: FilmTables>(
     tables: T,
     display_z_mm: f64,
     limits: TraceLimits,
-    origin: DVec3,
-    dir: DVec3,
-    lambda_nm: f64,
+    (origin, dir, lambda_nm): (DVec3, DVec3, f64),
+    pre: Option<&Prepared>,
     mut visit: impl FnMut(&Branch) -> ControlFlow<()>,
 ) -> TraceSummary {
     let w = wg.thickness_mm;
-    let n_g = wg.n_glass(lambda_nm);
-    let alpha = wg.absorption_per_mm(lambda_nm);
+    let (n_g, alpha) = match pre {
+        Some(p) => (p.n_g, p.alpha),
+        None => (wg.n_glass(lambda_nm), wg.absorption_per_mm(lambda_nm)),
+    };
     let gratings = &wg.gratings;
     let mut summary = TraceSummary {
         n_glass: n_g,
@@ -274,7 +382,7 @@ fn trace_path<T: FilmTables>(
     // Physical light travels along −dir: its tangential direction cosines in air.
     let u = -dir.truncate();
     let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
-    let t_face = transmittance(1.0, n_g, u);
+    let t_face = pre.map_or_else(|| transmittance(1.0, n_g, u), |p| p.t_face);
     // With RCWA tables (`hoe.model = "rcwa"`): every grating's film quantities for this ray,
     // where the tables cover it (optics::rcwa::coupling).
     let ray = tables.ray(gratings.len(), lambda_nm, u);
@@ -283,8 +391,13 @@ fn trace_path<T: FilmTables>(
     if wg.bottom.contains(p_back) {
         wt = mul(wt, film_t0());
     }
-    let cross_shift = lateral_shift(u, n_g, w);
-    let cross_t = (-alpha * path_length(u, n_g, w)).exp();
+    let (cross_shift, cross_t) = match pre {
+        Some(p) => (p.cross_shift, p.cross_t),
+        None => (
+            lateral_shift(u, n_g, w),
+            (-alpha * path_length(u, n_g, w)).exp(),
+        ),
+    };
     wt = scale(wt, cross_t);
     let p_top = p_back - cross_shift;
     let air_shift = lateral_shift(u, 1.0, -display_z_mm);
@@ -324,7 +437,21 @@ fn trace_path<T: FilmTables>(
         p_top,
         air_shift,
         ray: &ray,
+        pre: pre.and_then(|p| p.guided.as_ref()),
     };
+    if let Some(p) = pre {
+        // Prepared: the top coupling and the guided wave's quantities are the packet's.
+        if let Some(pg) = p.guided {
+            let top = TopCoupling {
+                u_g: pg.u_g,
+                wave: None,
+                eta: pg.top_eta,
+                rcwa: None,
+            };
+            let _ = trace_guided(&ctx, 0, top, &mut summary, &mut visit);
+        }
+        return summary;
+    }
     if gratings.len() == 1 {
         // The single-grating film: no arrays, the path as it always was.
         if let Some(top) = top_coupling(&ctx, 0) {
@@ -388,6 +515,8 @@ struct PathContext<'a, T: FilmTables> {
     air_shift: DVec2,
     /// The tables' film quantities for this ray (nothing for Kogelnik).
     ray: &'a T::Ray,
+    /// The guided wave's quantities, computed ahead ([`prepare_paths`]).
+    pre: Option<&'a PreparedGuided>,
 }
 
 /// The top vHOE's out-coupling by grating `j`.
@@ -465,6 +594,7 @@ fn trace_guided<T: FilmTables>(
         p_top,
         air_shift,
         ray,
+        pre,
     } = *ctx;
     let TopCoupling {
         u_g,
@@ -484,7 +614,7 @@ fn trace_guided<T: FilmTables>(
     // (Both orders are reflection-type together: the on-shell conditions coincide.)
     let eta_in = if let Some(c) = rcwa {
         c.eta_in
-    } else if grating.alpha0_per_nm == 0.0 {
+    } else if grating.alpha0_per_nm == 0.0 || pre.is_some() {
         top_eta
     } else {
         grating
@@ -492,10 +622,15 @@ fn trace_guided<T: FilmTables>(
             .filter(|d| d.reflection)
             .map_or([0.0, 0.0], |d| d.eta)
     };
-    let leg = lateral_shift(u_g, n_g, w);
-    let leg_t = (-alpha * path_length(u_g, n_g, w)).exp();
-    let r_face = reflectance(n_g, 1.0, u_g);
-    let r_film = reflectance(gratings.film().n_film, 1.0, u_g);
+    let (leg, leg_t, r_face, r_film) = match pre {
+        Some(p) => (p.leg, p.leg_t, p.r_face, p.r_film),
+        None => (
+            lateral_shift(u_g, n_g, w),
+            (-alpha * path_length(u_g, n_g, w)).exp(),
+            reflectance(n_g, 1.0, u_g),
+            reflectance(gratings.film().n_film, 1.0, u_g),
+        ),
+    };
     // Two-pass factors at a vHOE contact (docs/physics.md §2.3): the guided wave crosses the film
     // toward the air face ("up" = toward the face it is about to reflect from) and back. The
     // wave travelling −z is the one the top vHOE out-couples (order −1 of grating j,
@@ -503,9 +638,10 @@ fn trace_guided<T: FilmTables>(
     // travels +z and vice versa, so both faces see the same pair of passes in opposite order.
     // Every grating's orders leave the guided wave (a cross-grating order leaves at another
     // angle, not toward this pixel: lost, like other stray orders).
-    let (toward_back, toward_front) = match rcwa {
-        Some(c) => (c.t0_guided_up, c.t0_guided_down),
-        None => (
+    let (toward_back, toward_front) = match (rcwa, pre) {
+        (Some(c), _) => (c.t0_guided_up, c.t0_guided_down),
+        (None, Some(p)) => (p.toward_back, p.toward_front),
+        (None, None) => (
             gratings.undiffracted_from(top_wave.map(|w| w.reversed()), u_g, None),
             gratings.undiffracted_from(top_wave, u_g, Some((j, -1, top_eta))),
         ),
@@ -580,6 +716,77 @@ fn trace_guided<T: FilmTables>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A path traced from its packet-prepared quantities ([`prepare_paths`], four at a time)
+    /// gives the scalar trace's branches and summary bit for bit: the paper design (covered top
+    /// vHOE) and an uncovered one (straight-through branches), over random rays, wavelengths
+    /// and lane fillings; films the packet does not serve are refused by [`packets_apply`].
+    #[test]
+    fn prepared_paths_trace_bit_for_bit() {
+        let bits = |b: &Branch| {
+            (
+                b.kind,
+                b.exit_point_mm.to_array().map(f64::to_bits),
+                b.object_point_mm.to_array().map(f64::to_bits),
+                b.bottom_contact_mm.map(|p| p.to_array().map(f64::to_bits)),
+                b.weight.map(f64::to_bits),
+                b.contact,
+            )
+        };
+        let summary = |s: &TraceSummary| {
+            (
+                s.contacts,
+                s.top_contacts,
+                s.truncated_weight.to_bits(),
+                s.hit_max_contacts,
+                s.guided_u.to_array().map(f64::to_bits),
+                s.n_glass.to_bits(),
+            )
+        };
+        let mut state = 777u64;
+        let mut next = || {
+            state = crate::sampler::mix64(state);
+            crate::sampler::to_unit(state)
+        };
+        let mut guided = 0;
+        for over in [&[][..], &["top_hoe.covered=false"][..]] {
+            let sys = crate::system::repo_system("scenes/paper-2022.toml", over);
+            let wg = &sys.waveguide;
+            assert!(packets_apply(wg));
+            for _ in 0..2000 {
+                let rays: [(DVec3, DVec3, f64); LANES] = std::array::from_fn(|_| {
+                    let r = sys.camera.generate_ray(
+                        (next() * sys.camera.width_px as f64) as usize,
+                        (next() * sys.camera.height_px as f64) as usize,
+                        [next(), next()],
+                        [next(), next()],
+                    );
+                    (r.origin, r.dir, 420.0 + 240.0 * next())
+                });
+                let pre = prepare_paths(wg, &rays);
+                for (&(o, d, l), p) in rays.iter().zip(&pre) {
+                    let (mut a, mut b) = (Vec::new(), Vec::new());
+                    let z = sys.display.z_mm;
+                    let sa = trace_camera_path(wg, z, sys.limits, o, d, l, |x| a.push(bits(x)));
+                    let sb = trace_prepared_until(wg, z, sys.limits, o, d, l, p, |x| {
+                        b.push(bits(x));
+                        ControlFlow::Continue(())
+                    });
+                    assert_eq!(a, b, "{o} {d} {l}");
+                    assert_eq!(summary(&sa), summary(&sb));
+                    guided += usize::from(a.len() > 1);
+                }
+            }
+        }
+        assert!(guided > 1000, "{guided}");
+        let lossy = crate::system::repo_system(
+            "scenes/paper-2022.toml",
+            &["hoe.amplitude_absorption_per_mm=0.1"],
+        );
+        assert!(!packets_apply(&lossy.waveguide));
+        let two = crate::system::repo_system("scenes/two-grating.toml", &[]);
+        assert!(!packets_apply(&two.waveguide));
+    }
 
     /// A two-grating film (scenes/two-grating.toml, here with strong gratings n1 = 0.03 each
     /// so that both couple a lot): over random camera rays and wavelengths the branches carry

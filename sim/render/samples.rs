@@ -15,9 +15,11 @@
 use std::ops::ControlFlow;
 
 use super::{Estimator, RenderSettings, RenderStats};
+use crate::optics::packet::LANES;
 use crate::sampler::{LatticeRule, PixelSampler};
 use crate::system::System;
-use crate::trace::{Branch, sees_through_n};
+use crate::trace::{Branch, Prepared, sees_through_n};
+use glam::DVec3;
 
 /// Uniform fraction of the wavelength density for paths with a straight-through (broadband)
 /// view: the Bragg table and the uniform part get equal shares, so f/p stays within a factor of
@@ -80,6 +82,9 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
     // The glass index of the see-through test is the same for every ray.
     let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
     let mut batch = [None; SAMPLE_BATCH];
+    // Film quantities of four paths at a time (optics::packet), where the film allows.
+    let packets = crate::trace::packets_apply(&sys.waveguide);
+    let mut prepared = [Prepared::default(); SAMPLE_BATCH];
     let mut first = 0u64;
     while first < spp {
         let len = (spp - first).min(SAMPLE_BATCH as u64) as usize;
@@ -91,25 +96,27 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
             &mut batch[..len],
             (n0, set.estimator),
         );
-        for (i, s) in (first..).zip(&batch[..len]) {
+        if packets {
+            prepare_batch(sys, &batch[..len], &mut prepared[..len]);
+        }
+        for ((i, s), pre) in (first..).zip(&batch[..len]).zip(&prepared) {
             if let Some(s) = s {
                 consumer.begin(s, i);
                 let mut max_w: f64 = 0.0;
                 let mut branches = 0u64;
                 stats.camera_paths += 1;
-                let summary = crate::trace::trace_camera_path_until(
-                    &sys.waveguide,
-                    sys.display.z_mm,
-                    sys.limits,
-                    s.ray.origin,
-                    s.ray.dir,
-                    s.lambda_nm,
-                    |b| {
-                        branches += 1;
-                        max_w = max_w.max(b.weight[0]).max(b.weight[1]);
-                        consumer.branch(s, b)
-                    },
-                );
+                let visit = |b: &Branch| {
+                    branches += 1;
+                    max_w = max_w.max(b.weight[0]).max(b.weight[1]);
+                    consumer.branch(s, b)
+                };
+                let (wg, z, lim) = (&sys.waveguide, sys.display.z_mm, sys.limits);
+                let (o, d, l) = (s.ray.origin, s.ray.dir, s.lambda_nm);
+                let summary = if packets {
+                    crate::trace::trace_prepared_until(wg, z, lim, o, d, l, pre, visit)
+                } else {
+                    crate::trace::trace_camera_path_until(wg, z, lim, o, d, l, visit)
+                };
                 stats.branches += branches;
                 stats.contacts += u64::from(summary.contacts);
                 stats.max_contacts_hits += u64::from(summary.hit_max_contacts);
@@ -121,6 +128,23 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
             consumer.after(i, stats);
         }
         first += len as u64;
+    }
+}
+
+/// The film quantities of a batch's samples, four at a time ([`crate::trace::prepare_paths`]);
+/// a lane without a sample repeats one of its packet's samples (its result is not used).
+#[inline]
+fn prepare_batch(sys: &System, batch: &[Option<CameraSample>], out: &mut [Prepared]) {
+    for (samples, out) in batch.chunks(LANES).zip(out.chunks_mut(LANES)) {
+        let Some(fill) = samples.iter().flatten().next() else {
+            continue;
+        };
+        let rays: [(DVec3, DVec3, f64); LANES] = std::array::from_fn(|k| {
+            let s = samples.get(k).copied().flatten().unwrap_or(*fill);
+            (s.ray.origin, s.ray.dir, s.lambda_nm)
+        });
+        let p = crate::trace::prepare_paths(&sys.waveguide, &rays);
+        out.copy_from_slice(&p[..out.len()]);
     }
 }
 
