@@ -193,7 +193,7 @@ pub fn trace_camera_path_until(
 /// at once ([`prepare_paths`]): exactly what [`trace_camera_path_until`] computes for itself
 /// (bit for bit, optics::packet), for waveguides where [`packets_apply`].
 #[derive(Clone, Copy, Debug, Default)]
-pub struct Prepared {
+pub(crate) struct Prepared {
     n_g: f64,
     alpha: f64,
     t_face: [f64; 2],
@@ -218,7 +218,7 @@ struct PreparedGuided {
 
 /// Whether [`prepare_paths`] serves this waveguide: one grating, Kogelnik's model, a lossless
 /// film (the packet's forms, optics::packet); other films are traced by the scalar code alone.
-pub fn packets_apply(wg: &Waveguide) -> bool {
+pub(crate) fn packets_apply(wg: &Waveguide) -> bool {
     wg.rcwa.is_none() && wg.gratings.len() == 1 && wg.gratings.film().alpha0_per_nm == 0.0
 }
 
@@ -226,7 +226,10 @@ pub fn packets_apply(wg: &Waveguide) -> bool {
 /// once, lane by lane in one SIMD packet (optics::packet). Only for waveguides where
 /// [`packets_apply`]; any ray may be passed (a ray that does not reach the plate is traced as
 /// such), so unused lanes can repeat a used one.
-pub fn prepare_paths(wg: &Waveguide, rays: &[(DVec3, DVec3, f64); LANES]) -> [Prepared; LANES] {
+pub(crate) fn prepare_paths(
+    wg: &Waveguide,
+    rays: &[(DVec3, DVec3, f64); LANES],
+) -> [Prepared; LANES] {
     debug_assert!(packets_apply(wg));
     let w = wg.thickness_mm;
     let g = wg.gratings.film();
@@ -280,7 +283,7 @@ pub fn prepare_paths(wg: &Waveguide, rays: &[(DVec3, DVec3, f64); LANES]) -> [Pr
 /// [`trace_camera_path_until`] of a path whose film quantities were [`prepare_paths`]'d for
 /// the same ray: the same branches, bit for bit.
 #[allow(clippy::too_many_arguments)]
-pub fn trace_prepared_until(
+pub(crate) fn trace_prepared_until(
     wg: &Waveguide,
     display_z_mm: f64,
     limits: TraceLimits,

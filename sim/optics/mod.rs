@@ -8,7 +8,7 @@ pub mod grating;
 pub mod interface;
 pub mod kogelnik;
 pub mod multiplex;
-pub mod packet;
+pub(crate) mod packet;
 pub mod rcwa;
 
 /// How the tracer computes the vHOEs' efficiencies (`hoe.model`; also `stscam grating --model`).

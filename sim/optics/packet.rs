@@ -53,12 +53,6 @@ impl Vec2x4 {
         }
     }
 
-    /// Lane `i`'s vector.
-    #[inline]
-    pub fn lane(&self, i: usize) -> DVec2 {
-        DVec2::new(self.x.as_array()[i], self.y.as_array()[i])
-    }
-
     /// |v|² per lane, as glam's `length_squared` (x·x + y·y).
     #[inline]
     pub fn length_squared(&self) -> f64x4 {
@@ -141,7 +135,9 @@ pub struct Order4 {
     /// η [TE, TM] per lane (taper included), 0 where the order is evanescent or the wave
     /// cannot enter.
     pub eta: Pair,
-    /// All ones where the order exists (the scalar `order` returns `Some`).
+    /// All ones where the order exists (the scalar `order` returns `Some`; the tracer needs
+    /// only `reflection`, the tests check both).
+    #[cfg_attr(not(test), allow(dead_code))]
     pub exists: f64x4,
     /// All ones where it exists and is reflection-type.
     pub reflection: f64x4,
