@@ -4,7 +4,7 @@
 //! registers otherwise).
 //!
 //! Model: the scalar functions' formulas, unchanged (docs/physics.md §1.2 lossless reflection
-//! grating in the unified form, §1.4 lossless transmission grating, §1.6 the SVEA taper, §4.3
+//! grating in the unified form, §1.4 lossless transmission grating, §1.7 the SVEA taper, §4.3
 //! Fresnel), written lane for lane in the scalar code's order of operations. Additions,
 //! multiplications, divisions and square roots are IEEE-rounded the same in a lane as in a
 //! scalar register, and the few transcendental calls (tan, tanh, sin of the efficiency formulas)
