@@ -280,20 +280,16 @@ pub(crate) fn prepare_paths(
     })
 }
 
-/// [`trace_camera_path_until`] of a path whose film quantities were [`prepare_paths`]'d for
-/// the same ray: the same branches, bit for bit.
-#[allow(clippy::too_many_arguments)]
+/// [`trace_camera_path_until`] of the ray (lens point, unit direction, wavelength) whose film
+/// quantities were [`prepare_paths`]'d: the same branches, bit for bit.
 pub(crate) fn trace_prepared_until(
     wg: &Waveguide,
     display_z_mm: f64,
     limits: TraceLimits,
-    origin: DVec3,
-    dir: DVec3,
-    lambda_nm: f64,
+    ray: (DVec3, DVec3, f64),
     prepared: &Prepared,
     visit: impl FnMut(&Branch) -> ControlFlow<()>,
 ) -> TraceSummary {
-    let ray = (origin, dir, lambda_nm);
     trace_path(
         wg,
         Kogelnik,
@@ -617,7 +613,7 @@ fn trace_guided<T: FilmTables>(
     // (Both orders are reflection-type together: the on-shell conditions coincide.)
     let eta_in = if let Some(c) = rcwa {
         c.eta_in
-    } else if grating.alpha0_per_nm == 0.0 || pre.is_some() {
+    } else if grating.alpha0_per_nm == 0.0 {
         top_eta
     } else {
         grating
@@ -771,7 +767,7 @@ mod tests {
                     let (mut a, mut b) = (Vec::new(), Vec::new());
                     let z = sys.display.z_mm;
                     let sa = trace_camera_path(wg, z, sys.limits, o, d, l, |x| a.push(bits(x)));
-                    let sb = trace_prepared_until(wg, z, sys.limits, o, d, l, p, |x| {
+                    let sb = trace_prepared_until(wg, z, sys.limits, (o, d, l), p, |x| {
                         b.push(bits(x));
                         ControlFlow::Continue(())
                     });

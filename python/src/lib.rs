@@ -335,12 +335,8 @@ fn render<'py>(
         let renders = batch.len().max(1) as u64;
         stscam::render::check_limits(&sys, &settings, renders, "--spp")
             .map_err(|e| e.to_string())?;
-        if sys.world.is_some() {
-            let (fw, fh) = frontal_px.unwrap_or((sys.camera.width_px, sys.camera.height_px));
-            let key = stscam::jobs::render::frontal_key(frontal_px.is_some(), frontal_spp_given);
-            stscam::limits::check_paths(key, fw as u128 * fh as u128 * u128::from(frontal_spp))
-                .map_err(|e| e.to_string())?;
-        }
+        stscam::jobs::render::check_frontal_paths(&sys, frontal_px, frontal_spp, frontal_spp_given)
+            .map_err(|e| e.to_string())?;
         // The camera side from the design's table (read, or drawn and written), for every
         // render of the call.
         let table = match &camera_table {

@@ -131,12 +131,7 @@ fn cmd_render(
         estimator: Default::default(),
     };
     crate::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
-    if sys.world.is_some() {
-        let (fw, fh) = frontal_size.unwrap_or((sys.camera.width_px, sys.camera.height_px));
-        let paths = fw as u128 * fh as u128 * u128::from(frontal_spp);
-        let key = frontal_key(frontal_size.is_some(), frontal_spp_given);
-        crate::limits::check_paths(key, paths).map_err(limit)?;
-    }
+    check_frontal_paths(&sys, frontal_size, frontal_spp, frontal_spp_given).map_err(limit)?;
     let t0 = Instant::now();
     let (cap, table_info) = match &table.camera_table {
         None => (pool.install(|| render(&sys, &settings)), None),
@@ -231,14 +226,26 @@ fn cmd_render(
     Ok(cap)
 }
 
-/// The flag(s) to name when the frontal view's paths exceed the limit: the size, the samples
-/// per pixel or both, as given (`--spp` sets the samples when `--frontal-spp` is absent).
-pub fn frontal_key(px_given: bool, spp_given: bool) -> &'static str {
-    match (px_given, spp_given) {
+/// That a 3-D scene's frontal view (`size`, default the capture's crop, at `frontal_spp`
+/// samples per pixel) stays within the path limit; the error names the flag(s) given: the
+/// size, the samples per pixel or both (`--spp` sets the samples when `--frontal-spp` is
+/// absent). Nothing to check without a 3-D user side. The CLI and the Python module share it.
+pub fn check_frontal_paths(
+    sys: &System,
+    size: Option<(usize, usize)>,
+    frontal_spp: u32,
+    spp_given: bool,
+) -> Result<(), crate::limits::LimitError> {
+    if sys.world.is_none() {
+        return Ok(());
+    }
+    let (fw, fh) = size.unwrap_or((sys.camera.width_px, sys.camera.height_px));
+    let key = match (size.is_some(), spp_given) {
         (true, true) => "--frontal-px and --frontal-spp",
         (true, false) => "--frontal-px",
         _ => "--frontal-spp",
-    }
+    };
+    crate::limits::check_paths(key, fw as u128 * fh as u128 * u128::from(frontal_spp))
 }
 
 /// That the frontal view's colour space has a luminance over the sampling band (3-D scenes).

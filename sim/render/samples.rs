@@ -113,7 +113,7 @@ pub(crate) fn drive_pixel<C: SampleConsumer>(
                 let (wg, z, lim) = (&sys.waveguide, sys.display.z_mm, sys.limits);
                 let (o, d, l) = (s.ray.origin, s.ray.dir, s.lambda_nm);
                 let summary = if packets {
-                    crate::trace::trace_prepared_until(wg, z, lim, o, d, l, pre, visit)
+                    crate::trace::trace_prepared_until(wg, z, lim, (o, d, l), pre, visit)
                 } else {
                     crate::trace::trace_camera_path_until(wg, z, lim, o, d, l, visit)
                 };
