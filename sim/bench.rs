@@ -87,7 +87,7 @@ fn timed_render(
     spp: u32,
     seed: u64,
     estimator: Estimator,
-    (sampler, user_side): (SamplerKind, UserSideSampler),
+    (sampler, user_side, adaptive): (SamplerKind, UserSideSampler, bool),
     table: Option<&CameraTable>,
 ) -> (Vec<Vec<f32>>, f64) {
     let set = RenderSettings {
@@ -98,6 +98,7 @@ fn timed_render(
         spectral_bins: None,
         progress: false,
         estimator,
+        adaptive,
     };
     let t0 = Instant::now();
     let cap = match table {
@@ -120,15 +121,19 @@ pub enum CurveSampler {
     /// 3-D scenes: the camera side from a table drawn once with these settings (its seed
     /// replaced per render: 7 and, for `Halves`, 8), spp = user-side paths per pixel.
     CameraTable(TableSettings),
+    /// The default lattice with adaptive sample counts (`render --adaptive`; spp = the mean,
+    /// from [`crate::render::adaptive::MIN_ADAPTIVE_SPP`] on).
+    Adaptive,
 }
 
 impl CurveSampler {
-    /// The sampler kind and the user side's estimator of the curve.
-    pub fn kinds(self) -> (SamplerKind, UserSideSampler) {
+    /// The sampler kind, the user side's estimator and whether the counts are adaptive.
+    pub fn kinds(self) -> (SamplerKind, UserSideSampler, bool) {
         match self {
-            CurveSampler::Kind(k) => (k, UserSideSampler::Auto),
-            CurveSampler::EveryBranch => (SamplerKind::Lattice, UserSideSampler::Padded),
-            CurveSampler::CameraTable(_) => (SamplerKind::Lattice, UserSideSampler::Auto),
+            CurveSampler::Kind(k) => (k, UserSideSampler::Auto, false),
+            CurveSampler::EveryBranch => (SamplerKind::Lattice, UserSideSampler::Padded, false),
+            CurveSampler::CameraTable(_) => (SamplerKind::Lattice, UserSideSampler::Auto, false),
+            CurveSampler::Adaptive => (SamplerKind::Lattice, UserSideSampler::Auto, true),
         }
     }
 }
@@ -179,10 +184,16 @@ pub fn measure_curve(
     let max_spp = if tables.len() < wanted { 0 } else { max_spp };
     let mut points = Vec::new();
     let mut spent = 0.0;
-    let mut spp = if measure == ErrorMeasure::Halves {
+    let halves = if measure == ErrorMeasure::Halves {
         2u32
     } else {
         1
+    };
+    // An adaptive curve starts where renders are adaptive (below, they are the default's).
+    let mut spp = if sampler == CurveSampler::Adaptive {
+        halves * crate::render::adaptive::MIN_ADAPTIVE_SPP
+    } else {
+        halves
     };
     while spp <= max_spp && spent < budget_s {
         let (seconds, err) = match measure {

@@ -99,7 +99,7 @@ pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[
     use rayon::prelude::*;
     let g = sys.waveguide.gratings.len();
     let set = RenderSettings::lattice(spp, seed, false);
-    let rule = crate::render::lattice_rule(&set);
+    let rule = (set.spp, crate::render::lattice_rule(&set, set.spp));
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let stride = stride.max(1);
     let rows: Vec<Vec<[f64; 3]>> = (0..h)

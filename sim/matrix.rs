@@ -256,7 +256,14 @@ fn matrix_row_lanes<const L: usize>(
         for a in &mut columns.acc {
             a.off = [0.0; 4];
         }
-        drive_pixel(sys, set, rule, (col, row), &mut stats, &mut columns);
+        drive_pixel(
+            sys,
+            set,
+            (set.spp, rule),
+            (col, row),
+            &mut stats,
+            &mut columns,
+        );
         for a in &mut columns.acc {
             a.store_pixel(sys, set, col - first_col, &mut order);
         }
@@ -531,7 +538,7 @@ pub fn estimate_stack_memory(
     if bound.estimated_peak_bytes() <= max_bytes || w == 0 || h == 0 {
         return bound;
     }
-    let rule = lattice_rule(set);
+    let rule = lattice_rule(set, set.spp);
     let per_pixel = u64::from(set.spp.max(1)) * depths_mm.len().max(1) as u64;
     let side = ((PILOT_WORK / per_pixel) as f64).sqrt().clamp(8.0, 16.0) as usize;
     let (gx, gy) = (w.min(side), h.min(side));
@@ -613,7 +620,7 @@ fn stack_pass(
         format!("matrix rows ({} depths)", depths_mm.len())
     };
     let pb = row_progress(set.progress, h, &what);
-    let rule = lattice_rule(set);
+    let rule = lattice_rule(set, set.spp);
     let cancel = crate::cancel::current();
     let (stored, over) = (AtomicU64::new(0), AtomicBool::new(false));
     let rows: Vec<(Vec<RowBlock>, RenderStats)> = (0..h)

@@ -275,7 +275,7 @@ fn scene_json(py: Python<'_>, scene: SceneArg) -> PyResult<String> {
 
 /// Renders the capture (and, with objects, the frontal image, depth and mask).
 #[pyfunction]
-#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None, camera_table=None, frontal_spp=None))]
+#[pyo3(signature = (scene, spp, seed, threads, sampler, spectral, frontal_px, user_side, batch, frontal_space, progress=None, camera_table=None, frontal_spp=None, adaptive=false))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -292,6 +292,7 @@ fn render<'py>(
     progress: Option<Bound<'_, PyAny>>,
     camera_table: Option<(std::path::PathBuf, u32, u32)>,
     frontal_spp: Option<u32>,
+    adaptive: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     check_spp(spp)?;
     if frontal_spp == Some(0) {
@@ -330,10 +331,13 @@ fn render<'py>(
             spectral_bins: spectral.then(|| stscam::render::spectral_bins(&sys.scene.sampling)),
             progress: false,
             estimator: Default::default(),
+            adaptive,
         };
         // The CLI's limits (run time and memory), for every render of the call.
         let renders = batch.len().max(1) as u64;
         stscam::render::check_limits(&sys, &settings, renders, "--spp")
+            .map_err(|e| e.to_string())?;
+        stscam::render::adaptive::check(&sys, &settings, camera_table.is_some())
             .map_err(|e| e.to_string())?;
         stscam::jobs::render::check_frontal_paths(&sys, frontal_px, frontal_spp, frontal_spp_given)
             .map_err(|e| e.to_string())?;

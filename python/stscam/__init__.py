@@ -355,7 +355,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            white_peak: Optional[float] = None, frontal_space: str = "sensor",
            progress: Optional[Callable[[int, int, str], Any]] = None,
            camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
-           table_reps: int = 32, frontal_spp: Optional[int] = None) -> Render:
+           table_reps: int = 32, frontal_spp: Optional[int] = None,
+           adaptive: bool = False) -> Render:
     """Renders the sensor crop, as ``stscam render``: same ``spp``, ``seed``, ``sampler``
     and ``user_side`` give the values of ``capture.exr`` (for any ``threads``); ``sampler`` is
     ``"lattice"`` (default: a Korobov rule searched for ``spp`` where a good one exists, else
@@ -378,7 +379,9 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
     --camera-table``: a 3-D scene then traces ``spp`` user-side paths per pixel from the table's
     exit rays; a display-only scene's table is H at ``table_spp``, and the capture H·f + offset.
     ``frontal_spp`` (3-D scenes; default ``spp``): samples per pixel of the frontal image, as
-    ``--frontal-spp``."""
+    ``--frontal-spp``. ``adaptive=True`` shares the samples out by noise, as ``--adaptive``:
+    ``spp`` (at least 16) is then the mean per pixel, a pilot included, and
+    ``stats["sample_counts"]`` records the counts."""
     s = _scene(scene)
     _check_noise(noise)
     if target is not None:
@@ -387,7 +390,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
                        _threads(threads), sampler, bool(spectral), _frontal_px(frontal_px),
                        user_side, [], str(frontal_space), _progress(progress),
                        _camera_table(camera_table, table_spp, table_reps),
-                       None if frontal_spp is None else _uint(frontal_spp, "--frontal-spp <N>", _U32))
+                       None if frontal_spp is None else _uint(frontal_spp, "--frontal-spp <N>", _U32),
+                       bool(adaptive))
     w, h, names = d["width"], d["height"], d["channels"]
     nb = len(d["spectral_bins_nm"])
     out = Render(

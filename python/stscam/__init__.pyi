@@ -73,7 +73,8 @@ def render(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
            white_peak: Optional[float] = None, frontal_space: str = "sensor",
            progress: Optional[Callable[[int, int, str], Any]] = None,
            camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
-           table_reps: int = 32, frontal_spp: Optional[int] = None) -> Render: ...
+           table_reps: int = 32, frontal_spp: Optional[int] = None,
+           adaptive: bool = False) -> Render: ...
 def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] = None,
                  spp: int = 64, seed: int = 1, threads: Optional[int] = None,
                  sampler: str = "lattice", user_side: str = "auto",

@@ -168,6 +168,7 @@ fn cmd_bench_recon(
         spectral_bins: None,
         progress: true,
         estimator: Default::default(),
+        adaptive: false,
     };
     crate::render::check_limits(&sys, &rs, 1, "--spp").map_err(limit)?;
     let t0 = Instant::now();
@@ -550,6 +551,7 @@ fn reference_render(pool: &rayon::ThreadPool, sys: &System, ref_spp: u32) -> Vec
                     spectral_bins: None,
                     progress: true,
                     estimator: Default::default(),
+                    adaptive: false,
                 },
             )
             .channels
@@ -577,6 +579,12 @@ fn measure_curves(
         CurveSampler::EveryBranch,
         "stscam: the default with every branch traced on the user side (padded; the 3-D default until 2026-11-26)",
     ));
+    // Adaptive counts pay where a few pixels hold the noise: the display's replicas.
+    let adaptive = sys.world.is_none().then_some((
+        Estimator::Bragg,
+        CurveSampler::Adaptive,
+        "stscam: the default with adaptive sample counts (--adaptive; spp = the mean, pilot included)",
+    ));
     let table = sys.world.is_some().then_some((
         Estimator::Bragg,
         CurveSampler::CameraTable(Default::default()),
@@ -600,6 +608,7 @@ fn measure_curves(
         ),
     ]
     .into_iter()
+    .chain(adaptive)
     .chain(table)
     .chain(every_branch)
     {

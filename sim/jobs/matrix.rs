@@ -146,6 +146,7 @@ fn cmd_matrix(
         spectral_bins: None,
         progress: true,
         estimator: Default::default(),
+        adaptive: false,
     };
     crate::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
     warn_coverage(&sys, "", con);

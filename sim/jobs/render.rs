@@ -46,6 +46,11 @@ pub struct RenderOptions {
     /// The camera-side table's options (3-D scenes).
     #[command(flatten)]
     pub table: TableArgs,
+    /// Adaptive sample counts: `--spp` is the mean over the pixels, and a pilot (two renders
+    /// at spp/16) finds where the noise is; each pixel then gets samples in proportion to
+    /// its noise, in powers of two (docs/design.md, "Adaptive sample counts"). Unbiased.
+    #[arg(long)]
+    pub adaptive: bool,
 }
 
 /// The camera side paid once per design.
@@ -101,7 +106,7 @@ fn cmd_render(
     user_side: UserSideSampler,
     (frontal_px, frontal_spp): (Option<&str>, Option<u32>),
     frontal_space: crate::world::colour::FrontalSpace,
-    table: &TableArgs,
+    (table, adaptive): (&TableArgs, bool),
     con: &Console,
 ) -> Result<crate::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
@@ -129,8 +134,11 @@ fn cmd_render(
         spectral_bins: bins,
         progress: true,
         estimator: Default::default(),
+        adaptive,
     };
     crate::render::check_limits(&sys, &settings, 1, "--spp").map_err(limit)?;
+    crate::render::adaptive::check(&sys, &settings, table.camera_table.is_some())
+        .map_err(|e| bad_input(e.to_string()))?;
     check_frontal_paths(&sys, frontal_size, frontal_spp, frontal_spp_given).map_err(limit)?;
     let t0 = Instant::now();
     let (cap, table_info) = match &table.camera_table {
@@ -213,12 +221,19 @@ fn cmd_render(
     } else {
         "H times the target".to_string()
     };
+    let spp_text = match &cap.stats.sample_counts {
+        Some(c) => format!(
+            "{spp} spp (mean; pilot 2 x {}, then {}-{} per pixel)",
+            c.pilot_spp, c.min_spp, c.max_spp
+        ),
+        None => format!("{spp} spp"),
+    };
     con.err(format_args!(
-        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {} spp, {:.3} s render, {} ({} threads)",
+        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {}, {:.3} s render, {} ({} threads)",
         out.display(),
         cap.width,
         cap.height,
-        spp,
+        spp_text,
         render_s,
         rate,
         pool.current_num_threads()
@@ -361,7 +376,7 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<crate::render::Capture, J
         o.user_side,
         (o.frontal_px.as_deref(), o.frontal_spp),
         o.frontal_space,
-        &o.table,
+        (&o.table, o.adaptive),
         con,
     )
 }

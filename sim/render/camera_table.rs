@@ -267,7 +267,7 @@ pub(crate) fn build_keyed(
     check_table_limits(sys, ts)?;
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let set = RenderSettings::lattice(ts.spp, ts.seed, false);
-    let rule = super::lattice_rule(&set);
+    let rule = (ts.spp, super::lattice_rule(&set, ts.spp));
     let pol = sys.display.polarization_weights;
     let inv_n = 1.0 / f64::from(ts.spp);
     let pb = super::row_progress(progress, h, "camera-side table rows");
@@ -386,17 +386,24 @@ pub fn render_with_table_keyed(
         "--spp",
         (table.width * table.height) as u128 * u128::from(set.spp),
     )?;
-    Ok(super::job_rows(sys, set, || TableJob {
-        sys,
-        world,
-        table,
-        seed: set.seed,
-        paths: set.spp,
-        padded: set.sampler != SamplerKind::Independent,
-        sums: PixelSums::new(sys, set),
-        picks: Vec::new(),
-        first_hits: FirstHitCache::default(),
-    }))
+    let pass = |set: &RenderSettings, counts: Option<&[u32]>| {
+        super::job_rows(sys, set, counts, || TableJob {
+            sys,
+            world,
+            table,
+            seed: set.seed,
+            padded: set.sampler != SamplerKind::Independent,
+            sums: PixelSums::new(sys, set),
+            picks: Vec::new(),
+            first_hits: FirstHitCache::default(),
+        })
+    };
+    Ok(if set.adaptive {
+        super::adaptive::render(set, |s, c| Ok::<_, std::convert::Infallible>(pass(s, c)))
+            .unwrap_or_else(|e| match e {})
+    } else {
+        pass(set, None)
+    })
 }
 
 /// The user side of one pixel from the table ([`render_with_table`]).
@@ -405,8 +412,6 @@ struct TableJob<'a> {
     world: &'a World,
     table: &'a CameraTable,
     seed: u64,
-    /// User-side paths per pixel, M.
-    paths: u32,
     padded: bool,
     sums: PixelSums<'a>,
     /// The representative of each path.
@@ -416,14 +421,20 @@ struct TableJob<'a> {
 }
 
 impl<'a> PixelJob<'a> for TableJob<'a> {
-    fn pixel(&mut self, (col, row): (usize, usize), stats: &mut RenderStats) -> &PixelSums<'a> {
+    /// The pixel's sums over `paths` user-side paths, M.
+    fn pixel(
+        &mut self,
+        (col, row): (usize, usize),
+        paths: u32,
+        stats: &mut RenderStats,
+    ) -> &PixelSums<'a> {
         let p = row * self.table.width + col;
         self.sums.start(p as u64);
         let reps = self.table.pixel(p);
-        if reps.is_empty() || self.paths == 0 {
+        if reps.is_empty() || paths == 0 {
             return &self.sums;
         }
-        let (r, m) = (reps.len(), self.paths);
+        let (r, m) = (reps.len(), paths);
         let pixel = p as u64;
         // Systematic choice: path k takes representative ⌊(k + u)·R/M⌋.
         let u = crate::sampler::to_unit(crate::sampler::hash(&[self.seed, pixel, TABLE_TAG]));

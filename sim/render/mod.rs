@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use crate::sampler::SamplerKind;
 use crate::system::System;
 
+pub mod adaptive;
 mod analog;
 pub mod camera_table;
 mod display;
@@ -111,6 +112,9 @@ pub struct RenderSettings {
     pub progress: bool,
     /// How each pixel is estimated (stscam's estimator unless a benchmark compares).
     pub estimator: Estimator,
+    /// Adaptive sample counts ([`adaptive`]): `spp` is then the mean over the pixels, pilot
+    /// included, and each pixel gets samples in proportion to its noise.
+    pub adaptive: bool,
 }
 
 impl RenderSettings {
@@ -125,6 +129,7 @@ impl RenderSettings {
             spectral_bins: None,
             progress,
             estimator: Estimator::Bragg,
+            adaptive: false,
         }
     }
 }
@@ -152,6 +157,9 @@ pub struct RenderStats {
     /// 3-D scenes: user-side paths traced (one per traced branch).
     #[serde(skip_serializing_if = "is_zero")]
     pub scene_paths: u64,
+    /// Adaptive renders: the pilot's and the pixels' sample counts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sample_counts: Option<adaptive::SampleCounts>,
 }
 
 fn is_zero(v: &u64) -> bool {
@@ -244,26 +252,41 @@ pub fn render(sys: &System, set: &RenderSettings) -> Capture {
         user_side: set.user_side.resolve(sys.world.as_deref()),
         ..set.clone()
     };
+    if set.adaptive {
+        adaptive::render(set, |s, counts| {
+            Ok::<_, std::convert::Infallible>(render_counts(sys, s, counts))
+        })
+        .unwrap_or_else(|e| match e {})
+    } else {
+        render_counts(sys, set, None)
+    }
+}
+
+/// [`render`] with each pixel's sample count from `counts` (row major; `set.spp` for every
+/// pixel when `None`), `set.user_side` resolved.
+fn render_counts(sys: &System, set: &RenderSettings, counts: Option<&[u32]>) -> Capture {
     // One monomorphised loop per kind of pixel estimator: the display-only loop is the tight
     // one it always was.
     match (sys.world.as_deref(), set.estimator) {
         (Some(world), Estimator::Bragg) if set.user_side == UserSideSampler::Resampled => {
-            render_rows(sys, set, || {
+            render_rows(sys, set, counts, || {
                 user_side::Resampled::new(sys, set, world, RESAMPLE_WINDOW_BRANCHES)
             })
         }
-        (Some(world), Estimator::Bragg) => {
-            render_rows(sys, set, || user_side::EveryBranch::new(sys, set, world))
-        }
+        (Some(world), Estimator::Bragg) => render_rows(sys, set, counts, || {
+            user_side::EveryBranch::new(sys, set, world)
+        }),
         (Some(world), Estimator::UniformAnalog) => {
-            render_rows(sys, set, || analog::Scene::new(sys, set, world))
+            render_rows(sys, set, counts, || analog::Scene::new(sys, set, world))
         }
         (None, Estimator::Bragg) if sys.display.primaries.is_some() => {
-            render_rows(sys, set, || display::Primaries::new(sys, set))
+            render_rows(sys, set, counts, || display::Primaries::new(sys, set))
         }
-        (None, Estimator::Bragg) => render_rows(sys, set, || display::Monochrome::new(sys, set)),
+        (None, Estimator::Bragg) => {
+            render_rows(sys, set, counts, || display::Monochrome::new(sys, set))
+        }
         (None, Estimator::UniformAnalog) => {
-            render_rows(sys, set, || analog::Display::new(sys, set))
+            render_rows(sys, set, counts, || analog::Display::new(sys, set))
         }
     }
 }
@@ -280,10 +303,15 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
     )
 }
 
-/// The work of one pixel: its sums over its samples (counters added to `stats`).
+/// The work of one pixel: its sums over its `spp` samples (counters added to `stats`).
 pub(crate) trait PixelJob<'a> {
-    /// Pixel (col, row)'s sums.
-    fn pixel(&mut self, px: (usize, usize), stats: &mut RenderStats) -> &samples::PixelSums<'a>;
+    /// Pixel (col, row)'s sums over `spp` samples.
+    fn pixel(
+        &mut self,
+        px: (usize, usize),
+        spp: u32,
+        stats: &mut RenderStats,
+    ) -> &samples::PixelSums<'a>;
 }
 
 /// A pixel estimator driven by the camera samples ([`drive_pixel`]): the job of every
@@ -291,7 +319,9 @@ pub(crate) trait PixelJob<'a> {
 struct Driven<'s, E> {
     sys: &'s System,
     set: &'s RenderSettings,
-    rule: Option<crate::sampler::LatticeRule>,
+    /// The lattice rule of the last sample count asked for (an adaptive render's pixels have
+    /// a few counts).
+    rule: (u32, Option<crate::sampler::LatticeRule>),
     est: E,
 }
 
@@ -300,10 +330,14 @@ impl<'a, E: samples::PixelEstimator<'a>> PixelJob<'a> for Driven<'_, E> {
     fn pixel(
         &mut self,
         (col, row): (usize, usize),
+        spp: u32,
         stats: &mut RenderStats,
     ) -> &samples::PixelSums<'a> {
+        if self.rule.0 != spp {
+            self.rule = (spp, lattice_rule(self.set, spp));
+        }
         self.est
-            .start((row * self.sys.camera.width_px + col) as u64);
+            .start((row * self.sys.camera.width_px + col) as u64, spp);
         drive_pixel(
             self.sys,
             self.set,
@@ -322,10 +356,11 @@ impl<'a, E: samples::PixelEstimator<'a>> PixelJob<'a> for Driven<'_, E> {
 fn render_rows<'a, E: samples::PixelEstimator<'a>>(
     sys: &'a System,
     set: &RenderSettings,
+    counts: Option<&[u32]>,
     estimator: impl Fn() -> E + Sync,
 ) -> Capture {
-    let rule = lattice_rule(set);
-    job_rows(sys, set, || Driven {
+    let rule = (set.spp, lattice_rule(set, set.spp));
+    job_rows(sys, set, counts, || Driven {
         sys,
         set,
         rule,
@@ -334,10 +369,12 @@ fn render_rows<'a, E: samples::PixelEstimator<'a>>(
 }
 
 /// The row loop: rows in parallel (collected in row order), each pixel's sums from a job made
-/// by `job` (one per row), divided by `set.spp`, and the image assembled.
+/// by `job` (one per row) over its samples (`set.spp`, or the pixel's entry of `counts`, row
+/// major), divided by their count, and the image assembled.
 fn job_rows<'a, J: PixelJob<'a>>(
     sys: &'a System,
     set: &RenderSettings,
+    counts: Option<&[u32]>,
     job: impl Fn() -> J + Sync,
 ) -> Capture {
     let h = sys.camera.height_px;
@@ -352,9 +389,11 @@ fn job_rows<'a, J: PixelJob<'a>>(
                 return r;
             }
             let mut job = job();
-            let inv = 1.0 / f64::from(set.spp.max(1));
-            for col in 0..sys.camera.width_px {
-                let sums = job.pixel((col, row), &mut r.stats);
+            let w = sys.camera.width_px;
+            for col in 0..w {
+                let spp = counts.map_or(set.spp, |c| c[row * w + col]);
+                let inv = 1.0 / f64::from(spp.max(1));
+                let sums = job.pixel((col, row), spp, &mut r.stats);
                 // The pixel's values from its sums over `set.spp` samples.
                 for (v, a) in r.values[col * nch..(col + 1) * nch]
                     .iter_mut()
@@ -463,6 +502,39 @@ mod tests {
         (m, (var / n).sqrt())
     }
 
+    /// A count map with every pixel at `spp` renders the bytes of the plain render, for the
+    /// display and for both user-side estimators of a 3-D scene (the padded one sizes its
+    /// point sets by the pixel's count); a map with one pixel changed changes that pixel only.
+    #[test]
+    fn equal_counts_are_the_plain_render() {
+        let paper = crate::system::repo_system(
+            "scenes/paper-2022.toml",
+            &["sensor.crop_px=[12,12]", "sensor.pitch_um=176"],
+        );
+        let eye = crate::system::repo_system(
+            "scenes/eye-contact.toml",
+            &["sensor.crop_px=[8,8]", "sensor.pitch_um=264"],
+        );
+        for (sys, user_side) in [
+            (&paper, UserSideSampler::Auto),
+            (&eye, UserSideSampler::Resampled),
+            (&eye, UserSideSampler::Padded),
+        ] {
+            let set = RenderSettings {
+                user_side: user_side.resolve(sys.world.as_deref()),
+                ..RenderSettings::lattice(8, 4, false)
+            };
+            let n = sys.camera.width_px * sys.camera.height_px;
+            let plain = render_counts(sys, &set, None).channels;
+            let mut counts = vec![8; n];
+            assert_eq!(render_counts(sys, &set, Some(&counts)).channels, plain);
+            counts[n / 2 + 3] = 16;
+            let changed = render_counts(sys, &set, Some(&counts)).channels;
+            let differ: Vec<usize> = (0..n).filter(|&i| changed[0][i] != plain[0][i]).collect();
+            assert_eq!(differ, vec![n / 2 + 3], "{user_side:?}");
+        }
+    }
+
     /// Windows of a few samples (what bounds the resampled user side's memory at high spp)
     /// keep the estimate's expectation: the eye-contact scene's rows rendered with windows of
     /// 16 branches against one window per pixel, per-pixel differences within 4 standard
@@ -476,7 +548,7 @@ mod tests {
         let world = sys.world.as_deref().unwrap();
         let rows = |seed: u64, window: usize| -> (Vec<f64>, u64) {
             let set = RenderSettings::lattice(64, seed, false);
-            let cap = render_rows(&sys, &set, || {
+            let cap = render_rows(&sys, &set, None, || {
                 user_side::Resampled::new(&sys, &set, world, window)
             });
             let v = cap.channels[0].iter().map(|&x| f64::from(x)).collect();

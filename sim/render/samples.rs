@@ -63,22 +63,23 @@ pub(crate) trait SampleConsumer {
     fn after(&mut self, _i: u64, _stats: &mut RenderStats) {}
 }
 
-/// The one camera-sample driver: walks the `set.spp` samples of pixel (col, row) in index
-/// order, traces each through the waveguide with its counters added to `stats`, and hands the
-/// sample and its branches to `consumer` ([`SampleConsumer`]). `rule` is the render's lattice
-/// rule ([`lattice_rule`]). The same seed gives the same samples for any caller.
+/// The one camera-sample driver: walks the `spp` samples of pixel (col, row) in index order
+/// (`set.spp`, or the pixel's own count in an adaptive render), traces each through the
+/// waveguide with its counters added to `stats`, and hands the sample and its branches to
+/// `consumer` ([`SampleConsumer`]). `rule` is the lattice rule of `spp` samples
+/// ([`lattice_rule`]). The same seed gives the same samples for any caller.
 #[inline(always)]
 pub(crate) fn drive_pixel<C: SampleConsumer>(
     sys: &System,
     set: &RenderSettings,
-    rule: Option<LatticeRule>,
+    (spp, rule): (u32, Option<LatticeRule>),
     (col, row): (usize, usize),
     stats: &mut RenderStats,
     consumer: &mut C,
 ) {
     let pixel = (row * sys.camera.width_px + col) as u64;
     let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
-    let spp = u64::from(set.spp);
+    let spp = u64::from(spp);
     // The glass index of the see-through test is the same for every ray.
     let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
     let mut batch = [None; SAMPLE_BATCH];
@@ -230,10 +231,11 @@ pub(crate) fn channel_weights(sys: &System, lambda_nm: f64) -> [f64; 4] {
     r
 }
 
-/// The lattice rule of a render (searched once; it depends only on the sample count).
-pub(crate) fn lattice_rule(set: &RenderSettings) -> Option<LatticeRule> {
+/// The lattice rule of `spp` samples per pixel with `set`'s sampler (searched once; it depends
+/// only on the sample count).
+pub(crate) fn lattice_rule(set: &RenderSettings, spp: u32) -> Option<LatticeRule> {
     match set.sampler {
-        crate::sampler::SamplerKind::Lattice => LatticeRule::korobov(u64::from(set.spp)),
+        crate::sampler::SamplerKind::Lattice => LatticeRule::korobov(u64::from(spp)),
         crate::sampler::SamplerKind::Independent | crate::sampler::SamplerKind::Sobol => None,
     }
 }
@@ -303,9 +305,9 @@ pub(crate) trait PixelEstimator<'a>: SampleConsumer {
     /// The pixel's sums.
     fn sums(&mut self) -> &mut PixelSums<'a>;
 
-    /// Starts pixel `pixel` (row-major index) with empty sums.
+    /// Starts pixel `pixel` (row-major index), of `spp` samples, with empty sums.
     #[inline]
-    fn start(&mut self, pixel: u64) {
+    fn start(&mut self, pixel: u64, _spp: u32) {
         self.sums().start(pixel);
     }
 

@@ -171,6 +171,14 @@ impl<'a> PixelEstimator<'a> for EveryBranch<'a> {
     fn sums(&mut self) -> &mut PixelSums<'a> {
         &mut self.sums
     }
+
+    fn start(&mut self, pixel: u64, spp: u32) {
+        self.sums.start(pixel);
+        // The padded sets have as many points as the pixel has samples.
+        if let Some(n) = &mut self.padded_n {
+            *n = spp;
+        }
+    }
 }
 
 /// One branch of a pixel's camera samples waiting for its user side ([`Resampled`], and the
@@ -490,7 +498,7 @@ impl<'a> PixelEstimator<'a> for Resampled<'a> {
         &mut self.sums
     }
 
-    fn start(&mut self, pixel: u64) {
+    fn start(&mut self, pixel: u64, _spp: u32) {
         self.sums.start(pixel);
         self.gathered.clear();
         self.window = (0, 0);

@@ -137,6 +137,7 @@ fn rendered_replica_rows_of_a_point_match_the_closed_form() {
         spectral_bins: None,
         progress: false,
         estimator: Default::default(),
+        adaptive: false,
     };
     let a = render(&sys, &settings(1));
     let b = render(&sys, &settings(2));

@@ -142,6 +142,28 @@ fn bad_arguments() {
     assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
 }
 
+/// `--adaptive` with too few samples to share out, or with a display-only scene's camera-side
+/// table (H·f draws no samples): one line, exit 2, nothing written (not even the table).
+#[test]
+fn adaptive_needs_samples_to_share() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    assert_eq!(
+        fails(&["--adaptive"], &out),
+        "error: --adaptive needs --spp of at least 16 (got 1): its pilot takes 1/8 of the samples"
+    );
+    let table = dir.path().join("table");
+    let e = fails(
+        &["--adaptive", "--camera-table", table.to_str().unwrap()],
+        &out,
+    );
+    assert!(
+        e.contains("display-only scene's camera-side table is H"),
+        "{e}"
+    );
+    assert!(!table.exists());
+}
+
 #[test]
 fn failed_write_leaves_nothing_new() {
     let dir = tempfile::tempdir().unwrap();

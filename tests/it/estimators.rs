@@ -18,6 +18,7 @@ fn total(sys: &System, e: Estimator, spp: u32, seed: u64) -> (f64, f64) {
                 spectral_bins: None,
                 progress: false,
                 estimator: Default::default(),
+                adaptive: false,
             };
             render_with(sys, &set, e).channels[0]
                 .iter()

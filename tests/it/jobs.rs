@@ -39,6 +39,7 @@ fn render_job_returns_what_the_cli_writes() {
         frontal_spp: None,
         frontal_space: Default::default(),
         table: Default::default(),
+        adaptive: false,
     };
     let cap = jobs::render::run(&opts, &Console::Silent).expect("render job");
     let cli_out = dir.path().join("cli");

@@ -1,5 +1,6 @@
 //! All integration tests in one crate: one binary to build and link instead of one per file.
 
+mod adaptive;
 mod analytic_field;
 mod asset_features;
 mod bvh;

@@ -24,6 +24,7 @@ fn settings(spp: u32, seed: u64) -> RenderSettings {
         spectral_bins: None,
         progress: false,
         estimator: Default::default(),
+        adaptive: false,
     }
 }
 

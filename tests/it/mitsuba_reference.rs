@@ -114,6 +114,7 @@ fn render_y(sys: &System, seed: u64, spp: u32, n: usize) -> Vec<f64> {
             spectral_bins: None,
             progress: false,
             estimator: Default::default(),
+            adaptive: false,
         },
     );
     assert_eq!((cap.width, cap.height), (n, n));

@@ -30,6 +30,7 @@ fn settings() -> RenderSettings {
         spectral_bins: None,
         progress: false,
         estimator: Default::default(),
+        adaptive: false,
     }
 }
 
