@@ -645,6 +645,21 @@ def test_camera_table_equals_the_cli_and_serves_a_batch(scene, tmp_path):
         stscam.render(scene, camera_table=cache, spectral=True)
 
 
+def test_adaptive_render_equals_cli_and_records_its_counts(scene, tmp_path):
+    # render(adaptive=True) is `render --adaptive` bit for bit, with the counts in its stats;
+    # too few samples raise ValueError with the CLI's line.
+    cli("render", "--out", tmp_path / "a", "--spp", 16, "--adaptive", *set_args(SETS))
+    want = stscam.read_exr(tmp_path / "a" / "capture.exr")["Y"]
+    r = stscam.render(scene, spp=16, adaptive=True)
+    assert same_bits(r.image, want)
+    counts = r.stats["sample_counts"]
+    side = json.loads((tmp_path / "a" / "capture.json").read_text())["stats"]["sample_counts"]
+    assert counts == side and counts["pilot_spp"] == 1 and counts["max_spp"] > 16
+    assert not same_bits(r.image, stscam.render(scene, spp=16).image)
+    with pytest.raises(ValueError, match="--adaptive needs --spp of at least 16"):
+        stscam.render(scene, spp=8, adaptive=True)
+
+
 def test_render_with_sensor_noise_is_sensor_noise_of_the_clean_render(scene):
     clean = stscam.render(scene, spp=SPP, seed=3).image
     noisy = stscam.render(scene, spp=SPP, seed=3, noise="sensor", white_peak=0.05).image
