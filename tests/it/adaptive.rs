@@ -1,22 +1,10 @@
 //! Adaptive sample counts (`render --adaptive`): the image keeps its expectation, the counts
 //! follow the noise within the budget, and the bytes do not depend on the thread count.
 
-use std::path::Path;
-
 use stscam::render::{RenderSettings, render};
-use stscam::scene::load_scene;
 use stscam::system::System;
 
-/// A scene of the repository at `crop` × `crop` pixels over the paper's field of view.
-fn system(scene: &str, crop: u32, extra: &[&str]) -> System {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
-    let mut sets = vec![
-        format!("sensor.crop_px=[{crop},{crop}]"),
-        format!("sensor.pitch_um={}", 4.8 * 440.0 / f64::from(crop)),
-    ];
-    sets.extend(extra.iter().map(|s| s.to_string()));
-    System::build(&load_scene(Some(&path), &sets).expect("scene")).expect("system")
-}
+use crate::common::{crop_system, mean_sem, with_threads};
 
 fn adaptive(spp: u32, seed: u64) -> RenderSettings {
     RenderSettings {
@@ -32,14 +20,6 @@ fn image(sys: &System, set: &RenderSettings) -> Vec<f64> {
         .collect()
 }
 
-/// Mean and standard error of the mean.
-fn mean_sem(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
-    (m, (var / n).sqrt())
-}
-
 /// The paper scene, 48 × 48 over the whole field: the mean of four adaptive renders (mean 64
 /// spp, seeds 1–4) against a 2,048-spp render of the default estimator, pixel by pixel. The
 /// differences' mean is within 4 standard errors of zero, both over all pixels and over the
@@ -48,7 +28,7 @@ fn mean_sem(v: &[f64]) -> (f64, f64) {
 /// error is at most half the default's at the same mean spp.
 #[test]
 fn adaptive_renders_keep_the_expectation() {
-    let sys = system("scenes/paper-2022.toml", 48, &[]);
+    let sys = crop_system("scenes/paper-2022.toml", 48, &[]);
     let reference = image(&sys, &RenderSettings::lattice(2048, 99, false));
     let runs: Vec<(Vec<f64>, Vec<u32>)> = (1..=4)
         .map(|seed| {
@@ -114,7 +94,7 @@ fn adaptive_renders_keep_the_expectation() {
 /// mean, and below 16 spp a render is one plain pass (the same bytes as without the flag).
 #[test]
 fn counts_spend_the_budget_and_small_spp_is_plain() {
-    let sys = system("scenes/paper-2022.toml", 32, &[]);
+    let sys = crop_system("scenes/paper-2022.toml", 32, &[]);
     let cap = render(&sys, &adaptive(32, 5));
     let c = cap.stats.sample_counts.clone().unwrap();
     let pixels = 32 * 32;
@@ -143,8 +123,8 @@ fn counts_spend_the_budget_and_small_spp_is_plain() {
 fn adaptive_renders_are_the_same_for_any_thread_count() {
     use stscam::render::UserSideSampler;
     use stscam::render::camera_table::{TableSettings, build, render_with_table};
-    let paper = system("scenes/paper-2022.toml", 24, &[]);
-    let eye = system("scenes/eye-contact.toml", 16, &[]);
+    let paper = crop_system("scenes/paper-2022.toml", 24, &[]);
+    let eye = crop_system("scenes/eye-contact.toml", 16, &[]);
     let table = build(
         &eye,
         &TableSettings {
@@ -156,11 +136,7 @@ fn adaptive_renders_are_the_same_for_any_thread_count() {
     )
     .unwrap();
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        with_threads(threads, || {
             let padded = RenderSettings {
                 user_side: UserSideSampler::Padded,
                 ..adaptive(16, 3)

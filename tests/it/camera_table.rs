@@ -10,29 +10,9 @@ use std::path::Path;
 use stscam::render::camera_table::{TableSettings, build, design_key, render_with_table};
 use stscam::render::table_file::{CachedTable, TableOrigin, cached, read, to_bytes};
 use stscam::render::{RenderSettings, render};
-use stscam::scene::load_scene;
 use stscam::system::System;
 
-use crate::common::stscam;
-
-/// `scene` (relative to the repository) at a `crop`×`crop` crop with the paper's field of view.
-fn system(scene: &str, crop: u32, extra: &[&str]) -> System {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
-    let mut sets = vec![
-        format!("sensor.crop_px=[{crop},{crop}]"),
-        format!("sensor.pitch_um={}", 4.8 * 440.0 / f64::from(crop)),
-    ];
-    sets.extend(extra.iter().map(|s| s.to_string()));
-    System::build(&load_scene(Some(&path), &sets).expect("scene")).expect("system")
-}
-
-/// Mean and standard error of the mean.
-fn mean_sem(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
-    (m, (var / n).sqrt())
-}
+use crate::common::{crop_system, mean_sem, stscam, with_threads};
 
 /// The table render (table seed 11, `paths` user-side paths, render seed 12) against the
 /// direct estimator (`spp`, seed 13): per-pixel differences within 4 standard errors of zero,
@@ -84,19 +64,19 @@ const SMALL: TableSettings = TableSettings {
 
 #[test]
 fn table_render_is_unbiased_on_eye_contact() {
-    let sys = system("scenes/eye-contact.toml", 40, &[]);
+    let sys = crop_system("scenes/eye-contact.toml", 40, &[]);
     check_unbiased("eye contact", &sys, SMALL, 32, 64);
 }
 
 #[test]
 fn table_render_is_unbiased_on_gesture() {
-    let sys = system("scenes/gesture.toml", 40, &[]);
+    let sys = crop_system("scenes/gesture.toml", 40, &[]);
     check_unbiased("gesture", &sys, SMALL, 32, 64);
 }
 
 #[test]
 fn table_render_is_unbiased_on_a_mesh_through_the_waveguide() {
-    let sys = system("validation/mitsuba/mesh-waveguide.toml", 40, &[]);
+    let sys = crop_system("validation/mitsuba/mesh-waveguide.toml", 40, &[]);
     check_unbiased("mesh through the waveguide", &sys, SMALL, 32, 64);
 }
 
@@ -104,7 +84,7 @@ fn table_render_is_unbiased_on_a_mesh_through_the_waveguide() {
 /// is H at the table's samples, and a target's capture H·f + offset.
 #[test]
 fn table_render_is_unbiased_on_the_paper_scene() {
-    let sys = system("scenes/paper-2022.toml", 40, &["display.image=white"]);
+    let sys = crop_system("scenes/paper-2022.toml", 40, &["display.image=white"]);
     assert!(sys.world.is_none());
     let ts = TableSettings {
         spp: 256,
@@ -117,13 +97,9 @@ fn table_render_is_unbiased_on_the_paper_scene() {
 /// One and two threads draw the same table and render the same image from it.
 #[test]
 fn table_and_its_render_are_the_same_for_any_thread_count() {
-    let sys = system("scenes/eye-contact.toml", 24, &[]);
+    let sys = crop_system("scenes/eye-contact.toml", 24, &[]);
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        with_threads(threads, || {
             let t = build(&sys, &SMALL, false).unwrap();
             let img = render_with_table(&sys, &RenderSettings::lattice(8, 3, false), &t)
                 .unwrap()
@@ -139,7 +115,7 @@ fn table_and_its_render_are_the_same_for_any_thread_count() {
 #[test]
 fn table_file_round_trip_and_cache() {
     let dir = tempfile::tempdir().unwrap();
-    let sys = system("scenes/eye-contact.toml", 16, &[]);
+    let sys = crop_system("scenes/eye-contact.toml", 16, &[]);
     let ts = TableSettings {
         spp: 16,
         reps: 8,
@@ -165,16 +141,16 @@ fn table_file_round_trip_and_cache() {
     std::fs::write(&first.path, &bytes[..bytes.len() - 3]).unwrap();
     assert!(read(&first.path, &sys, &ts).is_err());
     // The key follows the design, not the scene's user side.
-    let thicker = system("scenes/eye-contact.toml", 16, &["plate.thickness_mm=3.2"]);
+    let thicker = crop_system("scenes/eye-contact.toml", 16, &["plate.thickness_mm=3.2"]);
     assert_ne!(design_key(&thicker), design_key(&sys));
-    let brighter = system("scenes/eye-contact.toml", 16, &["light.0.scale=0.8"]);
+    let brighter = crop_system("scenes/eye-contact.toml", 16, &["light.0.scale=0.8"]);
     assert_eq!(design_key(&brighter), design_key(&sys));
     // A table of another design is not used.
     let t = build(&sys, &ts, false).unwrap();
     assert!(render_with_table(&thicker, &RenderSettings::lattice(4, 1, false), &t).is_err());
     // A display-only scene's table (H) is cached the same way: built, read, rebuilt when
     // damaged, and shared by every target on the display.
-    let paper = system("scenes/paper-2022.toml", 16, &[]);
+    let paper = crop_system("scenes/paper-2022.toml", 16, &[]);
     let set = RenderSettings::lattice(1, 1, false);
     let (t1, i1) = CachedTable::load_or_build(&paper, &ts, dir.path(), false).unwrap();
     assert_eq!((i1.kind, i1.origin), ("matrix", TableOrigin::Built));
@@ -190,7 +166,7 @@ fn table_file_round_trip_and_cache() {
     std::fs::write(&i1.file, &bytes).unwrap();
     let (_, i3) = CachedTable::load_or_build(&paper, &ts, dir.path(), false).unwrap();
     assert_eq!(i3.origin, TableOrigin::Rebuilt);
-    let other = system("scenes/paper-2022.toml", 16, &["display.image=siemens:16"]);
+    let other = crop_system("scenes/paper-2022.toml", 16, &["display.image=siemens:16"]);
     let (_, i4) = CachedTable::load_or_build(&other, &ts, dir.path(), false).unwrap();
     assert_eq!((i4.origin, &i4.file), (TableOrigin::Read, &i1.file));
 }

@@ -125,3 +125,33 @@ pub fn merge_shards(shards: &[PathBuf], out: &Path) {
     args.extend(["--out", out.to_str().unwrap()]);
     stscam_ok(&args);
 }
+
+/// `scene` (relative to the repository) at a `crop`×`crop` crop with the paper's field of view,
+/// with further `--set` overrides.
+pub fn crop_system(scene: &str, crop: u32, extra: &[&str]) -> stscam::system::System {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
+    let mut sets = vec![
+        format!("sensor.crop_px=[{crop},{crop}]"),
+        format!("sensor.pitch_um={}", 4.8 * 440.0 / f64::from(crop)),
+    ];
+    sets.extend(extra.iter().map(|s| s.to_string()));
+    let ls = stscam::scene::load_scene(Some(&path), &sets).expect("scene");
+    stscam::system::System::build(&ls).expect("system")
+}
+
+/// Mean and standard error of the mean.
+pub fn mean_sem(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+/// `f` run in a pool of `threads` threads.
+pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
