@@ -423,13 +423,14 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
                  noise: Optional[str] = None, white_peak: Optional[float] = None,
                  progress: Optional[Callable[[int, int, str], Any]] = None,
                  camera_table: Optional[str | os.PathLike] = None, table_spp: int = 1024,
-                 table_reps: int = 32) -> np.ndarray:
+                 table_reps: int = 32, adaptive: bool = False) -> np.ndarray:
     """Renders each of ``targets`` (an array (n, h, w) or (n, h, w, 3), or a sequence of
     (h, w) arrays) on the scene's display in one call, the scene built once: float32
     (n, h, w) or (n, c, h, w), image i equal to ``render(scene, target=targets[i], ...).image``
     (same ``seed`` for each). ``noise="sensor"`` gives each its noise with seed ``seed + i``.
     With ``camera_table`` (as :func:`render`) H is read (or built) once and each target's
-    image is H·f + offset."""
+    image is H·f + offset. ``adaptive=True`` (as :func:`render`) gives each target its own
+    pilot and counts."""
     s = _scene(scene)
     _check_noise(noise)
     args = [_image_arg(t, encoding, f"targets[{i}]") for i, t in enumerate(targets)]
@@ -437,7 +438,8 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
         raise ValueError("targets: no targets")
     d = _native.render(s._arg, _uint(spp, "--spp <SPP>", _U32), _uint(seed, "--seed <SEED>", _U64),
                        _threads(threads), sampler, False, None, user_side, args, "sensor",
-                       _progress(progress), _camera_table(camera_table, table_spp, table_reps))
+                       _progress(progress), _camera_table(camera_table, table_spp, table_reps),
+                       None, bool(adaptive))
     w, h, names = d["width"], d["height"], d["channels"]
     imgs = [_image(d["image"], len(names), h, w)] + [_image(b, len(names), h, w) for b in d["batch_rest"]]
     out = np.stack(imgs)

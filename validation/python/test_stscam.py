@@ -658,6 +658,10 @@ def test_adaptive_render_equals_cli_and_records_its_counts(scene, tmp_path):
     assert not same_bits(r.image, stscam.render(scene, spp=16).image)
     with pytest.raises(ValueError, match="--adaptive needs --spp of at least 16"):
         stscam.render(scene, spp=8, adaptive=True)
+    # A batch gives each target its own pilot: the first is the single render's image.
+    F = stscam.target("letter:F@32")
+    out = stscam.render_batch(scene, [F, F[::-1]], encoding="display", spp=16, adaptive=True)
+    assert same_bits(out[0], want) and not same_bits(out[1], want)
 
 
 def test_render_with_sensor_noise_is_sensor_noise_of_the_clean_render(scene):
