@@ -394,7 +394,7 @@ fn job_rows<'a, J: PixelJob<'a>>(
                 let spp = counts.map_or(set.spp, |c| c[row * w + col]);
                 let inv = 1.0 / f64::from(spp.max(1));
                 let sums = job.pixel((col, row), spp, &mut r.stats);
-                // The pixel's values from its sums over `set.spp` samples.
+                // The pixel's values from its sums over its `spp` samples.
                 for (v, a) in r.values[col * nch..(col + 1) * nch]
                     .iter_mut()
                     .zip(sums.acc)
@@ -533,6 +533,46 @@ mod tests {
             let differ: Vec<usize> = (0..n).filter(|&i| changed[0][i] != plain[0][i]).collect();
             assert_eq!(differ, vec![n / 2 + 3], "{user_side:?}");
         }
+    }
+
+    /// An adaptive render is the plain render of the counts its two pilots give, drawn with
+    /// the render's own seed; the pilots' seeds are neither the render's nor each other's (the
+    /// image is independent of the samples that chose its counts); its counters hold the
+    /// pilots' paths too.
+    #[test]
+    fn adaptive_render_is_the_render_of_its_counts() {
+        let sys = crate::system::repo_system(
+            "scenes/paper-2022.toml",
+            &["sensor.crop_px=[16,16]", "sensor.pitch_um=132"],
+        );
+        let set = RenderSettings {
+            adaptive: true,
+            ..RenderSettings::lattice(32, 5, false)
+        };
+        let h = adaptive::pilot_spp(32);
+        let seeds = [adaptive::pilot_seed(5, 0), adaptive::pilot_seed(5, 1)];
+        assert!(seeds[0] != seeds[1] && !seeds.contains(&5));
+        let pilots: Vec<Capture> = seeds
+            .iter()
+            .map(|&seed| {
+                let s = RenderSettings {
+                    spp: h,
+                    seed,
+                    adaptive: false,
+                    ..set.clone()
+                };
+                render_counts(&sys, &s, None)
+            })
+            .collect();
+        let counts = adaptive::allot(&pilots[0], &pilots[1], 32, h);
+        assert!(counts.iter().any(|&c| c != counts[0]), "the counts vary");
+        let want = render_counts(&sys, &set, Some(&counts));
+        let got = render(&sys, &set);
+        assert_eq!(got.channels, want.channels);
+        assert_eq!(
+            got.stats.camera_paths,
+            want.stats.camera_paths + pilots[0].stats.camera_paths + pilots[1].stats.camera_paths
+        );
     }
 
     /// Windows of a few samples (what bounds the resampled user side's memory at high spp)

@@ -90,8 +90,9 @@ fn adaptive_renders_keep_the_expectation() {
 }
 
 /// The counts spend the budget where the pilot saw noise: the render's camera paths (pilot
-/// included) are at most the mean spp's, the recorded counts span the floor to many times the
-/// mean, and below 16 spp a render is one plain pass (the same bytes as without the flag).
+/// included) are at most the mean spp's and nearly all of them, the recorded counts span the
+/// floor to many times the mean, and below 16 spp a render is one plain pass (the same bytes
+/// as without the flag).
 #[test]
 fn counts_spend_the_budget_and_small_spp_is_plain() {
     let sys = crop_system("scenes/paper-2022.toml", 32, &[]);
@@ -102,12 +103,13 @@ fn counts_spend_the_budget_and_small_spp_is_plain() {
     assert_eq!(c.min_spp, 2);
     assert!(c.max_spp >= 8 * 32, "{c:?}");
     assert!(c.mean_spp <= f64::from(32 - 2 * c.pilot_spp), "{c:?}");
-    assert!(c.mean_spp > 0.7 * f64::from(32 - 2 * c.pilot_spp), "{c:?}");
+    assert!(c.mean_spp > 0.95 * f64::from(32 - 2 * c.pilot_spp), "{c:?}");
     // Camera paths drawn: the two pilots and the counts (a sample outside the band is drawn
     // but not traced, so the traced paths are at most that).
     let drawn = (2.0 * f64::from(c.pilot_spp) + c.mean_spp) * pixels as f64;
     assert!(cap.stats.camera_paths as f64 <= drawn + 0.5);
-    assert!(cap.stats.camera_paths as f64 > 0.5 * drawn);
+    // In this scene every drawn wavelength is in the band.
+    assert!(cap.stats.camera_paths as f64 > 0.99 * drawn);
     let small = render(&sys, &adaptive(8, 5));
     assert!(small.stats.sample_counts.is_none());
     assert_eq!(
