@@ -4,7 +4,8 @@
 #     renders from a table (the table's time apart), against a 1,024-spp reference
 #     -> validation/results/camera-table/eye-contact/bench-render.{md,json,png};
 #  2. the paper scene (display only): the first render of the design with a table (drawn and
-#     written) and a further display target read from it, against a direct 212-spp render;
+#     written) and a further display target read from it, against a direct 212-spp render and
+#     an adaptive one at a mean of 24 spp (render --adaptive), both about 1 %;
 #  3. the 3-D dataset datasets/meshes-small.toml (SAMPLES samples, default 24) direct at its 16
 #     spp and with [camera_table] at 12 user-side paths (the same capture error on its scenes,
 #     docs/datasets.md) and the frontal ground truth at 16 spp as in the direct run, the table
@@ -30,6 +31,7 @@ ms() { local t0; t0=$(date +%s.%N); "$@" >/dev/null 2>"$tmp/err" || { cat "$tmp/
     --out "$res/eye-contact" >/dev/null
 
 echo "paper scene, direct render at 212 spp (1 %): $(ms "$bin" render --spp 212 --out "$tmp/direct") s"
+echo "paper scene, adaptive render at a mean of 24 spp (1 %): $(ms "$bin" render --spp 24 --adaptive --out "$tmp/adaptive") s"
 echo "paper scene, first render with a table (drawn, 1,024 samples/pixel): $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --out "$tmp/first") s"
 echo "paper scene, further target from the table: $(ms "$bin" render --spp 1 --camera-table "$tmp/ct" --set display.image=siemens:16 --out "$tmp/further") s"
 
