@@ -241,8 +241,7 @@ pub(crate) fn prepare_paths(
     let uv = Vec2x4::from_lanes(u);
     let u2 = uv.length_squared();
     let t_face = packet::transmittance(f64x4::ONE, nv, u2);
-    let cross_f = packet::shift_factor(nv, u2, w);
-    let cross_len = packet::path_length(nv, u2, w);
+    let (cross_f, cross_len) = packet::crossing(nv, u2, w);
     let ugv = Vec2x4::from_lanes(u_g);
     let ug2 = ugv.length_squared();
     // Lanes whose guided wave exists in the glass (as `top_coupling`); of those, the lanes
@@ -251,8 +250,7 @@ pub(crate) fn prepare_paths(
     let top = Incident4::new(g, &ugv, -1.0, lv).masked(in_glass);
     let out = top.order(g, -1);
     let top = top.masked(out.reflection);
-    let leg_f = packet::shift_factor(nv, ug2, w);
-    let leg_len = packet::path_length(nv, ug2, w);
+    let (leg_f, leg_len) = packet::crossing(nv, ug2, w);
     let r_face = packet::reflectance(nv, f64x4::ONE, ug2);
     let r_film = packet::reflectance(f64x4::splat(g.n_film), f64x4::ONE, ug2);
     let toward_back = top.reversed().undiffracted(g, None);

@@ -101,18 +101,14 @@ pub fn transmittance(n_a: f64x4, n_b: f64x4, u2: f64x4) -> Pair {
     [f64x4::ONE - r[0], f64x4::ONE - r[1]]
 }
 
-/// thickness/√(n² − |u|²) per lane: the factor of [`super::interface::lateral_shift`]
-/// (shift = u · factor).
+/// A layer's crossing per lane, from one root √(n² − |u|²): the factor thickness/√(n² − |u|²)
+/// of [`super::interface::lateral_shift`] (shift = u · factor) and the geometric path length
+/// thickness·n/√(n² − |u|²) of [`super::interface::path_length`].
 #[inline]
-pub fn shift_factor(n: f64x4, u2: f64x4, thickness_mm: f64) -> f64x4 {
-    f64x4::splat(thickness_mm) / (n * n - u2).sqrt()
-}
-
-/// Geometric path length thickness·n/√(n² − |u|²) per lane
-/// ([`super::interface::path_length`]).
-#[inline]
-pub fn path_length(n: f64x4, u2: f64x4, thickness_mm: f64) -> f64x4 {
-    f64x4::splat(thickness_mm) * n / (n * n - u2).sqrt()
+pub fn crossing(n: f64x4, u2: f64x4, thickness_mm: f64) -> (f64x4, f64x4) {
+    let root = (n * n - u2).sqrt();
+    let t = f64x4::splat(thickness_mm);
+    (t / root, t * n / root)
 }
 
 /// Four plane waves inside the film (the packet of the grating module's `Incident`): one
@@ -369,8 +365,7 @@ mod tests {
             let u2 = uv.length_squared();
             let r = reflectance(nv, f64x4::ONE, u2);
             let t = transmittance(f64x4::ONE, nv, u2);
-            let sf = shift_factor(nv, u2, 3.0);
-            let pl = path_length(nv, u2, 3.0);
+            let (sf, pl) = crossing(nv, u2, 3.0);
             for i in 0..LANES {
                 let rs = interface::reflectance(n[i], 1.0, u[i]);
                 let ts = interface::transmittance(1.0, n[i], u[i]);

@@ -103,15 +103,16 @@ pub(crate) fn pilot_seed(seed: u64, k: u64) -> u64 {
     crate::sampler::hash(&[seed, PILOT_TAG, k])
 }
 
-/// An adaptive render with `set` (`set.spp` the mean samples per pixel, pilot included):
-/// `pass(settings, counts)` renders the image with each pixel's count from `counts` (row
-/// major; `settings.spp` everywhere when `None`). The pilot's counters are added to the
-/// image's. With `set.spp` below [`MIN_ADAPTIVE_SPP`] this is one plain pass.
-pub fn render<E>(
+/// The render of `set` by `pass(settings, counts)`, which renders the image with each pixel's
+/// count from `counts` (row major; `settings.spp` everywhere when `None`): with
+/// `set.adaptive` (and `set.spp` at least [`MIN_ADAPTIVE_SPP`]) an adaptive render, `set.spp`
+/// the mean samples per pixel, pilot included, the pilot's counters added to the image's;
+/// otherwise one plain pass.
+pub fn render(
     set: &RenderSettings,
-    mut pass: impl FnMut(&RenderSettings, Option<&[u32]>) -> Result<Capture, E>,
-) -> Result<Capture, E> {
-    if set.spp < MIN_ADAPTIVE_SPP {
+    mut pass: impl FnMut(&RenderSettings, Option<&[u32]>) -> Capture,
+) -> Capture {
+    if !set.adaptive || set.spp < MIN_ADAPTIVE_SPP {
         return pass(set, None);
     }
     let h = pilot_spp(set.spp);
@@ -122,10 +123,10 @@ pub fn render<E>(
         spectral_bins: None,
         ..set.clone()
     };
-    let a = pass(&pilot(0), None)?;
-    let b = pass(&pilot(1), None)?;
+    let a = pass(&pilot(0), None);
+    let b = pass(&pilot(1), None);
     let counts = allot(&a, &b, set.spp, h);
-    let mut cap = pass(set, Some(&counts))?;
+    let mut cap = pass(set, Some(&counts));
     cap.stats.merge(&a.stats);
     cap.stats.merge(&b.stats);
     let n = counts.len().max(1) as f64;
@@ -135,7 +136,7 @@ pub fn render<E>(
         max_spp: counts.iter().copied().max().unwrap_or(0),
         mean_spp: counts.iter().map(|&c| f64::from(c)).sum::<f64>() / n,
     });
-    Ok(cap)
+    cap
 }
 
 /// Each pixel's sample count from the pilot images `a` and `b` (of `h` samples each) for a
@@ -157,7 +158,8 @@ pub fn allot(a: &Capture, b: &Capture, spp: u32, h: u32) -> Vec<u32> {
         .map(f64::sqrt)
         .collect();
     let left = spp.saturating_sub(2 * h).max(1);
-    let n_min = (spp / 16).clamp(1, left);
+    // The floor is the pilot's count: a pixel without noise in the pilot takes as many again.
+    let n_min = h.clamp(1, left);
     let n_max = spp
         .saturating_mul(MAX_COUNT_FACTOR)
         .min(MAX_COUNT)

@@ -398,12 +398,7 @@ pub fn render_with_table_keyed(
             first_hits: FirstHitCache::default(),
         })
     };
-    Ok(if set.adaptive {
-        super::adaptive::render(set, |s, c| Ok::<_, std::convert::Infallible>(pass(s, c)))
-            .unwrap_or_else(|e| match e {})
-    } else {
-        pass(set, None)
-    })
+    Ok(super::adaptive::render(set, pass))
 }
 
 /// The user side of one pixel from the table ([`render_with_table`]).

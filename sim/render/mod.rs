@@ -244,22 +244,15 @@ pub fn spectral_bins(sm: &crate::scene::SamplingDesc) -> (f64, f64, usize) {
 
 /// Renders the capture of `sys`: picks the pixel estimator for the scene and `set` (the
 /// display seen through the camera, a 3-D scene's user side, or the analog reference) and runs
-/// the row loop [`render_rows`] with it. Deterministic for a given seed, whatever the thread
-/// count.
+/// the row loop [`render_rows`] with it, once, or with `set.adaptive` after a pilot
+/// ([`adaptive::render`]). Deterministic for a given seed, whatever the thread count.
 pub fn render(sys: &System, set: &RenderSettings) -> Capture {
     // `Auto` resolved once for the scene: the rows see the user side's estimator itself.
     let set = &RenderSettings {
         user_side: set.user_side.resolve(sys.world.as_deref()),
         ..set.clone()
     };
-    if set.adaptive {
-        adaptive::render(set, |s, counts| {
-            Ok::<_, std::convert::Infallible>(render_counts(sys, s, counts))
-        })
-        .unwrap_or_else(|e| match e {})
-    } else {
-        render_counts(sys, set, None)
-    }
+    adaptive::render(set, |s, counts| render_counts(sys, s, counts))
 }
 
 /// [`render`] with each pixel's sample count from `counts` (row major; `set.spp` for every
