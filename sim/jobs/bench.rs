@@ -327,6 +327,8 @@ fn bench_plot(curves: &[crate::bench::Curve], target: f64) -> crate::plot::LineP
                     "uniform + roulette".to_string()
                 } else if c.name.contains("per-design table") {
                     "camera-side table".to_string()
+                } else if c.name.contains("adaptive sample counts") {
+                    "adaptive counts".to_string()
                 } else {
                     // An extra curve: its name up to any parenthesis (Mitsuba 3.9.1).
                     let head = c.name.split(" (").next().unwrap_or(&c.name);
