@@ -48,7 +48,8 @@ pub struct RenderOptions {
     pub table: TableArgs,
     /// Adaptive sample counts: `--spp` is the mean over the pixels, and a pilot (two renders
     /// at spp/16) finds where the noise is; each pixel then gets samples in proportion to
-    /// its noise, in powers of two (docs/design.md, "Estimator decisions"). Unbiased.
+    /// its noise, in powers of two (docs/design.md, "Estimator decisions"). Unbiased. Needs
+    /// --spp of at least 16.
     #[arg(long)]
     pub adaptive: bool,
 }

@@ -13,7 +13,7 @@
 //!    averaged over the 5 × 5 pixels around (a single pixel's d is itself very noisy, and the
 //!    noise varies smoothly over a replica), giving s = √d̄ ∝ σ.
 //! 2. Counts: nₚ = clamp(2^round(log₂(c·sₚ)), n_min, n_max) with n_min = max(1, ⌊N/16⌋),
-//!    n_max = min(64·N, 2²⁰), and the largest c whose counts sum to at most (N − 2h)·P; then
+//!    n_max = max(min(64·N, 2²⁰), N − 2h), and the largest c whose counts sum to at most (N − 2h)·P; then
 //!    what rounding left of that budget goes to doubling counts, the pixels with the most
 //!    noise per sample first. Powers of two are where the lattice sampler has its best rules,
 //!    and a render searches one rule per distinct count (integer counts took 4–17× the time);

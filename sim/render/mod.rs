@@ -213,7 +213,9 @@ pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> crate::progres
 /// Checks the run time and memory of `renders` renders of `sys` with `set` against
 /// [`crate::limits`] before any work starts: camera paths (crop pixels × spp × renders,
 /// blamed on `spp_setting`, the flag or key that set `set.spp`) and the capture's arrays
-/// (per value: the row result in f64, the f32 image and its encoded copy, 16 bytes).
+/// (per value: the row result in f64, the f32 image and its encoded copy, 16 bytes; an
+/// adaptive render also holds its two f32 pilot images, 8 bytes per value, and per pixel the
+/// allocation's squared differences, their box mean, the counts and their order, 40 bytes).
 pub fn check_limits(
     sys: &System,
     set: &RenderSettings,
@@ -230,7 +232,7 @@ pub fn check_limits(
     crate::limits::check_bytes(
         "sensor.crop_px",
         &format!("the capture ({w}x{h} px, {values} channels and spectral bins)"),
-        pixels * values * 16,
+        pixels * (values * 16 + if set.adaptive { values * 8 + 40 } else { 0 }),
     )
 }
 
@@ -493,6 +495,31 @@ mod tests {
         let m = v.iter().sum::<f64>() / n;
         let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
         (m, (var / n).sqrt())
+    }
+
+    /// The memory check counts an adaptive render's pilots and allocation: the largest crop
+    /// (8192², 67 M pixels) with 12 spectral bins fits a plain render (13 values, 208 bytes a
+    /// pixel: 13 GiB) but not an adaptive one (352 bytes a pixel: 22 GiB, above the 16 GiB
+    /// accepted), and the refusal names the crop.
+    #[test]
+    fn the_memory_check_counts_the_adaptive_pilots() {
+        let sys = crate::system::repo_system(
+            "scenes/paper-2022.toml",
+            &[
+                "sensor.width_px=8192",
+                "sensor.height_px=8192",
+                "sensor.crop_px=[8192,8192]",
+                "sensor.pitch_um=0.5",
+            ],
+        );
+        let mut set = RenderSettings::lattice(1, 1, false);
+        set.spectral_bins = Some((450.0, 10.0, 12));
+        assert_eq!(check_limits(&sys, &set, 1, "--spp"), Ok(()));
+        set.adaptive = true;
+        let e = check_limits(&sys, &set, 1, "--spp")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("sensor.crop_px") && e.contains("22 GiB"), "{e}");
     }
 
     /// A count map with every pixel at `spp` renders the bytes of the plain render, for the
