@@ -13,8 +13,8 @@
 //!    averaged over the 5 × 5 pixels around (a single pixel's d is itself very noisy, and the
 //!    noise varies smoothly over a replica), giving s = √d̄ ∝ σ.
 //! 2. Counts: nₚ = clamp(2^round(log₂(c·sₚ)), n_min, n_max) with n_min = max(1, ⌊N/16⌋),
-//!    n_max = max(min(64·N, 2²⁰), N − 2h), and the largest c whose counts sum to at most (N − 2h)·P; then
-//!    what rounding left of that budget goes to doubling counts, the pixels with the most
+//!    n_max = max(min(64·N, 2²⁰), N − 2h), and the largest c whose counts sum to at most
+//!    (N − 2h)·P; then what rounding left of that budget goes to doubling counts, the pixels with the most
 //!    noise per sample first. Powers of two are where the lattice sampler has its best rules,
 //!    and a render searches one rule per distinct count (integer counts took 4–17× the time);
 //!    rounding in log space costs about 4 % of the ideal allocation's efficiency. An image
@@ -96,6 +96,16 @@ pub struct SampleCounts {
     pub max_spp: u32,
     /// The mean over the pixels of the render proper (the pilot's 2·`pilot_spp` apart).
     pub mean_spp: f64,
+}
+
+/// Bytes per pixel that an adaptive render holds beyond a plain one's, for `values` values
+/// (channels and spectral bins) per pixel, as a bound for the memory check
+/// ([`super::check_limits`]): the two f32 pilot images, 8 bytes per value (the pilots draw no
+/// spectral bins, so this bounds them), and 40 bytes for the allocation ([`allot`]: at most
+/// 28 at once, the squared differences and the box mean's two passes in f64, then the u32
+/// counts and their usize order, plus the counts kept through the render).
+pub fn extra_bytes_per_pixel(values: u128) -> u128 {
+    values * 8 + 40
 }
 
 /// The seed of pilot render `k` (0 or 1) of a render seeded `seed`.

@@ -214,8 +214,7 @@ pub(crate) fn row_progress(show: bool, len: usize, what: &str) -> crate::progres
 /// [`crate::limits`] before any work starts: camera paths (crop pixels × spp × renders,
 /// blamed on `spp_setting`, the flag or key that set `set.spp`) and the capture's arrays
 /// (per value: the row result in f64, the f32 image and its encoded copy, 16 bytes; an
-/// adaptive render also holds its two f32 pilot images, 8 bytes per value, and per pixel the
-/// allocation's squared differences, their box mean, the counts and their order, 40 bytes).
+/// adaptive render's pilots and allocation on top, [`adaptive::extra_bytes_per_pixel`]).
 pub fn check_limits(
     sys: &System,
     set: &RenderSettings,
@@ -232,7 +231,13 @@ pub fn check_limits(
     crate::limits::check_bytes(
         "sensor.crop_px",
         &format!("the capture ({w}x{h} px, {values} channels and spectral bins)"),
-        pixels * (values * 16 + if set.adaptive { values * 8 + 40 } else { 0 }),
+        pixels
+            * (values * 16
+                + if set.adaptive {
+                    adaptive::extra_bytes_per_pixel(values)
+                } else {
+                    0
+                }),
     )
 }
 
