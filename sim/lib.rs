@@ -1,48 +1,42 @@
 //! stscam: a spectral Monte Carlo simulator of the see-through-screen camera built on a
 //! holographic waveguide (Optics Express 2022). The model is in `docs/physics.md`, the layers in
 //! `docs/design.md`; each module's header states its model, assumptions and sources.
+//!
+//! This crate is the facade: the library is the workspace's crates under `sim/`, one per layer
+//! (`stscam-base` … `stscam-cli`), and this crate re-exports their modules under the paths the
+//! binary, the Python module, the tests and users name (`stscam::render`, `stscam::scene`, …).
+//! It adds no code of its own.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod analysis;
-pub mod analytic;
-pub mod bench;
-pub mod camera;
-pub mod cancel;
-pub mod colour;
-pub mod colour_demo;
-pub mod dataset;
-pub mod demo;
-pub mod display;
-pub mod grating_spectrum;
-pub mod hadamard;
-pub mod io;
-pub mod jobs;
-pub mod limits;
-pub mod matrix;
-pub mod noise;
-pub mod numfmt;
-pub mod optics;
-pub mod options;
-pub mod output;
-pub mod plot;
-pub mod progress;
-pub mod recon;
-pub mod render;
-pub mod sampler;
-pub mod scene;
-pub mod sparse;
-pub mod spectra;
-pub mod stack;
-pub mod suggest;
-pub mod sweep;
-pub mod system;
-pub mod targets;
-pub mod tolerance;
-pub mod trace;
-pub mod waveguide;
-pub mod wavelength;
-pub mod world;
+pub use stscam_base::{
+    VERSION, cancel, cie, limits, noise, numfmt, options, progress, sampler, sparse, spectra,
+    store, suggest, targets,
+};
+pub use stscam_cli as jobs;
+pub use stscam_dataset as dataset;
+pub use stscam_io as io;
+pub use stscam_io::plot;
+pub use stscam_optics as optics;
+pub use stscam_recon as recon;
+pub use stscam_scene as scene;
+pub use stscam_studies::{
+    analytic, bench, colour_demo, demo, grating_spectrum, hadamard, sweep, tolerance,
+};
+pub use stscam_tracer::{
+    analysis, camera, colour, matrix, output, render, system, trace, waveguide, wavelength,
+};
+pub use stscam_world::display;
 
-/// The crate version, recorded in every output.
-pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+/// H stacks on disk (`stscam_io::stack`) and the layered offset of computed stacks.
+pub mod stack {
+    pub use stscam_io::stack::*;
+    pub use stscam_tracer::matrix::layered_offset;
+}
+
+/// The user side (`stscam_world`) and the frontal ground truth seen from the screen
+/// (`stscam_tracer::frontal`, which needs the camera's field).
+pub mod world {
+    pub use stscam_tracer::frontal;
+    pub use stscam_world::*;
+}

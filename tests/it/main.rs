@@ -21,6 +21,7 @@ mod hardening3d;
 mod hostile;
 mod invariants;
 mod jobs;
+mod layers;
 mod matrix_calibration;
 mod mesh_scenes;
 mod mitsuba_reference;

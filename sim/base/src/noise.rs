@@ -1,0 +1,487 @@
+//! Sensor noise: what a real camera does to a noiseless capture (docs/physics.md §7.3).
+//!
+//! Model, per pixel and frame, for a noiseless value v in capture units:
+//!   electrons   e = v·G, with the exposure gain G set once so that the brightest pixel of the
+//!                 all-white capture reaches `exposure_fraction` of full scale;
+//!   shot noise  Poisson(e) (exact inversion below 30 e⁻; above, the Gaussian N(e, e), whose
+//!               error in the variance is nil and in the skewness below 0.2);
+//!   read noise  N(0, σ_read²) electrons;
+//!   ADC         DN = round(e_noisy / (FW / (2^bits − 1)) + dark offset), clipped to
+//!               [0, 2^bits − 1] (saturation), and converted back to capture units with the
+//!               same gain, the dark offset left in (the camera's black level).
+//! Assumptions: no dark current, no fixed-pattern noise, no pixel cross-talk, linear response
+//! up to full scale (gamma, LUT, auto-exposure and auto-gain disabled, as docs/physics.md §7.3 asks).
+//!
+//! Random numbers come from small generators keyed by hashing (seed, stream, …): one per value,
+//! or one per sensor pixel drawn through its frames in order (calibration); Gaussians come from
+//! the Marsaglia–Tsang ziggurat (J. Stat. Softw. 5(8), 2000). No generator is shared between
+//! threads, so noisy outputs are identical for any thread count.
+
+use crate::sampler::{hash, mix64, to_unit};
+use serde::{Deserialize, Serialize};
+
+/// `[noise]`: the camera's sensor noise model, used when a command adds noise to captures or
+/// calibration frames (`calibrate`, `reconstruct`, `demo`, datasets).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseDesc {
+    /// Full-well capacity, electrons.
+    pub full_well_e: f64,
+    /// Exposure: the brightest pixel of the all-white capture reaches this fraction of full
+    /// scale (the exposure is set once from the all-white frame and kept for every frame).
+    pub exposure_fraction: f64,
+    /// Read noise, electrons RMS.
+    pub read_noise_e: f64,
+    /// Dark offset (camera black level), digital numbers.
+    pub dark_offset_dn: f64,
+    /// ADC bit depth; full scale 2^bits − 1 DN maps to the full well.
+    pub bit_depth: u32,
+}
+
+/// Below this mean (electrons) shot noise is drawn from the exact Poisson distribution.
+pub const POISSON_EXACT_BELOW_E: f64 = 30.0;
+
+/// A small deterministic generator for one noisy value (a SplitMix64 stream from a hashed key).
+#[derive(Clone, Debug)]
+pub struct NoiseRng {
+    state: u64,
+}
+
+const ZIG_N: usize = 128;
+const ZIG_R: f64 = 3.442_619_855_899;
+const ZIG_V: f64 = 9.912_563_035_262_17e-3;
+
+struct Ziggurat {
+    k: [u32; ZIG_N],
+    w: [f64; ZIG_N],
+    f: [f64; ZIG_N],
+}
+
+fn ziggurat() -> &'static Ziggurat {
+    static TABLES: std::sync::OnceLock<Ziggurat> = std::sync::OnceLock::new();
+    TABLES.get_or_init(|| {
+        let m1 = 2_147_483_648.0f64;
+        let mut z = Ziggurat {
+            k: [0; ZIG_N],
+            w: [0.0; ZIG_N],
+            f: [0.0; ZIG_N],
+        };
+        let mut dn = ZIG_R;
+        let mut tn = dn;
+        let q = ZIG_V / (-0.5 * dn * dn).exp();
+        z.k[0] = ((dn / q) * m1) as u32;
+        z.k[1] = 0;
+        z.w[0] = q / m1;
+        z.w[ZIG_N - 1] = dn / m1;
+        z.f[0] = 1.0;
+        z.f[ZIG_N - 1] = (-0.5 * dn * dn).exp();
+        for i in (1..ZIG_N - 1).rev() {
+            dn = (-2.0 * (ZIG_V / dn + (-0.5 * dn * dn).exp()).ln()).sqrt();
+            z.k[i + 1] = ((dn / tn) * m1) as u32;
+            tn = dn;
+            z.f[i] = (-0.5 * dn * dn).exp();
+            z.w[i] = dn / m1;
+        }
+        z
+    })
+}
+
+impl NoiseRng {
+    /// A generator keyed by `words` (e.g. seed, stream, frame, pixel).
+    #[inline]
+    pub fn new(words: &[u64]) -> Self {
+        NoiseRng { state: hash(words) }
+    }
+
+    /// Next 64 random bits.
+    #[inline]
+    pub fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        mix64(self.state)
+    }
+
+    /// Uniform in (0, 1).
+    #[inline]
+    pub fn uniform(&mut self) -> f64 {
+        // to_unit gives [0, 1); shift by half an ulp of 2⁻⁵³ to exclude 0.
+        to_unit(self.next_u64()) + 0.5 / 9_007_199_254_740_992.0
+    }
+
+    /// Standard normal deviate (ziggurat).
+    #[inline(always)]
+    pub fn normal(&mut self) -> f64 {
+        let z = ziggurat();
+        loop {
+            let hz = (self.next_u64() >> 32) as u32 as i32;
+            let iz = (hz as u32 & (ZIG_N as u32 - 1)) as usize;
+            let x = f64::from(hz) * z.w[iz];
+            if hz.unsigned_abs() < z.k[iz] {
+                return x;
+            }
+            if iz == 0 {
+                // Tail beyond R.
+                loop {
+                    let xt = -self.uniform().ln() / ZIG_R;
+                    let y = -self.uniform().ln();
+                    if y + y >= xt * xt {
+                        return if hz > 0 { ZIG_R + xt } else { -ZIG_R - xt };
+                    }
+                }
+            }
+            if z.f[iz] + self.uniform() * (z.f[iz - 1] - z.f[iz]) < (-0.5 * x * x).exp() {
+                return x;
+            }
+        }
+    }
+
+    /// Poisson deviate with mean `mean` (exact inversion; meant for small means).
+    pub fn poisson(&mut self, mean: f64) -> f64 {
+        if mean <= 0.0 {
+            return 0.0;
+        }
+        let u = self.uniform();
+        let mut p = (-mean).exp();
+        let mut cdf = p;
+        let mut k = 0.0;
+        // The loop ends with probability 1; the bound guards against rounding at the tail.
+        while u > cdf && k < 20.0 * mean + 100.0 {
+            k += 1.0;
+            p *= mean / k;
+            cdf += p;
+        }
+        k
+    }
+}
+
+/// The noise model with its exposure fixed.
+#[derive(Clone, Debug)]
+pub struct SensorNoise {
+    /// Electrons per capture unit (the exposure gain).
+    pub electrons_per_unit: f64,
+    /// Electrons per digital number.
+    pub electrons_per_dn: f64,
+    /// Full scale in DN (2^bits − 1).
+    pub full_scale_dn: f64,
+    /// Read noise, electrons RMS.
+    pub read_noise_e: f64,
+    /// Dark offset, DN.
+    pub dark_offset_dn: f64,
+}
+
+impl SensorNoise {
+    /// Fixes the exposure so that `white_peak` (the brightest pixel of the all-white capture,
+    /// capture units) reaches `exposure_fraction` of full scale.
+    pub fn new(desc: &NoiseDesc, white_peak: f64) -> Self {
+        let full_scale_dn = f64::from((1u32 << desc.bit_depth.min(31)) - 1);
+        let electrons_per_dn = desc.full_well_e / full_scale_dn;
+        let target_e = desc.exposure_fraction * full_scale_dn * electrons_per_dn;
+        let electrons_per_unit = if white_peak > 0.0 {
+            target_e / white_peak
+        } else {
+            0.0
+        };
+        SensorNoise {
+            electrons_per_unit,
+            electrons_per_dn,
+            full_scale_dn,
+            read_noise_e: desc.read_noise_e,
+            dark_offset_dn: desc.dark_offset_dn,
+        }
+    }
+
+    /// One capture unit in DN.
+    pub fn dn_per_unit(&self) -> f64 {
+        self.electrons_per_unit / self.electrons_per_dn
+    }
+
+    /// The dark offset in capture units.
+    pub fn dark_offset_units(&self) -> f64 {
+        self.dark_offset_dn / self.dn_per_unit()
+    }
+
+    /// A noisy measurement of the noiseless value `v` (capture units), in capture units with
+    /// the dark offset included; `rng` supplies the randomness.
+    #[inline(always)]
+    pub fn measure(&self, v: f64, rng: &mut NoiseRng) -> f64 {
+        let e = v.max(0.0) * self.electrons_per_unit;
+        let electrons = if e < POISSON_EXACT_BELOW_E {
+            rng.poisson(e) + self.read_noise_e * rng.normal()
+        } else {
+            // Shot and read noise are independent Gaussians: one deviate with the summed variance.
+            e + (e + self.read_noise_e * self.read_noise_e).sqrt() * rng.normal()
+        };
+        // Round half up after clipping (the cast is exact for the clipped range and avoids a
+        // libm call).
+        let dn = (electrons * (1.0 / self.electrons_per_dn) + self.dark_offset_dn)
+            .clamp(0.0, self.full_scale_dn);
+        let dn = (dn + 0.5) as i64 as f64;
+        let dn = dn.min(self.full_scale_dn);
+        dn * (self.electrons_per_dn / self.electrons_per_unit)
+    }
+
+    /// The variance (capture units²) of [`measure`](Self::measure) for the noiseless value
+    /// `v` below saturation: shot noise (mean e = v·G electrons), read noise σ_read² and the
+    /// ADC's uniform rounding error (one DN)²/12, converted with the gain G:
+    /// (e + σ_read²)/G² + (e⁻ per DN / G)²/12. Clipping at 0 and full scale is ignored (it only
+    /// lowers the variance).
+    pub fn variance(&self, v: f64) -> f64 {
+        if self.electrons_per_unit <= 0.0 {
+            return 0.0;
+        }
+        let g = self.electrons_per_unit;
+        let e = v.max(0.0) * g;
+        let q = self.electrons_per_dn / g;
+        (e + self.read_noise_e * self.read_noise_e) / (g * g) + q * q / 12.0
+    }
+
+    /// The mean squared error E[(x − v − dark offset)²] of a measurement x of the noiseless
+    /// value `v` (capture units²), the ADC's rounding taken exactly: the electrons are taken as
+    /// Gaussian with the shot-plus-read variance s² (DN²) about the mean μ (DN, dark offset
+    /// in), and E[(round(μ + sZ) − μ)²] = Σₖ (k − μ)² [Φ((k + ½ − μ)/s) − Φ((k − ½ − μ)/s)].
+    /// Unlike [`variance`](Self::variance) (which assumes the rounding error uniform, true when
+    /// s ≳ ½ DN or μ's fraction is random), this is right for a pixel that receives almost no
+    /// light and sits at an integer black level: its rounding error is then nearly zero.
+    pub fn mse_about(&self, v: f64) -> f64 {
+        if self.electrons_per_unit <= 0.0 {
+            return 0.0;
+        }
+        let g = self.electrons_per_unit;
+        let e = v.max(0.0) * g;
+        let s = (e + self.read_noise_e * self.read_noise_e).sqrt() / self.electrons_per_dn;
+        let mu = (e / self.electrons_per_dn + self.dark_offset_dn).min(self.full_scale_dn);
+        let to_units = (self.electrons_per_dn / g).powi(2);
+        if s > 2.0 {
+            // Sheppard's correction is exact to < 1e-30 relative here.
+            return (s * s + 1.0 / 12.0) * to_units;
+        }
+        if s < 1e-12 {
+            let r = mu.round() - mu;
+            return r * r * to_units;
+        }
+        let lo = (mu - 10.0 * s - 1.0).floor().max(0.0) as i64;
+        let hi = (mu + 10.0 * s + 1.0).ceil().min(self.full_scale_dn) as i64;
+        let mut acc = 0.0;
+        for k in lo..=hi {
+            let k = k as f64;
+            let p = normal_cdf((k + 0.5 - mu) / s) - normal_cdf((k - 0.5 - mu) / s);
+            acc += p * (k - mu) * (k - mu);
+        }
+        acc * to_units
+    }
+
+    /// True if the noiseless value `v` saturates the ADC (before noise).
+    pub fn saturates(&self, v: f64) -> bool {
+        v * self.dn_per_unit() + self.dark_offset_dn > self.full_scale_dn
+    }
+}
+
+/// Stream tag of a dataset capture's noise: pixel i of the capture of sample seed s draws
+/// from `NoiseRng([s, NOISE_TAG, i])`.
+pub const NOISE_TAG: u64 = 0x4E4F_4953;
+
+/// The standard normal distribution function Φ(x) = ½ erfc(−x/√2), erfc by the Chebyshev
+/// fit of Numerical Recipes (3rd ed., §6.2.2, `erfccheb`; relative error < 1.2e-7 everywhere).
+pub fn normal_cdf(x: f64) -> f64 {
+    let z = (x / std::f64::consts::SQRT_2).abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let poly = -z * z - 1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    let erfc = t * poly.exp();
+    if x >= 0.0 {
+        1.0 - 0.5 * erfc
+    } else {
+        0.5 * erfc
+    }
+}
+
+/// The stored noisy capture of a clean one, as datasets store it: each value measured by
+/// `noise` (pixel i with `NoiseRng([seed, NOISE_TAG, i])`) minus the mean dark offset, in
+/// capture units, as f32.
+pub fn measure_capture(noise: &SensorNoise, clean: &[f64], seed: u64) -> Vec<f32> {
+    let dark = noise.dark_offset_units();
+    clean
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            (noise.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark) as f32
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn normal_cdf(x: f64) -> f64 {
+        // Abramowitz & Stegun 7.1.26 for erf, |error| < 1.5e-7.
+        let z = x.abs() / std::f64::consts::SQRT_2;
+        let t = 1.0 / (1.0 + 0.327_591_1 * z);
+        let y = 1.0
+            - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736)
+                * t
+                + 0.254_829_592)
+                * t
+                * (-z * z).exp();
+        if x >= 0.0 {
+            0.5 * (1.0 + y)
+        } else {
+            0.5 * (1.0 - y)
+        }
+    }
+
+    #[test]
+    fn normal_cdf_against_abramowitz_stegun() {
+        for i in -60..=60 {
+            let x = f64::from(i) * 0.1;
+            assert!((super::normal_cdf(x) - normal_cdf(x)).abs() < 3e-7, "{x}");
+        }
+        assert!((super::normal_cdf(1.0) - 0.841_344_746).abs() < 1e-7);
+    }
+
+    #[test]
+    fn ziggurat_is_standard_normal() {
+        // Chi-square over 40 equiprobable-ish bins on [-4, 4] plus two tails, 400k deviates.
+        let n = 400_000;
+        let edges: Vec<f64> = (0..=40).map(|i| -4.0 + 0.2 * i as f64).collect();
+        let mut counts = vec![0u64; 42];
+        let (mut s1, mut s2) = (0.0, 0.0);
+        for i in 0..n {
+            let x = NoiseRng::new(&[7, i]).normal();
+            s1 += x;
+            s2 += x * x;
+            let b = if x < -4.0 {
+                0
+            } else if x >= 4.0 {
+                41
+            } else {
+                1 + ((x + 4.0) / 0.2) as usize
+            };
+            counts[b] += 1;
+        }
+        let mut chi2 = 0.0;
+        for b in 0..42 {
+            let (lo, hi) = match b {
+                0 => (f64::NEG_INFINITY, -4.0),
+                41 => (4.0, f64::INFINITY),
+                _ => (edges[b - 1], edges[b]),
+            };
+            let p = normal_cdf(hi) - normal_cdf(lo);
+            let e = p * n as f64;
+            if e > 5.0 {
+                chi2 += (counts[b] as f64 - e).powi(2) / e;
+            }
+        }
+        // ~39 degrees of freedom: the 99.9 % point is 72.
+        assert!(chi2 < 72.0, "chi2 = {chi2}");
+        let mean = s1 / n as f64;
+        let var = s2 / n as f64 - mean * mean;
+        assert!(
+            mean.abs() < 0.01 && (var - 1.0).abs() < 0.01,
+            "{mean} {var}"
+        );
+        // The tail beyond R is reached.
+        let far = (0..2_000_000u64)
+            .filter(|&i| NoiseRng::new(&[9, i]).normal().abs() > ZIG_R)
+            .count();
+        // P(|x| > 3.4426) = 5.76e-4 → 1152 expected.
+        assert!((1000..1300).contains(&far), "{far}");
+    }
+
+    #[test]
+    fn poisson_mean_and_variance() {
+        for &m in &[0.3, 4.0, 25.0] {
+            let n = 200_000u64;
+            let (mut s1, mut s2) = (0.0, 0.0);
+            for i in 0..n {
+                let k = NoiseRng::new(&[3, i]).poisson(m);
+                s1 += k;
+                s2 += k * k;
+            }
+            let mean = s1 / n as f64;
+            let var = s2 / n as f64 - mean * mean;
+            let se = (m / n as f64).sqrt();
+            assert!((mean - m).abs() < 5.0 * se, "mean {mean} vs {m}");
+            assert!((var / m - 1.0).abs() < 0.03, "var {var} vs {m}");
+        }
+    }
+
+    fn desc() -> NoiseDesc {
+        NoiseDesc {
+            full_well_e: 10000.0,
+            exposure_fraction: 0.8,
+            read_noise_e: 7.0,
+            dark_offset_dn: 4.0,
+            bit_depth: 12,
+        }
+    }
+
+    #[test]
+    fn measurement_statistics() {
+        let nz = SensorNoise::new(&desc(), 2.0);
+        // White peak at 80 % of 4095 DN.
+        assert!((2.0 * nz.dn_per_unit() - 0.8 * 4095.0).abs() < 1e-9);
+        // Mean = v + dark offset; variance = (e + read²)/G² + quantisation 1/12 DN².
+        let v = 0.5;
+        let n = 100_000u64;
+        let (mut s1, mut s2) = (0.0, 0.0);
+        for i in 0..n {
+            let x = nz.measure(v, &mut NoiseRng::new(&[1, i]));
+            s1 += x;
+            s2 += x * x;
+        }
+        let mean = s1 / n as f64;
+        let var = s2 / n as f64 - mean * mean;
+        let g = nz.electrons_per_unit;
+        let e = v * g;
+        let expect_var = (e + 49.0) / (g * g) + 1.0 / 12.0 / nz.dn_per_unit().powi(2);
+        assert!((mean - v - nz.dark_offset_units()).abs() < 4.0 * (expect_var / n as f64).sqrt());
+        assert!((var / expect_var - 1.0).abs() < 0.02, "{var} {expect_var}");
+        // `variance` states the same model (used by the discrepancy principle); at twice the
+        // signal it is outside the sampled variance's 2 % band (the check can fail).
+        assert!((nz.variance(v) / var - 1.0).abs() < 0.02);
+        assert!((nz.variance(2.0 * v) / var - 1.0).abs() > 0.2);
+        // mse_about agrees there (s ≫ ½ DN) and, for a dark pixel of an 8-bit sensor at its
+        // integer black level (s ≈ 0.18 DN), matches the sampled mean squared error, which
+        // is far below the uniform-rounding variance.
+        assert!((nz.mse_about(v) / var - 1.0).abs() < 0.02);
+        let mut d8 = desc();
+        d8.bit_depth = 8;
+        let nz8 = SensorNoise::new(&d8, 2.0);
+        let off = nz8.dark_offset_units();
+        let n = 400_000u64;
+        let mut mse = 0.0;
+        for i in 0..n {
+            let x = nz8.measure(0.0, &mut NoiseRng::new(&[6, i])) - off;
+            mse += x * x / n as f64;
+        }
+        let m = nz8.mse_about(0.0);
+        assert!((m / mse - 1.0).abs() < 0.1, "{m} {mse}");
+        assert!(nz8.variance(0.0) > 5.0 * m);
+        // A dimly lit pixel: s = 0.3 DN (89 e⁻), its rounding error neither uniform nor nil.
+        let v =
+            (0.09 * nz8.electrons_per_dn * nz8.electrons_per_dn - 49.0) / nz8.electrons_per_unit;
+        let mut mse = 0.0;
+        for i in 0..n {
+            let x = nz8.measure(v, &mut NoiseRng::new(&[7, i])) - off - v;
+            mse += x * x / n as f64;
+        }
+        assert!(
+            (nz8.mse_about(v) / mse - 1.0).abs() < 0.03,
+            "{} {mse}",
+            nz8.mse_about(v)
+        );
+        // Saturation clips at full scale.
+        let x = nz.measure(10.0, &mut NoiseRng::new(&[2]));
+        assert!((x * nz.dn_per_unit() - 4095.0).abs() < 1e-9);
+        assert!(nz.saturates(10.0) && !nz.saturates(1.0));
+        // Zero light: only read noise and the offset, never negative.
+        let x = nz.measure(0.0, &mut NoiseRng::new(&[5]));
+        assert!(x >= 0.0);
+    }
+}

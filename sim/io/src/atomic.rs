@@ -1,0 +1,649 @@
+//! Atomic file replacement, and output sets that appear together or not at all.
+//!
+//! Data is written into **unnamed** files first (Linux `O_TMPFILE` in the target's folder): a
+//! run killed while it writes leaves nothing behind, because an unnamed file vanishes with its
+//! last descriptor. Only when the data is complete and fsynced is a name linked to it
+//! (`linkat` through `/proc/self/fd`, which fails rather than follow or replace anything at
+//! the new name). Where the file system or the platform has no `O_TMPFILE`, the files are
+//! created under their temporary names from the start, as described below.
+//!
+//! One file ([`write_atomic`]): the bytes go to a temporary name `.<NAME>.tmp-<pid>-<n>` in the
+//! target's folder, created exclusively (`O_CREAT | O_EXCL`, so a symbolic link or any file
+//! already there is never opened or followed: the next `n` is tried), are flushed and fsynced,
+//! and the temporary file is renamed over the target.
+//!
+//! A set of files ([`write_all_atomic`]: capture, frontal, depth, mask and sidecars; H and its
+//! siblings; the members of a depth stack) goes through a per-run staging folder
+//! `.stscam-stage-<pid>-<n>` inside the output folder, created exclusively with `mkdir` (which
+//! never follows a link). Every file is written and fsynced there first; then, under the
+//! folder's commit lock `.stscam-commit` (created with `O_EXCL`; a second writer waits for it,
+//! a lock whose process is gone is taken over), a marker `.commit` is written into the
+//! staging folder and the files are renamed into place one by one, after which the staging
+//! folder and the lock are removed. So two runs writing into one folder commit one after the
+//! other: the folder ends with the complete set of the run that committed last, never a mix.
+//! A failure before the marker (full disk, read-only folder) removes the staging folder and
+//! leaves the output folder as it was (exit 1 in the CLI).
+//!
+//! With unnamed files, the staging folder is created, and the files linked into it, only under
+//! the commit lock, just before the marker: a run killed (SIGKILL) at any point before its
+//! commit leaves the folder exactly as it was, with no temporary name. Without them, such a
+//! run leaves the previous set untouched and only its hidden staging folder. A run killed
+//! during its commit (microseconds: links, the marker and renames) leaves the marker. Whoever next
+//! writes a set into the folder first repairs it under the lock ([`recover_folder`]): a
+//! staging folder of a dead process with a marker is rolled forward (its remaining files
+//! renamed into place, completing that run's set), one without a marker is deleted.
+//!
+//! Testing hook: `STSCAM_TEST_COMMIT_DELAY_MS=N` makes a set's writer sleep N ms once its data
+//! are written (before it takes the lock) and before each rename, to widen the windows the
+//! concurrency and SIGKILL tests aim at. It changes no output.
+//!
+//! Assumptions: one local file system (rename within a folder is atomic); Linux-style `/proc`
+//! to tell a dead lock owner (elsewhere a stale lock must be removed by hand, as the error says).
+
+use std::fs::{self, File, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use super::IoError;
+
+/// Name of a folder's commit lock.
+pub const COMMIT_LOCK: &str = ".stscam-commit";
+/// Prefix of a run's staging folder.
+pub const STAGE_PREFIX: &str = ".stscam-stage-";
+/// Marker written into a staging folder when its renames start.
+const COMMIT_MARKER: &str = ".commit";
+/// How long a writer waits for another run's commit lock before giving up.
+const LOCK_WAIT: Duration = Duration::from_secs(600);
+
+/// A per-process counter that makes temporary names unique within the process.
+static SEQ: AtomicU64 = AtomicU64::new(0);
+
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// A fresh temporary name `.<NAME>.tmp-<pid>-<n>` for `file_name`.
+fn temp_name(file_name: &std::ffi::OsStr) -> std::ffi::OsString {
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(file_name);
+    tmp_name.push(format!(
+        ".tmp-{}-{}",
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed)
+    ));
+    tmp_name
+}
+
+/// Creates a fresh temporary file next to `path` with `O_EXCL` (never through a link) and
+/// returns it with its name.
+fn create_temp(path: &Path) -> Result<(File, PathBuf), IoError> {
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| IoError::format(path, "path has no file name"))?;
+    let dir = parent_dir(path);
+    loop {
+        let tmp = dir.join(temp_name(file_name));
+        match OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((f, tmp)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(IoError::io(path, e)),
+        }
+    }
+}
+
+/// An unnamed file in `dir` (Linux `O_TMPFILE`), or `None` where the platform or the file
+/// system has none (the caller then writes under a temporary name instead).
+#[cfg(target_os = "linux")]
+fn anonymous_in(dir: &Path) -> std::io::Result<Option<File>> {
+    use rustix::fs::{CWD, Mode, OFlags, openat};
+    use rustix::io::Errno;
+    if !Path::new("/proc/self/fd").is_dir() {
+        // `link_anonymous` names the file through /proc.
+        return Ok(None);
+    }
+    let flags = OFlags::WRONLY | OFlags::TMPFILE | OFlags::CLOEXEC;
+    // 0o666 less the umask, as for files created by name.
+    match openat(CWD, dir, flags, Mode::from_raw_mode(0o666)) {
+        Ok(fd) => Ok(Some(File::from(fd))),
+        // Kernel or file system without O_TMPFILE (EISDIR: kernels older than 3.11).
+        Err(Errno::OPNOTSUPP | Errno::ISDIR | Errno::INVAL) => Ok(None),
+        Err(e) => Err(e.into()),
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn anonymous_in(_dir: &Path) -> std::io::Result<Option<File>> {
+    Ok(None)
+}
+
+/// Whether files written into `dir` are unnamed until their commit (`O_TMPFILE` and `/proc`
+/// available there); where not, the named staging described in the module comment is used.
+pub fn unnamed_files_supported(dir: &Path) -> bool {
+    matches!(anonymous_in(dir), Ok(Some(_)))
+}
+
+/// Gives the unnamed `file` the name `path`. Fails with `AlreadyExists` if anything (a file
+/// or a link) is there: `linkat` neither follows nor replaces the new name.
+#[cfg(target_os = "linux")]
+fn link_anonymous(file: &File, path: &Path) -> std::io::Result<()> {
+    use rustix::fs::{AtFlags, CWD, linkat};
+    use std::os::unix::io::AsRawFd;
+    let from = format!("/proc/self/fd/{}", file.as_raw_fd());
+    linkat(CWD, from.as_str(), CWD, path, AtFlags::SYMLINK_FOLLOW).map_err(Into::into)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn link_anonymous(_file: &File, _path: &Path) -> std::io::Result<()> {
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+/// Writes and fsyncs `bytes` into an unnamed file in `dir`; `None` where there are none.
+fn anonymous_with(dir: &Path, bytes: &[u8], sync: bool) -> std::io::Result<Option<File>> {
+    let Some(mut file) = anonymous_in(dir)? else {
+        return Ok(None);
+    };
+    file.write_all(bytes)?;
+    if sync {
+        file.sync_all()?;
+    }
+    Ok(Some(file))
+}
+
+/// Writes `bytes` to `path` atomically.
+///
+/// The data goes to an exclusively created `.<filename>.tmp-<pid>-<n>` in the same directory,
+/// is flushed and fsynced, and is then renamed over `path`. On any error the temporary file
+/// is removed and `path` is left untouched.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_via_temp(path, bytes, true)?;
+    // Persist the rename itself; not all platforms can open directories, and the data is
+    // already safely in place, so failures are ignored.
+    if let Ok(d) = File::open(parent_dir(path)) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename, without fsync: readers and
+/// a later run never see a partial file, even if this process is killed, but the data may not
+/// survive a power loss until the OS flushes it. For the many per-sample files of a dataset,
+/// where a per-file fsync would dominate the run time.
+pub fn write_atomic_unsynced(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_via_temp(path, bytes, false)
+}
+
+fn write_via_temp(path: &Path, bytes: &[u8], sync: bool) -> Result<(), IoError> {
+    let dir = parent_dir(path);
+    if let Some(file) = anonymous_with(&dir, bytes, sync).map_err(|e| IoError::io(path, e))? {
+        // Only the link and the rename can leave a temporary name behind.
+        let file_name = path
+            .file_name()
+            .ok_or_else(|| IoError::format(path, "path has no file name"))?;
+        loop {
+            let tmp = dir.join(temp_name(file_name));
+            match link_anonymous(&file, &tmp) {
+                Ok(()) => {
+                    return fs::rename(&tmp, path).map_err(|e| {
+                        let _ = fs::remove_file(&tmp);
+                        IoError::io(path, e)
+                    });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(IoError::io(path, e)),
+            }
+        }
+    }
+    let (mut file, tmp) = create_temp(path)?;
+    let result = file
+        .write_all(bytes)
+        .and_then(|()| if sync { file.sync_all() } else { Ok(()) })
+        .and_then(|()| {
+            drop(file);
+            fs::rename(&tmp, path)
+        });
+    result.map_err(|e| {
+        let _ = fs::remove_file(&tmp);
+        IoError::io(path, e)
+    })
+}
+
+/// The test-only delay before each rename of a commit (see the module comment).
+fn commit_delay() -> Option<Duration> {
+    std::env::var("STSCAM_TEST_COMMIT_DELAY_MS")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+        .map(Duration::from_millis)
+}
+
+/// Writes several files into `dir` as one unit (see the module comment): `dir` is created if
+/// needed, every file is first written and synced in a staging folder, and only when all
+/// writes succeeded are they renamed into place, under the folder's commit lock. On failure
+/// the staging folder is removed, and `dir` too if this call created it and it is empty, so
+/// nothing new is left behind. File names must be plain names (no folders).
+pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoError> {
+    let created = !dir.exists();
+    fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
+    let remove_created = || {
+        if created {
+            let _ = fs::remove_dir(dir);
+        }
+    };
+    let fail = |stage: Option<&Path>, e: IoError| {
+        if let Some(stage) = stage {
+            let _ = remove_tree(stage);
+        }
+        remove_created();
+        Err(e)
+    };
+    if let Some((name, _)) = files.iter().find(|(name, _)| {
+        Path::new(name).components().count() != 1
+            || name.starts_with(STAGE_PREFIX)
+            || *name == COMMIT_LOCK
+    }) {
+        // A name with folders cannot be staged; report it as the old writer did.
+        let e = std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "output names must be plain file names",
+        );
+        return fail(None, IoError::io(&dir.join(name), e));
+    }
+    // The data, written and synced before the lock is taken: into unnamed files where the file
+    // system has them (nothing named exists until the commit), else into a staging folder.
+    let mut unnamed = Vec::with_capacity(files.len());
+    for (name, bytes) in files {
+        match anonymous_with(dir, bytes, true) {
+            Ok(Some(file)) => unnamed.push(file),
+            Ok(None) => break,
+            Err(e) => return fail(None, IoError::io(&dir.join(name), e)),
+        }
+    }
+    let staged_early = if unnamed.len() == files.len() {
+        None
+    } else {
+        unnamed.clear();
+        let stage = match create_stage(dir) {
+            Ok(s) => s,
+            Err(e) => return fail(None, e),
+        };
+        for (name, bytes) in files {
+            if let Err(e) = write_new_synced(&stage.join(name), bytes) {
+                return fail(Some(&stage), IoError::io(&dir.join(name), e));
+            }
+        }
+        Some(stage)
+    };
+    // A target that exists but is not a regular file would make its rename fail after others
+    // succeeded: refuse before renaming anything.
+    if let Some((name, _)) = files.iter().find(|(n, _)| {
+        let p = dir.join(n);
+        p.exists() && !p.is_file()
+    }) {
+        return fail(
+            staged_early.as_deref(),
+            IoError::format(&dir.join(name), "exists and is not a regular file"),
+        );
+    }
+    let delay = commit_delay();
+    if let Some(d) = delay {
+        std::thread::sleep(d);
+    }
+    let lock = match CommitLock::acquire(dir) {
+        Ok(l) => l,
+        Err(e) => return fail(staged_early.as_deref(), e),
+    };
+    if let Err(e) = recover_locked(dir) {
+        drop(lock);
+        return fail(staged_early.as_deref(), e);
+    }
+    let stage = match staged_early {
+        Some(stage) => stage,
+        None => match stage_unnamed(dir, files, &unnamed) {
+            Ok(stage) => stage,
+            Err(e) => {
+                drop(lock);
+                return fail(None, e);
+            }
+        },
+    };
+    if let Err(e) = File::open(&stage)
+        .and_then(|d| d.sync_all())
+        .and_then(|()| write_new_synced(&stage.join(COMMIT_MARKER), b""))
+        .and_then(|()| File::open(&stage).and_then(|d| d.sync_all()))
+    {
+        drop(lock);
+        return fail(Some(&stage), IoError::io(&stage, e));
+    }
+    let result = roll_forward(&stage, dir, delay);
+    drop(lock);
+    result
+}
+
+/// Under the commit lock: a staging folder holding `files`' names linked to their unnamed
+/// files. On failure the folder is removed.
+fn stage_unnamed(
+    dir: &Path,
+    files: &[(&str, &[u8])],
+    unnamed: &[File],
+) -> Result<PathBuf, IoError> {
+    let stage = create_stage(dir)?;
+    for ((name, _), file) in files.iter().zip(unnamed) {
+        if let Err(e) = link_anonymous(file, &stage.join(name)) {
+            let _ = remove_tree(&stage);
+            return Err(IoError::io(&dir.join(name), e));
+        }
+    }
+    Ok(stage)
+}
+
+/// Creates this run's staging folder inside `dir` exclusively.
+fn create_stage(dir: &Path) -> Result<PathBuf, IoError> {
+    loop {
+        let stage = dir.join(format!(
+            "{STAGE_PREFIX}{}-{}",
+            std::process::id(),
+            SEQ.fetch_add(1, Ordering::Relaxed)
+        ));
+        match fs::create_dir(&stage) {
+            Ok(()) => return Ok(stage),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(IoError::io(&stage, e)),
+        }
+    }
+}
+
+/// Renames every file of a committed staging folder (but its marker) into `dir`, then removes
+/// the marker and the folder.
+fn roll_forward(stage: &Path, dir: &Path, delay: Option<Duration>) -> Result<(), IoError> {
+    let mut names: Vec<std::ffi::OsString> = fs::read_dir(stage)
+        .map_err(|e| IoError::io(stage, e))?
+        .filter_map(|e| e.ok().map(|e| e.file_name()))
+        .filter(|n| n != COMMIT_MARKER)
+        .collect();
+    names.sort();
+    for name in names {
+        if let Some(d) = delay {
+            std::thread::sleep(d);
+        }
+        fs::rename(stage.join(&name), dir.join(&name))
+            .map_err(|e| IoError::io(&dir.join(&name), e))?;
+    }
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+    let _ = fs::remove_file(stage.join(COMMIT_MARKER));
+    fs::remove_dir(stage).map_err(|e| IoError::io(stage, e))
+}
+
+/// Repairs `dir` after runs that were killed while writing a set into it (see the module
+/// comment): takes the commit lock, rolls forward every staging folder of a dead process that
+/// holds a commit marker and deletes every other one, and returns how many it completed and
+/// deleted. A no-op (and cheap) in a folder without staging folders.
+pub fn recover_folder(dir: &Path) -> Result<(usize, usize), IoError> {
+    let lock = CommitLock::acquire(dir)?;
+    let r = recover_locked(dir);
+    drop(lock);
+    r
+}
+
+fn recover_locked(dir: &Path) -> Result<(usize, usize), IoError> {
+    let (mut done, mut removed) = (0, 0);
+    let entries = fs::read_dir(dir).map_err(|e| IoError::io(dir, e))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(STAGE_PREFIX)) else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+        if pid.is_some_and(|p| p == std::process::id() || process_alive(p)) {
+            continue;
+        }
+        let stage = entry.path();
+        if !fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir()) {
+            continue;
+        }
+        if stage.join(COMMIT_MARKER).exists() {
+            roll_forward(&stage, dir, None)?;
+            done += 1;
+        } else {
+            remove_tree(&stage).map_err(|e| IoError::io(&stage, e))?;
+            removed += 1;
+        }
+    }
+    Ok((done, removed))
+}
+
+/// Removes a staging folder: its plain files, then the folder (never following links).
+fn remove_tree(stage: &Path) -> std::io::Result<()> {
+    for entry in fs::read_dir(stage)?.flatten() {
+        let _ = fs::remove_file(entry.path());
+    }
+    fs::remove_dir(stage)
+}
+
+/// True unless `/proc` says no process `pid` exists (where there is no `/proc`, always true:
+/// the safe side).
+fn process_alive(pid: u32) -> bool {
+    !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// The folder's commit lock: `.stscam-commit` holding the owner's pid, removed on drop.
+struct CommitLock {
+    file: PathBuf,
+}
+
+impl CommitLock {
+    fn acquire(dir: &Path) -> Result<CommitLock, IoError> {
+        let file = dir.join(COMMIT_LOCK);
+        let start = std::time::Instant::now();
+        loop {
+            match OpenOptions::new().write(true).create_new(true).open(&file) {
+                Ok(mut f) => {
+                    let lock = CommitLock { file: file.clone() };
+                    f.write_all(format!("{}\n", std::process::id()).as_bytes())
+                        .map_err(|e| IoError::io(&file, e))?;
+                    return Ok(lock);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    // The owner may be between creating and writing the file: an empty or
+                    // unreadable lock counts as alive until it has been so for a second.
+                    let owner = fs::symlink_metadata(&file)
+                        .ok()
+                        .filter(|m| m.is_file())
+                        .and_then(|_| fs::read_to_string(&file).ok())
+                        .and_then(|t| t.trim().parse::<u32>().ok());
+                    let stale = match owner {
+                        Some(pid) => !process_alive(pid),
+                        None => start.elapsed() > Duration::from_secs(1),
+                    };
+                    if stale {
+                        match fs::remove_file(&file) {
+                            Ok(()) => continue,
+                            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                            Err(e) => return Err(IoError::io(&file, e)),
+                        }
+                    }
+                    if start.elapsed() > LOCK_WAIT {
+                        return Err(IoError::format(
+                            &file,
+                            format!(
+                                "another stscam run (pid {}) has held this folder's commit lock for {} s; delete this file if no such run is working",
+                                owner.map_or("?".to_string(), |p| p.to_string()),
+                                LOCK_WAIT.as_secs()
+                            ),
+                        ));
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                Err(e) => return Err(IoError::io(&file, e)),
+            }
+        }
+    }
+}
+
+impl Drop for CommitLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.file);
+    }
+}
+
+/// Creates `path` exclusively (never through a link), writes and fsyncs it.
+fn write_new_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut file = OpenOptions::new().write(true).create_new(true).open(path)?;
+    file.write_all(bytes)?;
+    file.flush()?;
+    file.sync_all()
+}
+
+/// A directory as a [`stscam_base::store::BlobStore`]: a blob is a file of that name in it,
+/// written whole or not at all ([`write_all_atomic`]).
+#[derive(Clone, Debug)]
+pub struct DirStore {
+    /// The directory (created on the first write).
+    pub dir: PathBuf,
+}
+
+impl DirStore {
+    /// The store in `dir`.
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        DirStore { dir: dir.into() }
+    }
+}
+
+impl stscam_base::store::BlobStore for DirStore {
+    fn load(&self, name: &str) -> Option<Vec<u8>> {
+        fs::read(self.dir.join(name)).ok()
+    }
+
+    fn save(&self, name: &str, bytes: &[u8]) -> Result<PathBuf, String> {
+        write_all_atomic(&self.dir, &[(name, bytes)])
+            .map(|()| self.dir.join(name))
+            .map_err(|e| e.to_string())
+    }
+
+    fn location(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_and_replaces_without_leftovers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.bin");
+        write_atomic(&path, b"first").unwrap();
+        write_atomic(&path, b"second").unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"second");
+        let names: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("out.bin")]);
+    }
+
+    #[test]
+    fn several_files_commit_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        write_all_atomic(&out, &[("a.txt", b"1"), ("b.txt", b"2")]).unwrap();
+        assert_eq!(fs::read(out.join("b.txt")).unwrap(), b"2");
+        // The temp write of "c.txt" succeeds but "no/such/d.txt" cannot be written: nothing
+        // may be renamed into place.
+        let fresh = dir.path().join("fresh");
+        let err = write_all_atomic(&fresh, &[("c.txt", b"3"), ("no/such/d.txt", b"4")]);
+        assert!(err.is_err());
+        assert!(
+            !fresh.exists(),
+            "a failed call must not leave its new directory behind"
+        );
+        // In an existing directory a failure leaves only what was there before.
+        let err = write_all_atomic(&out, &[("c.txt", b"3"), ("no/such/d.txt", b"4")]);
+        assert!(err.is_err());
+        let mut names: Vec<_> = fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            vec![
+                std::ffi::OsString::from("a.txt"),
+                std::ffi::OsString::from("b.txt")
+            ]
+        );
+    }
+
+    /// Links planted at the next temporary and staging names this process will try (and at
+    /// the target) are skipped, not followed: the file they point to is unchanged.
+    #[cfg(unix)]
+    #[test]
+    fn planted_links_at_temporary_names_are_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = dir.path().join("victim");
+        fs::write(&victim, b"precious").unwrap();
+        let out = dir.path().join("out");
+        fs::create_dir(&out).unwrap();
+        let next = SEQ.load(Ordering::Relaxed);
+        let pid = std::process::id();
+        for n in next..next + 64 {
+            let _ = std::os::unix::fs::symlink(&victim, out.join(format!(".a.bin.tmp-{pid}-{n}")));
+            let _ =
+                std::os::unix::fs::symlink(&victim, out.join(format!("{STAGE_PREFIX}{pid}-{n}")));
+        }
+        std::os::unix::fs::symlink(&victim, out.join("b.bin")).unwrap();
+        write_atomic(&out.join("a.bin"), b"A").unwrap();
+        write_all_atomic(&out, &[("b.bin", b"B"), ("c.bin", b"C")]).unwrap();
+        assert_eq!(fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(fs::read(out.join("a.bin")).unwrap(), b"A");
+        assert!(fs::symlink_metadata(out.join("b.bin")).unwrap().is_file());
+        assert_eq!(fs::read(out.join("b.bin")).unwrap(), b"B");
+        assert!(!out.join(COMMIT_LOCK).exists());
+    }
+
+    /// A staging folder of a dead process is deleted without its marker and rolled forward
+    /// with it.
+    #[test]
+    fn recovery_rolls_forward_or_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        fs::write(out.join("x.txt"), b"old").unwrap();
+        fs::write(out.join("y.txt"), b"old").unwrap();
+        // pid 0 is never a user process; u32::MAX - 1 is beyond pid_max.
+        let dead = u32::MAX - 1;
+        let a = out.join(format!("{STAGE_PREFIX}{dead}-0"));
+        fs::create_dir(&a).unwrap();
+        fs::write(a.join("x.txt"), b"half").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (0, 1));
+        assert_eq!(fs::read(out.join("x.txt")).unwrap(), b"old");
+        let b = out.join(format!("{STAGE_PREFIX}{dead}-1"));
+        fs::create_dir(&b).unwrap();
+        fs::write(b.join("y.txt"), b"new").unwrap();
+        fs::write(b.join(COMMIT_MARKER), b"").unwrap();
+        // x.txt was already renamed before the kill.
+        fs::write(out.join("x.txt"), b"new").unwrap();
+        assert_eq!(recover_folder(out).unwrap(), (1, 0));
+        assert_eq!(fs::read(out.join("y.txt")).unwrap(), b"new");
+        let mut names: Vec<_> = fs::read_dir(out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["x.txt", "y.txt"]);
+    }
+
+    #[test]
+    fn missing_directory_is_an_error_naming_the_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("no/such/dir/out.bin");
+        let err = write_atomic(&path, b"x").unwrap_err();
+        assert!(matches!(err, IoError::Io { .. }));
+        assert!(err.to_string().contains("out.bin"));
+    }
+}

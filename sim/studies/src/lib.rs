@@ -1,0 +1,27 @@
+//! Studies over the tracer and reconstruction: studies over the tracer and reconstruction: demo, calibration, sweeps, tolerance, analytic checks, grating spectra, benchmarks.
+//!
+//! May depend on: every layer below except the cli (docs/design.md, "Crates"; checked by `tests/it/layers.rs`).
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod analytic;
+pub mod bench;
+pub mod colour_demo;
+pub mod demo;
+pub mod grating_spectrum;
+pub mod hadamard;
+pub mod sweep;
+pub mod tolerance;
+
+// The layers below, under the names this crate's modules use (`crate::io::…`).
+use stscam_base::{VERSION, cancel, limits, noise, numfmt, progress, sampler, sparse, spectra, targets};
+#[cfg(test)]
+use stscam_base::options;
+use stscam_io as io;
+use stscam_io::plot;
+use stscam_optics as optics;
+use stscam_scene as scene;
+use stscam_world::display;
+use stscam_tracer::{analysis, colour, matrix, output, render, system, trace};
+use stscam_recon as recon;
+use stscam_dataset as dataset;
