@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Draws the workspace's crate graph from `cargo metadata` as docs/crate-graph.svg.
 
-Each member is a box on the row of its layer (its longest dependency chain down to a crate with
-no member dependencies); an arrow points from a crate to each member it depends on, after
+Each member is a box on the row of its layer (above every crate it uses, and just below the
+lowest crate that uses it); an arrow points from a crate to each member it depends on, after
 transitive reduction (an edge implied by a longer path is left out, so the picture shows the
 layering rather than every import), dev-only edges dashed. Run from anywhere:
 `python3 validation/crate-graph.py [--out docs/crate-graph.svg]`; it needs only cargo and the
@@ -44,6 +44,12 @@ def layers(deps):
 
     for n in deps:
         lv(n)
+    # As late as possible: a crate sits just below the lowest crate that uses it, so an arrow
+    # to a crate used only high up (reconstruction) does not cross the rows between.
+    users = {n: [m for m in deps if n in deps[m]] for n in deps}
+    for n in sorted(deps, key=lambda n: -level[n]):
+        if users[n]:
+            level[n] = min(level[m] for m in users[n]) - 1
     return level
 
 
@@ -69,7 +75,8 @@ def svg(deps, dev, desc):
     for n, l in sorted(level.items(), key=lambda kv: (kv[1], kv[0])):
         rows.setdefault(l, []).append(n)
     bw, bh, gx, gy = 150, 34, 30, 70
-    width = max(len(r) for r in rows.values()) * (bw + gx) + gx
+    rail = 70  # side margins for the arrows that skip rows
+    width = max(len(r) for r in rows.values()) * (bw + gx) + gx + 2 * rail
     top = max(rows)
     height = (top + 1) * (bh + gy) + gy
     pos = {}
@@ -86,8 +93,15 @@ def svg(deps, dev, desc):
     def edge(a, b, dash):
         (xa, ya), (xb, yb) = pos[a], pos[b]
         style = ' stroke-dasharray="5,4"' if dash else ''
-        out.append(f'<line x1="{xa + bw / 2:.1f}" y1="{ya + bh:.1f}" x2="{xb + bw / 2:.1f}" '
-                   f'y2="{yb:.1f}" stroke="#555" stroke-width="1.2"{style} marker-end="url(#a)"/>')
+        x1, y1, x2, y2 = xa + bw / 2, ya + bh, xb + bw / 2, yb
+        if level[a] - level[b] > 1:
+            # Skips rows: round the boxes between along the nearer side margin.
+            side = rail / 2 if x1 + x2 < width else width - rail / 2
+            d = f"M{x1:.1f},{y1:.1f} C{side:.1f},{y1 + gy:.1f} {side:.1f},{y2 - gy:.1f} {x2:.1f},{y2:.1f}"
+        else:
+            d = f"M{x1:.1f},{y1:.1f} L{x2:.1f},{y2:.1f}"
+        out.append(f'<path d="{d}" fill="none" stroke="#555" stroke-width="1.2"{style} '
+                   'marker-end="url(#a)"/>')
     for a in sorted(red):
         for b in sorted(red[a]):
             edge(a, b, False)

@@ -25,7 +25,8 @@
 use crate::spectra::Spectrum;
 
 /// The colour space of the frontal ground truth.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum FrontalSpace {
     /// The capture's sensor response (raw camera RGB, or `Y` for a monochrome sensor).

@@ -8,6 +8,7 @@ pub mod cie;
 pub mod limits;
 pub mod noise;
 pub mod numfmt;
+#[cfg(feature = "clap")]
 pub mod options;
 pub mod progress;
 pub mod rows;

@@ -1,7 +1,7 @@
 //! One definition per option: the enums behind the CLI's choices (`--sampler`, `--user-side`,
 //! ...) derive `clap::ValueEnum`, and the Python module parses its string arguments with
 //! [`parse`], so clap, serde (kebab-case names) and Python accept the same names and print the
-//! same list.
+//! same list. Built with the `clap` feature (the CLI crate turns it on).
 
 use clap::ValueEnum;
 

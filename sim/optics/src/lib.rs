@@ -28,10 +28,10 @@ use stscam_base::sampler;
     Default,
     PartialEq,
     Eq,
-    clap::ValueEnum,
     serde::Serialize,
     serde::Deserialize,
 )]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum GratingModel {
     /// Kogelnik's two-wave coupled-wave theory, each grating on its own (closed form).

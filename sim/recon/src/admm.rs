@@ -17,7 +17,8 @@ use super::{Problem, cg::pcg, dot};
 
 /// Which total variation (`reconstruct --tv`, Python's `tv=`: one definition for clap, serde
 /// and the Python module).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum TvKind {
     /// Isotropic TV: Σ_p √((D_x f)_p² + (D_y f)_p²).

@@ -16,7 +16,8 @@ use crate::stack::LoadedStack;
 /// How a stack is used (`reconstruct --method joint|depth`, Python's `method=`: one definition
 /// for clap and the Python module; the first paragraph of each variant's comment is its
 /// `--help` line).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum StackMethod {
     /// Depth stack: joint multi-depth ADMM-TV with a sparsity prior across depth.
     ///

@@ -273,7 +273,8 @@ pub fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// The solver of [`solve`] (`reconstruct --method cg|admm-tv`, Python's `method=`: one
 /// definition for clap and the Python module; the first paragraph of each variant's comment is
 /// its `--help` line).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Method {
     /// Conjugate gradients on the normal equations (the paper's CGM).
     ///

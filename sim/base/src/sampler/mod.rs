@@ -39,7 +39,8 @@ pub const DIMS: usize = 5;
 
 /// Which sequence to use (`render --sampler`, Python's `sampler=`: one definition for clap,
 /// serde and the Python module, see [`crate::options`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum SamplerKind {
     /// Cranley–Patterson-rotated rank-1 lattice: a Korobov rule searched for the spp, or R_5.

@@ -56,7 +56,8 @@ pub enum Estimator {
 /// How a 3-D scene's user side is sampled: which branches get a user-side path, and how the
 /// path draws the numbers of its first vertex (each light's area sample and the first BSDF
 /// direction; every later number is hashed).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum UserSideSampler {
     /// The default: `Resampled`, except in scenes with emissive meshes, where the camera sees
@@ -504,6 +505,7 @@ mod tests {
     /// pixel: 13 GiB) but not an adaptive one (352 bytes a pixel: 22 GiB, above the 16 GiB
     /// accepted), and the refusal names the crop.
     /// The serde name of every user-side sampler is the name clap and Python accept.
+    #[cfg(feature = "clap")]
     #[test]
     fn user_side_sampler_names_match_the_command_line() {
         use clap::ValueEnum;
