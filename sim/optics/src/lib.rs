@@ -16,7 +16,7 @@ pub mod multiplex;
 pub mod packet;
 pub mod rcwa;
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::{cancel, spectra};
+use stscam_base::spectra;
 #[cfg(test)]
 use stscam_base::sampler;
 

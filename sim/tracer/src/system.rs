@@ -364,6 +364,7 @@ fn build_rcwa(
         &rcwa_grid(cam),
         &crate::optics::rcwa::Settings::default(),
         RCWA_ERROR_PROBES,
+        &crate::cancel::current(),
     )
     .map_err(|e| ls.relation_error(&["hoe.model"], format!("hoe.model = \"rcwa\": {e}")))
 }

@@ -40,6 +40,7 @@
 
 use std::path::PathBuf;
 
+use stscam_base::cancel::Token;
 use stscam_base::store::BlobStore;
 
 use glam::DVec2;
@@ -303,22 +304,23 @@ impl RcwaCouplings {
     }
 
     /// Builds the tables of `set` on `grid` (in parallel over nodes; deterministic) and
-    /// measures their interpolation error at `probes` off-grid points.
+    /// measures their interpolation error at `probes` off-grid points; once `cancel` is set
+    /// the build stops at the next node with [`RcwaError::Cancelled`].
     pub fn build(
         set: &GratingSet,
         grid: &CouplingGrid,
         settings: &Settings,
         probes: usize,
+        cancel: &Token,
     ) -> Result<RcwaCouplings, RcwaError> {
-        Self::empty(set, grid, settings)?.fill(probes)
+        Self::empty(set, grid, settings)?.fill(probes, cancel)
     }
 
     /// Computes the tables of an [`Self::empty`] set-up and measures their error.
-    fn fill(mut self, probes: usize) -> Result<RcwaCouplings, RcwaError> {
+    fn fill(mut self, probes: usize, cancel: &Token) -> Result<RcwaCouplings, RcwaError> {
         let c = &mut self;
         let nodes = c.grid.nodes();
         // A cancelled job (Ctrl-C in Python) stops at the next node; nothing is cached.
-        let cancel = crate::cancel::current();
         for j in 0..c.set.len() {
             let rows: Result<Vec<[f64; PER_NODE]>, RcwaError> = (0..nodes)
                 .into_par_iter()
@@ -380,13 +382,14 @@ impl RcwaCouplings {
 
     /// Loads the tables of this design from `cache` (if given and it holds them) or builds
     /// them and stores them there (atomically; a cache that cannot be written is not an error,
-    /// the tables are used all the same).
+    /// the tables are used all the same); `cancel` stops a build as in [`Self::build`].
     pub fn load_or_build(
         cache: Option<&dyn BlobStore>,
         set: &GratingSet,
         grid: &CouplingGrid,
         settings: &Settings,
         probes: usize,
+        cancel: &Token,
     ) -> Result<RcwaCouplings, RcwaError> {
         let mut c = Self::empty(set, grid, settings)?;
         let key = Self::key(&c.film, grid, settings, probes);
@@ -422,7 +425,7 @@ impl RcwaCouplings {
                 limit / 60.0
             )));
         }
-        let mut c = c.fill(probes)?;
+        let mut c = c.fill(probes, cancel)?;
         if let Some(store) = cache {
             let bytes = encode_values(&key, c.max_error, &c.data.concat());
             if let Ok(path) = store.save(&name, &bytes) {
@@ -687,7 +690,7 @@ mod tests {
     #[test]
     fn lookups_match_direct_rcwa() {
         let set = paper_set(0.015, 0.0);
-        let mut c = RcwaCouplings::build(&set, &small_grid(), &Settings::default(), 40).unwrap();
+        let mut c = RcwaCouplings::build(&set, &small_grid(), &Settings::default(), 40, &Token::default()).unwrap();
         let err = c.max_error();
         assert!(err < 0.01, "interpolation error {err}");
         let (lam, u) = c.node_point(0, 7 * 15 + 4).unwrap();
@@ -732,10 +735,10 @@ mod tests {
             },
         };
         let s = Settings::default();
-        let a = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4).unwrap();
+        let a = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
         assert!(!a.cache().from_cache);
         let path = a.cache().path.clone().unwrap();
-        let b = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4).unwrap();
+        let b = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
         assert!(b.cache().from_cache);
         let bits = |c: &RcwaCouplings| {
             c.data
@@ -752,12 +755,12 @@ mod tests {
         e.data[0][3] = f64::from_bits(e.data[0][3].to_bits() + 1);
         assert_ne!(format!("{e:?}"), format!("{b:?}"));
         std::fs::write(&path, b"not a table").unwrap();
-        let c = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4).unwrap();
+        let c = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
         assert!(!c.cache().from_cache);
         assert_eq!(bits(&a), bits(&c));
         // Another design is another file.
         let other = paper_set(0.02, 0.0);
-        let d = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &other, &grid, &s, 4).unwrap();
+        let d = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &other, &grid, &s, 4, &Token::default()).unwrap();
         assert!(!d.cache().from_cache);
         let _ = Grating::of(other.get(0));
     }
