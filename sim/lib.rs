@@ -21,7 +21,7 @@ pub use stscam_optics as optics;
 pub use stscam_recon as recon;
 pub use stscam_scene as scene;
 pub use stscam_studies::{
-    analytic, bench, colour_demo, demo, grating_spectrum, hadamard, sweep, tolerance,
+    analytic, bench, capture, colour_demo, demo, grating_spectrum, hadamard, sweep, tolerance,
 };
 pub use stscam_tracer::{
     analysis, camera, colour, matrix, output, render, system, trace, waveguide, wavelength,

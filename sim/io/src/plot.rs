@@ -758,8 +758,12 @@ mod tests {
     #[test]
     fn every_label_character_has_a_glyph() {
         let sources = [
-            include_str!("../../studies/src/sweep.rs"),
-            include_str!("../../studies/src/analytic.rs"),
+            include_str!("../../studies/src/sweep/mod.rs"),
+            include_str!("../../studies/src/sweep/scan.rs"),
+            include_str!("../../studies/src/sweep/figures.rs"),
+            include_str!("../../studies/src/analytic/mod.rs"),
+            include_str!("../../studies/src/analytic/closed_forms.rs"),
+            include_str!("../../studies/src/analytic/report.rs"),
             include_str!("../../studies/src/bench.rs"),
             include_str!("../../main.rs"),
             include_str!("../../cli/src/cli.rs"),
@@ -771,6 +775,7 @@ mod tests {
             include_str!("../../cli/src/sweep.rs"),
             include_str!("../../cli/src/validate.rs"),
             include_str!("../../studies/src/demo.rs"),
+            include_str!("../../studies/src/capture.rs"),
             include_str!("plot.rs"),
         ];
         let mut missing = std::collections::BTreeSet::new();

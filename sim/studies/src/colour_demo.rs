@@ -19,8 +19,8 @@
 
 use serde::Serialize;
 
+use crate::capture::{DemoSettings, exposure_and_dark, measured_capture, planes_of_spec};
 use crate::colour::{FieldBands, field_bands, primaries_of};
-use crate::demo::{DemoSettings, exposure_and_dark, measured_capture, planes_of_spec};
 use crate::hadamard::{CalibrationReport, CalibrationSettings, calibrate_colour};
 use crate::recon::colour::{colour_errors, primaries_to_xyz};
 use crate::recon::{Method, Problem, SolveOptions, solve_planes};

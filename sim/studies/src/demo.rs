@@ -25,15 +25,22 @@
 
 use std::time::Instant;
 
+// The capture helpers live in `capture` (the other studies share them); they stay reachable
+// here under their old paths.
+pub use crate::capture::{
+    DemoSettings, black_level_of, dark_frame, exposure_and_dark, intensity_of_spec,
+    measured_capture, noisy_capture_of, planes_of_spec, white_peak_of,
+};
+
 use crate::hadamard::{CalibrationReport, CalibrationSettings, FrameSource, calibrate};
 use crate::matrix::{SystemMatrix, compute_matrix_stack};
-use crate::noise::{NoiseRng, SensorNoise};
+use crate::noise::SensorNoise;
 use crate::recon::Problem;
-use crate::recon::admm::{AdmmSettings, admm_tv};
-use crate::recon::cg::{CgSettings, cg_normal};
+use crate::recon::admm::admm_tv;
+use crate::recon::cg::cg_normal;
 use crate::recon::discrepancy::{NoiseLevel, admm_tv_discrepancy, cg_discrepancy};
 use crate::recon::metrics::{psnr, ssim};
-use crate::render::{RenderSettings, render};
+use crate::render::RenderSettings;
 use crate::system::System;
 
 /// The demo's targets: (name, kind, built-in spec without size).
@@ -43,21 +50,6 @@ pub const DEMO_TARGETS: [(&str, &str, &str); 4] = [
     ("siemens", "grayscale", "siemens:12"),
     ("smooth", "grayscale", "smooth:7"),
 ];
-
-/// Settings of the demo.
-#[derive(Clone, Debug)]
-pub struct DemoSettings {
-    /// Samples per pixel for H and the captures.
-    pub spp: u32,
-    /// Seed (H uses it, captures use seed + 1, noise uses it too).
-    pub seed: u64,
-    /// CGM settings.
-    pub cg: CgSettings,
-    /// ADMM-TV settings.
-    pub admm: AdmmSettings,
-    /// Show progress bars.
-    pub progress: bool,
-}
 
 /// One row of the table.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -143,131 +135,6 @@ pub struct DemoOutput {
     pub calibration: CalibrationReport,
     /// Summary JSON (timings, settings).
     pub summary: serde_json::Value,
-}
-
-/// A built-in target spec as (width, height, linear intensities in [0, 1]) under display
-/// gamma `gamma`.
-pub fn intensity_of_spec(
-    spec: &str,
-    gamma: f64,
-) -> Result<(usize, usize, Vec<f64>), String> {
-    planes_of_spec(spec, gamma, 1)
-}
-
-/// A built-in target spec (grey, or `rgb:R+G+B`) as (width, height, linear intensities) in
-/// `planes` object planes (1: luminance; 3: R, G, B primary-major).
-pub fn planes_of_spec(
-    spec: &str,
-    gamma: f64,
-    planes: usize,
-) -> Result<(usize, usize, Vec<f64>), String> {
-    let (w, h, c, values) = crate::targets::builtin_image(spec)?;
-    Ok((
-        w,
-        h,
-        crate::display::Display::planes_of(&values, c, false, gamma, planes),
-    ))
-}
-
-/// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
-/// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
-/// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.
-pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNoise, Vec<f64>) {
-    let noise = SensorNoise::new(&sys.scene.noise, white_peak_of(m));
-    let dark = dark_frame(m, &noise, seed);
-    (noise, dark)
-}
-
-/// The brightest value of the all-white capture H·1 + o of `m` (every object pixel of every
-/// primary white): what fixes the exposure.
-pub fn white_peak_of(m: &SystemMatrix) -> f64 {
-    let white = m.capture_of(&vec![1.0; m.h.cols]);
-    white.iter().flatten().fold(0.0f64, |a, &v| a.max(v))
-}
-
-/// A noisy dark frame (the capture of an all-black display, `m`'s offset) measured by `noise`
-/// from the noise stream of `seed`.
-pub fn dark_frame(m: &SystemMatrix, noise: &SensorNoise, seed: u64) -> Vec<f64> {
-    m.offset
-        .iter()
-        .enumerate()
-        .map(|(i, &o)| {
-            noise.measure(
-                f64::from(o),
-                &mut NoiseRng::new(&[seed, 0x4441_524B, i as u64]),
-            )
-        })
-        .collect()
-}
-
-/// The black level each pixel sits at, from a measured dark frame (capture units, the sensor's
-/// dark offset removed): what `recon::discrepancy::NoiseLevel::of_capture` takes as `offset`.
-pub fn black_level_of(dark: &[f64], noise: &SensorNoise) -> Vec<f32> {
-    dark.iter()
-        .map(|&d| (d - noise.dark_offset_units()) as f32)
-        .collect()
-}
-
-/// The measured capture of the linear object `truth` (the object size of `sys`'s display):
-/// rendered by the Monte Carlo tracer at `set.spp` with the independent seed `set.seed + 1` (no
-/// inverse crime with an H computed at `set.seed`), measured by `noise` from the stream
-/// (`set.seed`, `index`). Returns (noisy frame, g = noisy frame − `dark`).
-pub fn measured_capture(
-    sys: &System,
-    truth: &[f64],
-    set: &DemoSettings,
-    noise: &SensorNoise,
-    dark: &[f64],
-    index: u64,
-) -> (Vec<f64>, Vec<f64>) {
-    let mut s = sys.clone();
-    s.display.set_intensity(truth);
-    let cap = render(
-        &s,
-        &RenderSettings::lattice(set.spp, set.seed.wrapping_add(1), set.progress),
-    );
-    let noisy = measure_frame(
-        cap.channels
-            .iter()
-            .flat_map(|c| c.iter().map(|&v| f64::from(v))),
-        noise,
-        set.seed,
-        index,
-    );
-    let g: Vec<f64> = noisy.iter().zip(dark).map(|(a, d)| a - d).collect();
-    (noisy, g)
-}
-
-/// The measured capture of the linear object `truth` computed from a matrix instead of the
-/// tracer: `noise` applied to H·f + offset of `m` (an H of a different seed than the one that
-/// reconstructs avoids the inverse crime) from the noise stream (`seed`, `index`).
-pub fn noisy_capture_of(
-    m: &SystemMatrix,
-    truth: &[f64],
-    noise: &SensorNoise,
-    seed: u64,
-    index: u64,
-) -> Vec<f64> {
-    measure_frame(
-        m.capture_of(truth).iter().flatten().copied(),
-        noise,
-        seed,
-        index,
-    )
-}
-
-/// `noise` applied to each value of a clean frame, value i from the stream
-/// (`seed`, "CAPT", `index`, i).
-fn measure_frame(
-    clean: impl Iterator<Item = f64>,
-    noise: &SensorNoise,
-    seed: u64,
-    index: u64,
-) -> Vec<f64> {
-    clean
-        .enumerate()
-        .map(|(i, v)| noise.measure(v, &mut NoiseRng::new(&[seed, 0x4341_5054, index, i as u64])))
-        .collect()
 }
 
 /// One demo target and its simulated capture.

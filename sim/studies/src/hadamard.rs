@@ -537,7 +537,7 @@ mod tests {
             &sys,
             &crate::render::RenderSettings::lattice(4, 3, false),
         );
-        let (noise, _) = crate::demo::exposure_and_dark(&sys, &m, 5);
+        let (noise, _) = crate::capture::exposure_and_dark(&sys, &m, 5);
         let set = CalibrationSettings {
             noise: Some(noise),
             seed: 7,

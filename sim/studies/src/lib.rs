@@ -1,4 +1,4 @@
-//! Studies over the tracer and reconstruction: studies over the tracer and reconstruction: demo, calibration, sweeps, tolerance, analytic checks, grating spectra, benchmarks.
+//! Studies over the tracer and reconstruction: the demo and colour demo, the capture helpers they share (`capture`), Hadamard calibration, sweeps, tolerance, analytic checks, grating spectra, benchmarks.
 //!
 //! May depend on: every layer below except the cli (docs/design.md, "Crates"; checked by `tests/it/layers.rs`).
 #![forbid(unsafe_code)]
@@ -6,6 +6,7 @@
 
 pub mod analytic;
 pub mod bench;
+pub mod capture;
 pub mod colour_demo;
 pub mod demo;
 pub mod grating_spectrum;

@@ -316,7 +316,7 @@ struct StaleCalibration {
     truth: Vec<f64>,
     noise: crate::noise::SensorNoise,
     dark: Vec<f64>,
-    demo: crate::demo::DemoSettings,
+    demo: crate::capture::DemoSettings,
 }
 
 impl StaleCalibration {
@@ -333,7 +333,7 @@ impl StaleCalibration {
             sys,
             &crate::render::RenderSettings::lattice(p.spp, p.seed, false),
         );
-        let (noise, dark) = crate::demo::exposure_and_dark(sys, &m, p.seed);
+        let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
         Ok(StaleCalibration {
             problem: crate::recon::Problem::new(&m.h, sys.display.width_px, sys.display.height_px),
             truth,
@@ -345,8 +345,14 @@ impl StaleCalibration {
 
     /// PSNR of the target captured through `sys` and reconstructed with the nominal H.
     fn psnr(&self, sys: &System) -> f64 {
-        let (_, g) =
-            crate::demo::measured_capture(sys, &self.truth, &self.demo, &self.noise, &self.dark, 0);
+        let (_, g) = crate::capture::measured_capture(
+            sys,
+            &self.truth,
+            &self.demo,
+            &self.noise,
+            &self.dark,
+            0,
+        );
         let pr = &self.problem;
         let f = crate::recon::admm::admm_tv(pr, &pr.back_project(&g), &self.demo.admm).f;
         crate::recon::metrics::psnr(&f, &self.truth)
