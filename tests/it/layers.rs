@@ -10,8 +10,9 @@ use std::process::Command;
 /// `crate → crates it may depend on`, read from the "Crates" table of docs/design.md: a row
 /// `| `stscam-x` | role | `stscam-a`, `stscam-b` |` (a dash for none).
 fn documented() -> BTreeMap<String, BTreeSet<String>> {
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/design.md"))
-        .expect("docs/design.md");
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/design.md"))
+            .expect("docs/design.md");
     let section = text
         .split("\n## Crates")
         .nth(1)
@@ -35,11 +36,21 @@ fn documented() -> BTreeMap<String, BTreeSet<String>> {
 fn actual() -> BTreeMap<String, BTreeSet<String>> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = Command::new(cargo)
-        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .expect("run cargo metadata");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("metadata json");
     let members: BTreeSet<String> = meta["packages"]
         .as_array()
@@ -77,7 +88,9 @@ fn violations(
             continue;
         };
         for d in deps.difference(ok) {
-            v.push(format!("{name} depends on {d}, which the table does not allow"));
+            v.push(format!(
+                "{name} depends on {d}, which the table does not allow"
+            ));
         }
     }
     // The table itself points one way: repeatedly remove crates with no remaining edges.
@@ -89,7 +102,10 @@ fn violations(
             .map(|(k, _)| k.clone())
             .collect();
         if leaves.is_empty() {
-            v.push(format!("the table has a loop among {:?}", left.keys().collect::<Vec<_>>()));
+            v.push(format!(
+                "the table has a loop among {:?}",
+                left.keys().collect::<Vec<_>>()
+            ));
             break;
         }
         for l in leaves {
@@ -122,15 +138,23 @@ fn the_crate_graph_is_the_documented_one() {
 fn the_layer_check_can_fail() {
     let allowed = documented();
     let mut up = actual();
-    up.get_mut("stscam-optics").unwrap().insert("stscam-scene".into());
+    up.get_mut("stscam-optics")
+        .unwrap()
+        .insert("stscam-scene".into());
     assert_eq!(
         violations(&allowed, &up),
         ["stscam-optics depends on stscam-scene, which the table does not allow"]
     );
     let mut looped = allowed.clone();
-    looped.get_mut("stscam-base").unwrap().insert("stscam-cli".into());
+    looped
+        .get_mut("stscam-base")
+        .unwrap()
+        .insert("stscam-cli".into());
     assert!(violations(&looped, &actual())[0].starts_with("the table has a loop"));
     let mut extra = actual();
     extra.insert("stscam-new".into(), BTreeSet::new());
-    assert_eq!(violations(&allowed, &extra), ["stscam-new is not in docs/design.md's table"]);
+    assert_eq!(
+        violations(&allowed, &extra),
+        ["stscam-new is not in docs/design.md's table"]
+    );
 }

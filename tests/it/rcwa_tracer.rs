@@ -38,8 +38,14 @@ fn settings() -> RenderSettings {
 /// sampler stays Kogelnik's, so both models see the same samples and only the model differs).
 fn with_tables(sys: &System, set: &GratingSet) -> System {
     let mut r = sys.clone();
-    let t = RcwaCouplings::build(set, &rcwa_grid(&sys.camera), &Settings::default(), 20, &Default::default())
-        .expect("tables");
+    let t = RcwaCouplings::build(
+        set,
+        &rcwa_grid(&sys.camera),
+        &Settings::default(),
+        20,
+        &Default::default(),
+    )
+    .expect("tables");
     assert!(
         t.max_error() < 5e-3,
         "interpolation error {} per quantity {:?}",

@@ -271,5 +271,4 @@ mod tests {
         assert!((cmf(1).eval(602.5) - (0.631 + 0.5668) / 2.0).abs() < 1e-12);
         assert_eq!(cmf(1).eval(900.0), 0.0);
     }
-
 }

@@ -47,9 +47,19 @@ mod tests {
     #[test]
     fn rows_in_order_and_cancelled_rows_skipped() {
         for threads in [1, 2, 5] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
             let v = pool.install(|| {
-                par_rows(100, false, "rows", &Token::default(), |r| r * r, |_| usize::MAX)
+                par_rows(
+                    100,
+                    false,
+                    "rows",
+                    &Token::default(),
+                    |r| r * r,
+                    |_| usize::MAX,
+                )
             });
             assert_eq!(v, (0..100).map(|r| r * r).collect::<Vec<_>>());
         }

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use stscam_tracer::render::RenderSettings;
 use crate::sampler::SamplerKind;
+use stscam_tracer::render::RenderSettings;
 
 use super::*;
 
@@ -494,7 +494,10 @@ fn curve_points(v: &serde_json::Value) -> Option<Vec<stscam_studies::bench::Poin
 
 /// The curves of `bench render --extra` files (another renderer's measurements), each with
 /// its time to `target`.
-fn read_extra_curves(extra: &[PathBuf], target: f64) -> Result<Vec<stscam_studies::bench::Curve>, Failure> {
+fn read_extra_curves(
+    extra: &[PathBuf],
+    target: f64,
+) -> Result<Vec<stscam_studies::bench::Curve>, Failure> {
     let mut extras = Vec::new();
     for p in extra {
         let text = crate::io::read_text(p).map_err(|e| bad_input(e.to_string()))?;

@@ -94,8 +94,8 @@ fn cmd_calibrate(
     let (cal, object, source_desc, sensor_noise) =
         (&run.calibration, run.object, &run.source, &run.noise);
     let (matrix_s, render_s, calibrate_s) = (run.matrix_s, run.render_s, run.calibrate_s);
-    let npz = crate::io::npz::encode_csr(&cal.h_est, &out.join("H_est.npz"))
-        .map_err(write_failure)?;
+    let npz =
+        crate::io::npz::encode_csr(&cal.h_est, &out.join("H_est.npz")).map_err(write_failure)?;
     let report = serde_json::json!({
         "stscam_version": crate::VERSION,
         "command": "calibrate",

@@ -73,7 +73,10 @@ fn cmd_demo(
         .install(|| stscam_studies::demo::run_demo(&sys, &set))
         .map_err(bad_input)?;
     write_files(out, &res.files)?;
-    con.out(format_args!("{}", stscam_studies::demo::table_markdown(&res.rows)));
+    con.out(format_args!(
+        "{}",
+        stscam_studies::demo::table_markdown(&res.rows)
+    ));
     con.out(format_args!(
         "{}",
         stscam_studies::demo::depth_table_markdown(&res.depth_rows, &res.depth_coverage)

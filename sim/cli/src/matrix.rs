@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use stscam_tracer::render::RenderSettings;
 use crate::sampler::SamplerKind;
 use crate::scene::LoadedScene;
 use crate::system::System;
+use stscam_tracer::render::RenderSettings;
 
 use super::*;
 
@@ -148,7 +148,8 @@ fn cmd_matrix(
         estimator: Default::default(),
         adaptive: false,
     };
-    stscam_tracer::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp").map_err(limit)?;
+    stscam_tracer::render::check_limits(&sys, &settings, 1 + u64::from(check), "--spp")
+        .map_err(limit)?;
     warn_coverage(&sys, "", con);
     if let Some(DepthSpec::Stack(depths)) = &spec {
         return matrix_stack(

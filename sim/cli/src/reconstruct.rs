@@ -262,8 +262,8 @@ fn load_problem(
     object: Option<(usize, usize)>,
     offset: Option<&std::path::Path>,
 ) -> Result<(stscam_tracer::matrix::LoadedMatrix, Vec<f64>), Failure> {
-    let lm =
-        stscam_tracer::matrix::load_matrix(matrix, object, offset).map_err(|e| bad_input(e.to_string()))?;
+    let lm = stscam_tracer::matrix::load_matrix(matrix, object, offset)
+        .map_err(|e| bad_input(e.to_string()))?;
     let mut g = load_capture(capture)?;
     if g.len() != lm.h.rows {
         return Err(bad_input(format!(

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use crate::output::{CAPTURE_UNITS, write_capture_with};
-use stscam_tracer::render::{RenderSettings, UserSideSampler, render};
 use crate::sampler::SamplerKind;
+use stscam_tracer::render::{RenderSettings, UserSideSampler, render};
 
 use super::*;
 

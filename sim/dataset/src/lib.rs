@@ -51,9 +51,9 @@ mod shard;
 use stscam_base::{VERSION, cancel, limits, noise, progress, sparse, targets};
 use stscam_io as io;
 use stscam_scene as scene;
+use stscam_tracer::{matrix, output, render, system};
 use stscam_world as world;
 use stscam_world::display;
-use stscam_tracer::{matrix, output, render, system};
 
 pub use self::card::{Card, FORMAT, FileEntry, ShardCard};
 pub use self::error::DatasetError;

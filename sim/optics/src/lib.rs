@@ -16,21 +16,12 @@ pub mod multiplex;
 pub mod packet;
 pub mod rcwa;
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::spectra;
 #[cfg(test)]
 use stscam_base::sampler;
+use stscam_base::spectra;
 
 /// How the tracer computes the vHOEs' efficiencies (`hoe.model`; also `stscam grating --model`).
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum GratingModel {

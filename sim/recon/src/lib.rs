@@ -22,9 +22,9 @@ pub mod joint;
 pub mod layered;
 pub mod metrics;
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::{cancel, cie, noise, sparse, spectra};
 #[cfg(test)]
 use stscam_base::sampler;
+use stscam_base::{cancel, cie, noise, sparse, spectra};
 use stscam_io::stack;
 
 use rayon::prelude::*;

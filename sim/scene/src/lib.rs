@@ -40,7 +40,10 @@ pub const PAPER_SCENE_TOML: &str = include_str!("../../../scenes/paper-2022.toml
 /// The scenes shipped in `scenes/` by name (file name without `.toml`), with their TOML text.
 pub const SHIPPED_SCENES: &[(&str, &str)] = &[
     ("paper-2022", PAPER_SCENE_TOML),
-    ("eye-contact", include_str!("../../../scenes/eye-contact.toml")),
+    (
+        "eye-contact",
+        include_str!("../../../scenes/eye-contact.toml"),
+    ),
     ("gesture", include_str!("../../../scenes/gesture.toml")),
 ];
 /// The full-colour design of `scenes/rgb-multiplex.toml`, compiled into the binary for

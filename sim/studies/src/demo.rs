@@ -621,9 +621,8 @@ impl DemoRun<'_> {
     ) -> Result<(), String> {
         let ((ow, oh), m) = (self.obj, &self.m);
         files.push(("calibration.json".to_string(), json_bytes(&cal.report)?));
-        let h_npz =
-            crate::io::npz::encode_csr(&m.h, std::path::Path::new("H.npz"))
-                .map_err(|e| e.to_string())?;
+        let h_npz = crate::io::npz::encode_csr(&m.h, std::path::Path::new("H.npz"))
+            .map_err(|e| e.to_string())?;
         files.push(("H.npz".to_string(), h_npz));
         let npy = |name: &str, v: &[f64]| {
             let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();

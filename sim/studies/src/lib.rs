@@ -15,14 +15,16 @@ pub mod sweep;
 pub mod tolerance;
 
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::{VERSION, cancel, limits, noise, numfmt, progress, sampler, sparse, spectra, targets};
 #[cfg(test)]
 use stscam_base::options;
+use stscam_base::{
+    VERSION, cancel, limits, noise, numfmt, progress, sampler, sparse, spectra, targets,
+};
+use stscam_dataset as dataset;
 use stscam_io as io;
 use stscam_io::plot;
 use stscam_optics as optics;
-use stscam_scene as scene;
-use stscam_world::display;
-use stscam_tracer::{analysis, colour, matrix, output, render, system, trace};
 use stscam_recon as recon;
-use stscam_dataset as dataset;
+use stscam_scene as scene;
+use stscam_tracer::{analysis, colour, matrix, output, render, system, trace};
+use stscam_world::display;

@@ -21,11 +21,11 @@
 
 use glam::{DVec2, DVec3};
 
-use crate::world::colour::{ColourWeights, FrontalSpace};
-use crate::world::integrator::PathCounts;
 use crate::sampler::PathRng;
 use crate::sampler::{LatticeRule, PixelSampler, SamplerKind};
 use crate::system::System;
+use crate::world::colour::{ColourWeights, FrontalSpace};
+use crate::world::integrator::PathCounts;
 
 /// One rendered row: values (width × channels), depth, mask, rays traced.
 type FrontalRow = (Vec<f64>, Vec<f32>, Vec<u16>, u64);

@@ -19,7 +19,9 @@ pub mod waveguide;
 pub mod wavelength;
 
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::{VERSION, cancel, limits, numfmt, progress, rows, sampler, sparse, spectra, targets};
+use stscam_base::{
+    VERSION, cancel, limits, numfmt, progress, rows, sampler, sparse, spectra, targets,
+};
 use stscam_io as io;
 use stscam_optics as optics;
 use stscam_scene as scene;

@@ -359,7 +359,9 @@ fn build_rcwa(
 ) -> Result<crate::optics::rcwa::coupling::RcwaCouplings, SceneError> {
     let store = rcwa_cache_dir().map(crate::io::DirStore::new);
     crate::optics::rcwa::coupling::RcwaCouplings::load_or_build(
-        store.as_ref().map(|s| s as &dyn stscam_base::store::BlobStore),
+        store
+            .as_ref()
+            .map(|s| s as &dyn stscam_base::store::BlobStore),
         &wg.gratings,
         &rcwa_grid(cam),
         &crate::optics::rcwa::Settings::default(),

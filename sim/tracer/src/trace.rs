@@ -226,10 +226,7 @@ pub fn packets_apply(wg: &Waveguide) -> bool {
 /// once, lane by lane in one SIMD packet (optics::packet). Only for waveguides where
 /// [`packets_apply`]; any ray may be passed (a ray that does not reach the plate is traced as
 /// such), so unused lanes can repeat a used one.
-pub fn prepare_paths(
-    wg: &Waveguide,
-    rays: &[(DVec3, DVec3, f64); LANES],
-) -> [Prepared; LANES] {
+pub fn prepare_paths(wg: &Waveguide, rays: &[(DVec3, DVec3, f64); LANES]) -> [Prepared; LANES] {
     debug_assert!(packets_apply(wg));
     let w = wg.thickness_mm;
     let g = wg.gratings.film();

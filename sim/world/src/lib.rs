@@ -20,6 +20,7 @@ pub mod bench_bvh;
 pub mod bsdf;
 pub mod bvh;
 pub mod coverage;
+pub mod display;
 pub mod gltf_features;
 pub mod gltf_shape;
 pub mod integrator;
@@ -34,7 +35,6 @@ pub mod shading;
 pub mod shapes;
 pub mod spectra3d;
 pub mod texture;
-pub mod display;
 pub use stscam_base::cie as colour;
 pub use stscam_scene::desc;
 // The layers below, under the names this crate's modules use (`crate::io::…`).

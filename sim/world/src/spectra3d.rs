@@ -744,7 +744,8 @@ mod tests {
         // D65's chromaticity (CIE 015: x = 0.31272, y = 0.32903) from the table, tolerance
         // 5e-4 (5 nm table and linear interpolation); a wrong CMF order fails it.
         let d65 = d65_relative();
-        let w = crate::colour::ColourWeights::new(crate::colour::FrontalSpace::Xyz, 360.0, 830.0).unwrap();
+        let w = crate::colour::ColourWeights::new(crate::colour::FrontalSpace::Xyz, 360.0, 830.0)
+            .unwrap();
         let mut xyz = [0.0; 3];
         let mut swapped = [0.0; 3];
         for i in 0..47_000 {

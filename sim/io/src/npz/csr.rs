@@ -458,7 +458,10 @@ fn require_1d(arr: &NpyArray<'_>) -> Result<(), String> {
 
 /// Encodes `m` as a `scipy.sparse.load_npz` CSR file in memory (`path` names the file in error
 /// messages).
-pub fn encode_csr(m: &crate::sparse::CsrMatrix, path: &std::path::Path) -> Result<Vec<u8>, IoError> {
+pub fn encode_csr(
+    m: &crate::sparse::CsrMatrix,
+    path: &std::path::Path,
+) -> Result<Vec<u8>, IoError> {
     encode_csr_npz(path, m.rows, m.cols, &m.indptr, &m.indices, &m.data)
 }
 

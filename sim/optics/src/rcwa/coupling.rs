@@ -690,7 +690,14 @@ mod tests {
     #[test]
     fn lookups_match_direct_rcwa() {
         let set = paper_set(0.015, 0.0);
-        let mut c = RcwaCouplings::build(&set, &small_grid(), &Settings::default(), 40, &Token::default()).unwrap();
+        let mut c = RcwaCouplings::build(
+            &set,
+            &small_grid(),
+            &Settings::default(),
+            40,
+            &Token::default(),
+        )
+        .unwrap();
         let err = c.max_error();
         assert!(err < 0.01, "interpolation error {err}");
         let (lam, u) = c.node_point(0, 7 * 15 + 4).unwrap();
@@ -735,10 +742,26 @@ mod tests {
             },
         };
         let s = Settings::default();
-        let a = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
+        let a = RcwaCouplings::load_or_build(
+            Some(&crate::TestDir(dir.path().to_path_buf())),
+            &set,
+            &grid,
+            &s,
+            4,
+            &Token::default(),
+        )
+        .unwrap();
         assert!(!a.cache().from_cache);
         let path = a.cache().path.clone().unwrap();
-        let b = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
+        let b = RcwaCouplings::load_or_build(
+            Some(&crate::TestDir(dir.path().to_path_buf())),
+            &set,
+            &grid,
+            &s,
+            4,
+            &Token::default(),
+        )
+        .unwrap();
         assert!(b.cache().from_cache);
         let bits = |c: &RcwaCouplings| {
             c.data
@@ -755,12 +778,28 @@ mod tests {
         e.data[0][3] = f64::from_bits(e.data[0][3].to_bits() + 1);
         assert_ne!(format!("{e:?}"), format!("{b:?}"));
         std::fs::write(&path, b"not a table").unwrap();
-        let c = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &set, &grid, &s, 4, &Token::default()).unwrap();
+        let c = RcwaCouplings::load_or_build(
+            Some(&crate::TestDir(dir.path().to_path_buf())),
+            &set,
+            &grid,
+            &s,
+            4,
+            &Token::default(),
+        )
+        .unwrap();
         assert!(!c.cache().from_cache);
         assert_eq!(bits(&a), bits(&c));
         // Another design is another file.
         let other = paper_set(0.02, 0.0);
-        let d = RcwaCouplings::load_or_build(Some(&crate::TestDir(dir.path().to_path_buf())), &other, &grid, &s, 4, &Token::default()).unwrap();
+        let d = RcwaCouplings::load_or_build(
+            Some(&crate::TestDir(dir.path().to_path_buf())),
+            &other,
+            &grid,
+            &s,
+            4,
+            &Token::default(),
+        )
+        .unwrap();
         assert!(!d.cache().from_cache);
         let _ = Grating::of(other.get(0));
     }

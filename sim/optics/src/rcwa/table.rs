@@ -457,8 +457,15 @@ mod tests {
         ];
         let settings = Settings::default();
         let dir = tempfile::tempdir().unwrap();
-        let (t, path, cached) =
-            RcwaTable::load_or_build(&crate::TestDir(dir.path().to_path_buf()), &film, &media, &spec, &settings, 40).unwrap();
+        let (t, path, cached) = RcwaTable::load_or_build(
+            &crate::TestDir(dir.path().to_path_buf()),
+            &film,
+            &media,
+            &spec,
+            &settings,
+            40,
+        )
+        .unwrap();
         assert!(!cached && path.exists());
         // The bound is finite and small (Kogelnik residual interpolated).
         assert!(t.max_error() < 0.02, "measured bound {}", t.max_error());
@@ -480,8 +487,15 @@ mod tests {
             .unwrap();
         assert!((r1.eta[0] - d1.eta[0]).abs() < 1e-12);
         // Second call: loaded from the cache, same values.
-        let (t2, _, cached2) =
-            RcwaTable::load_or_build(&crate::TestDir(dir.path().to_path_buf()), &film, &media, &spec, &settings, 40).unwrap();
+        let (t2, _, cached2) = RcwaTable::load_or_build(
+            &crate::TestDir(dir.path().to_path_buf()),
+            &film,
+            &media,
+            &spec,
+            &settings,
+            40,
+        )
+        .unwrap();
         assert!(cached2);
         assert_eq!(
             t2.efficiency(530.3, 0.01, -0.02),

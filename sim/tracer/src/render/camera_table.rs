@@ -34,7 +34,6 @@
 
 use std::ops::ControlFlow;
 
-
 use super::samples::{CameraSample, PixelSums, SampleConsumer};
 use super::user_side::{FirstHitCache, Gathered, resample_group, trace_exit};
 use super::{PixelJob, RenderSettings, RenderStats};

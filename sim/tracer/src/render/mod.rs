@@ -18,7 +18,6 @@
 //! driver is in [`samples`] (shared with the system matrix), the estimators of the display in
 //! `display`, of 3-D scenes in `user_side`, and the analog reference in `analog`.
 
-
 use crate::sampler::SamplerKind;
 use crate::system::System;
 

@@ -581,8 +581,7 @@ mod tests {
 
     #[test]
     fn loads_the_shipped_face_mesh() {
-        let path =
-            stscam_base::repo_dir().join("scenes/assets/canonical_face_model.obj");
+        let path = stscam_base::repo_dir().join("scenes/assets/canonical_face_model.obj");
         if !path.is_file() {
             println!("skipped: {} is absent", path.display());
             return;
