@@ -20,7 +20,7 @@ import numpy as np
 #: accepted for ``"validation"``.
 SPLITS = ("train", "validation", "test")
 _FOLDER = {"train": "train", "validation": "val", "val": "val", "test": "test"}
-# The CLI's bounds on what it reads whole (sim/io/input.rs): text 64 MiB, binary 4 GiB.
+# The CLI's bounds on what it reads whole (sim/io/src/input.rs): text 64 MiB, binary 4 GiB.
 _MAX_TEXT_BYTES = 64 << 20
 _MAX_BINARY_BYTES = 4 << 30
 

@@ -1,5 +1,5 @@
 //! `stscam matrix` output read back by a zip + NPY reader written here, independently of the
-//! crate's own `sim/io/npz.rs`: zip local headers (with ZIP64 extra fields) and central
+//! crate's own `sim/io/src/npz/`: zip local headers (with ZIP64 extra fields) and central
 //! directory walked by hand, CRC-32 of every entry, NPY headers parsed by hand, then every
 //! scipy CSR invariant checked against `H.json`; plus byte-identical output for equal seeds
 //! and for 1 vs 2 worker threads.

@@ -4,7 +4,7 @@
 //! (and, once the folder is next written or recovered, nothing else); a SIGKILL during the
 //! renames is completed by the recovery; a SIGKILL after the data are written but before the
 //! commit leaves the previous set and nothing else (the data sit in unnamed files); links
-//! planted at the output names or the lock are not followed. `STSCAM_TEST_COMMIT_DELAY_MS` (sim/io/atomic.rs) slows the commit to hit its
+//! planted at the output names or the lock are not followed. `STSCAM_TEST_COMMIT_DELAY_MS` (sim/io/src/atomic.rs) slows the commit to hit its
 //! windows.
 //!
 //! Every fixture is written into a temporary folder by the test itself.

@@ -1,7 +1,7 @@
 """The two display targets of the Mitsuba comparison, as 64x64 8-bit grey PNG files.
 
 Both are binary (0 or 255), so the display gamma does not matter. Row 0 is the top (+y) and
-column 0 the left (-x) as seen from the camera, as in stscam's display (`sim/display.rs`).
+column 0 the left (-x) as seen from the camera, as in stscam's display (`sim/world/src/display.rs`).
   target-glyph.png  an "F"-like glyph, asymmetric in x and y (orientation check, plain glass)
   target-lines.png  four horizontal lines, 1 target pixel tall, of different lengths, so that
                     each line's replicas are separated in the waveguide image (replica check)
