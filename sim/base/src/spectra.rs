@@ -107,6 +107,7 @@ impl Spectrum {
     }
 
     /// Linearly interpolated value at `lambda_nm`; 0 outside the table (and for NaN).
+    #[inline]
     pub fn eval(&self, lambda_nm: f64) -> f64 {
         let t = (lambda_nm - self.start_nm) / self.step_nm;
         let last = self.last_index();
@@ -301,6 +302,7 @@ const PYTHON1300_QE: [(f64, f64); 9] = [
 
 /// Piecewise-linear interpolation through sorted `(x, y)` points, held constant outside
 /// the first/last point; NaN input returns the first value.
+#[inline]
 pub fn interp_clamped(points: &[(f64, f64)], x: f64) -> f64 {
     let (Some(&(x0, y0)), Some(&(xn, yn))) = (points.first(), points.last()) else {
         return 0.0;

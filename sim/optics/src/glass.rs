@@ -68,6 +68,7 @@ impl Glass {
     ///
     /// Soda-lime: Rubin (1985) Cauchy-type fit; N-BK7: SCHOTT Sellmeier formula;
     /// Constant: `n`. The wavelength is clamped to the formula's validity range.
+    #[inline]
     pub fn index(&self, lambda_nm: f64) -> f64 {
         let l_um = self.clamp_nm(lambda_nm) * 1e-3;
         let l2 = l_um * l_um;
@@ -102,6 +103,7 @@ impl Glass {
     /// Intensity absorption coefficient α_int = 4πk/λ in 1/mm (λ converted to mm).
     ///
     /// Soda-lime at 530 nm gives ≈ 0.0042 /mm.
+    #[inline]
     pub fn absorption_per_mm(&self, lambda_nm: f64) -> f64 {
         let k = self.extinction_k(lambda_nm);
         if k == 0.0 {

@@ -41,6 +41,7 @@ use super::kogelnik::{self, CoupledWave};
 /// slowly-varying-envelope approximation (module notes): `c` is the smaller obliquity factor of
 /// the incident and diffracted waves; with ε = n1/(4 n_film c²), 1 for
 /// ε ≤ 0.1, 0 for ε ≥ 1, and the smoothstep 3t² − 2t³ of t = (1 − ε)/0.9 between.
+#[inline]
 pub fn svea_taper(n1: f64, n_film: f64, c: f64) -> f64 {
     let eps = n1.abs() / (4.0 * n_film * c * c);
     if !(eps > 0.1) {
