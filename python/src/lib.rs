@@ -630,6 +630,7 @@ fn reconstruct_stack<'py>(
         tau_rel: tau,
         mu_rel: mu,
         tv,
+        cancel: stscam::cancel::current(),
         ..StackOptions::default()
     };
     let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
@@ -853,7 +854,7 @@ fn reconstruct<'py>(
     )
     .map_err(value_error)?;
     let sol = run_job(py, threads, || {
-        let problem = Problem::new(&h, object.0, object.1);
+        let problem = Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current());
         stscam::recon::solve(&problem, &g, &opts)
     })?;
     Ok((f64_bytes(py, &sol.f), json(&sol.info)?))
@@ -900,7 +901,7 @@ impl Solver {
         )
         .map_err(value_error)?;
         let problem = run_job(py, threads, || {
-            stscam::recon::Problem::new(&h, object.0, object.1)
+            stscam::recon::Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current())
         })?;
         Ok(Solver { problem, rows })
     }

@@ -244,6 +244,7 @@ fn depth_estimation_picks_the_nearest_grid_depth() {
         &frames,
         &grid,
         DEFAULT_DEPTH_CG_ITERS,
+        &Default::default(),
     );
     for ((&d, spec), est) in truth_depths.iter().zip(&specs).zip(&estimates) {
         let nearest = grid
@@ -313,7 +314,15 @@ fn depth_estimation_picks_the_nearest_grid_depth() {
     let f = intensity("letter:A@32");
     let noisy = noisy_capture_of(m, &f, &noise, 2, 999);
     let g: Vec<f64> = noisy.iter().zip(&dark).map(|(a, b)| a - b).collect();
-    let est = estimate_depth(&wp, &[], (32, 32), &g, &wrong, DEFAULT_DEPTH_CG_ITERS);
+    let est = estimate_depth(
+        &wp,
+        &[],
+        (32, 32),
+        &g,
+        &wrong,
+        DEFAULT_DEPTH_CG_ITERS,
+        &Default::default(),
+    );
     assert!((est.depth_mm - d).abs() > 25.0, "{} vs {d}", est.depth_mm);
 }
 

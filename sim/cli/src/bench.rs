@@ -179,7 +179,9 @@ fn cmd_bench_recon(
     let cal = bench_calibration(&pool, &m);
     let calibration_s = cal.as_ref().map(|_| t0.elapsed().as_secs_f64());
     let t0 = Instant::now();
-    let p = pool.install(|| Problem::new(&m.h, m.object.0, m.object.1));
+    let p = pool.install(|| {
+        Problem::with_cancel(&m.h, m.object.0, m.object.1, stscam_base::cancel::current())
+    });
     let setup_s = t0.elapsed().as_secs_f64();
     // One frame: the capture H f + o of the scene's target, offset removed.
     let g = m.h.mul_vec(&sys.display.intensity);

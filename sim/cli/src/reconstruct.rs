@@ -123,6 +123,7 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
                 tau_rel: tau,
                 mu_rel: *mu,
                 tv,
+                cancel: stscam_base::cancel::current(),
                 ..Default::default()
             };
             return reconstruct_stack(
@@ -147,7 +148,8 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     )
     .map_err(|e| bad_input(format!("{}: {e}", matrix.display())))?;
     let t0 = Instant::now();
-    let problem = pool.install(|| Problem::new(&lm.h, w, planes * h));
+    let problem =
+        pool.install(|| Problem::with_cancel(&lm.h, w, planes * h, stscam_base::cancel::current()));
     let setup_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let opts = SolveOptions {

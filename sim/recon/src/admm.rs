@@ -219,7 +219,7 @@ pub fn admm_tv_from(
         }
     };
     // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
-    let cancel = crate::cancel::current();
+    let cancel = &p.cancel;
     for _ in 0..set.iters {
         if cancel.is_cancelled() {
             break;
@@ -239,6 +239,7 @@ pub fn admm_tv_from(
             &mut f,
             set.inner_iters,
             0.0,
+            cancel,
         );
         // z-update.
         grad(&f, w, h, &mut df);

@@ -7,6 +7,7 @@
 //! The same routine, with a Jacobi preconditioner and a warm start, solves the ADMM f-update.
 
 use super::{Problem, dot};
+use crate::cancel::Token;
 
 /// Default CGM iteration count (chosen on the demo's noisy targets; see docs/validation.md).
 pub const DEFAULT_CG_ITERS: usize = 30;
@@ -32,7 +33,9 @@ pub struct CgResult {
 }
 
 /// Preconditioned CG for A x = b from the warm start `x`, with A given by `apply` and an
-/// optional inverse diagonal preconditioner. Returns (iterations, relative residual).
+/// optional inverse diagonal preconditioner, stopped between iterations once `cancel` is set.
+/// Returns (iterations, relative residual).
+#[allow(clippy::too_many_arguments)]
 pub fn pcg(
     apply: impl FnMut(&[f64], &mut [f64]),
     inv_diag: Option<&[f64]>,
@@ -40,12 +43,14 @@ pub fn pcg(
     x: &mut [f64],
     iters: usize,
     tol: f64,
+    cancel: &Token,
 ) -> (usize, f64) {
-    pcg_until(apply, inv_diag, b, x, iters, tol, |_, _| false)
+    pcg_until(apply, inv_diag, b, x, iters, tol, cancel, |_, _| false)
 }
 
 /// [`pcg`] that also stops after the first iteration at which `stop(x, r)` holds (x the
 /// iterate, r = b − A x its residual).
+#[allow(clippy::too_many_arguments)]
 pub fn pcg_until(
     mut apply: impl FnMut(&[f64], &mut [f64]),
     inv_diag: Option<&[f64]>,
@@ -53,6 +58,7 @@ pub fn pcg_until(
     x: &mut [f64],
     iters: usize,
     tol: f64,
+    cancel: &Token,
     mut stop: impl FnMut(&[f64], &[f64]) -> bool,
 ) -> (usize, f64) {
     let n = b.len();
@@ -81,7 +87,6 @@ pub fn pcg_until(
     let mut res = dot(&r, &r).sqrt() / bnorm;
     let mut k = 0;
     // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
-    let cancel = crate::cancel::current();
     while k < iters && res > tol {
         if cancel.is_cancelled() {
             break;
@@ -122,6 +127,7 @@ pub fn cg_normal(p: &Problem, htg: &[f64], set: &CgSettings) -> CgResult {
         &mut f,
         set.iters,
         set.tol,
+        &p.cancel,
     );
     CgResult {
         f,

@@ -24,6 +24,7 @@
 //! Assumption: one planar object at one depth, every depth's H of the same object shape.
 
 use super::{Problem, cg::CgSettings, cg::cg_normal, dot};
+use crate::cancel::Token;
 use crate::sparse::CsrMatrix;
 
 /// Default CG iterations of the depth criterion.
@@ -55,7 +56,8 @@ pub struct DepthEstimate {
 /// `depths_mm[d]` (object `width` × `height`), `offsets[d]` that depth's offset o_d (or `None`
 /// when the captures already have their offset removed), `captures` the raw frames (g_d =
 /// capture − o_d), `cg_iters` the CGM length. Each depth's reconstruction problem is set up
-/// once, used for every frame and dropped, so memory holds one at a time.
+/// once, used for every frame and dropped, so memory holds one at a time; once `cancel` is set
+/// the solves stop (the result is then meaningless).
 pub fn estimate_depths(
     blocks: &[&CsrMatrix],
     offsets: &[Option<&[f32]>],
@@ -63,6 +65,7 @@ pub fn estimate_depths(
     captures: &[Vec<f64>],
     depths_mm: &[f64],
     cg_iters: usize,
+    cancel: &Token,
 ) -> Vec<DepthEstimate> {
     let set = CgSettings {
         iters: cg_iters,
@@ -73,7 +76,7 @@ pub fn estimate_depths(
     let mut relative = vec![Vec::with_capacity(nd); captures.len()];
     let mut recons = vec![Vec::with_capacity(nd); captures.len()];
     for (d, h) in blocks.iter().enumerate() {
-        let p = Problem::new(h, width, height);
+        let p = Problem::with_cancel(h, width, height, cancel.clone());
         for (k, capture) in captures.iter().enumerate() {
             let g: Vec<f64> = match offsets.get(d).copied().flatten() {
                 Some(o) => capture
@@ -103,6 +106,7 @@ pub fn estimate_depth(
     capture: &[f64],
     depths_mm: &[f64],
     cg_iters: usize,
+    cancel: &Token,
 ) -> DepthEstimate {
     let mut v = estimate_depths(
         blocks,
@@ -111,6 +115,7 @@ pub fn estimate_depth(
         &[capture.to_vec()],
         depths_mm,
         cg_iters,
+        cancel,
     );
     v.swap_remove(0)
 }

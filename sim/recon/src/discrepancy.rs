@@ -171,6 +171,7 @@ pub fn cg_discrepancy(p: &Problem, htg: &[f64], level: &NoiseLevel, max_iters: u
         &mut f,
         max_iters,
         0.0,
+        &p.cancel,
         |x, r| level.g_norm2 - dot(x, htg) - dot(x, r) <= level.budget,
     );
     CgResult {

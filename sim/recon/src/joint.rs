@@ -122,7 +122,7 @@ pub fn joint_admm_tv(p: &Problem, planes: usize, htg: &[f64], set: &JointSetting
         }
     };
     // A cancelled job (Ctrl-C in Python, `crate::cancel`) stops between iterations.
-    let cancel = crate::cancel::current();
+    let cancel = &p.cancel;
     for _ in 0..set.iters {
         if cancel.is_cancelled() {
             break;
@@ -141,6 +141,7 @@ pub fn joint_admm_tv(p: &Problem, planes: usize, htg: &[f64], set: &JointSetting
             &mut f,
             set.inner_iters,
             0.0,
+            cancel,
         );
         grad_all(&f, &mut df);
         for ((dp, up), zp) in df

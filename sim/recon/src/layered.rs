@@ -10,6 +10,7 @@ use super::admm::{AdmmSettings, TvKind, admm_tv};
 use super::depth::{DepthEstimate, estimate_depth};
 use super::joint::{JointSettings, joint_admm_tv};
 use super::{Problem, setup_bytes_bound, setup_bytes_bound_blocks};
+use crate::cancel::Token;
 use crate::sparse::CsrMatrix;
 use crate::stack::LoadedStack;
 
@@ -30,7 +31,7 @@ pub enum StackMethod {
 }
 
 /// Options of [`solve_stack`].
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StackOptions {
     /// Joint or depth estimation.
     pub method: StackMethod,
@@ -44,6 +45,8 @@ pub struct StackOptions {
     pub tv: TvKind,
     /// Depth: CGM iterations of the criterion.
     pub depth_cg_iters: usize,
+    /// Stops the solves once set (the default is never set).
+    pub cancel: Token,
 }
 
 impl Default for StackOptions {
@@ -55,6 +58,7 @@ impl Default for StackOptions {
             mu_rel: super::joint::DEFAULT_MU_REL,
             tv: TvKind::Iso,
             depth_cg_iters: super::depth::DEFAULT_DEPTH_CG_ITERS,
+            cancel: Token::default(),
         }
     }
 }
@@ -121,7 +125,7 @@ pub fn solve_stack(
             let g = minus(capture, ls.joint_offset.as_ref());
             let refs: Vec<&CsrMatrix> = ls.blocks.iter().collect();
             let block = CsrMatrix::hstack(&refs).ok_or("the depth blocks differ in rows")?;
-            let p = Problem::new(&block, w, h * n);
+            let p = Problem::with_cancel(&block, w, h * n, opts.cancel.clone());
             drop(block);
             let set = JointSettings {
                 iters: opts.iters.unwrap_or(JointSettings::default().iters),
@@ -153,8 +157,9 @@ pub fn solve_stack(
                 capture,
                 &ls.depths_mm,
                 opts.depth_cg_iters,
+                &opts.cancel,
             );
-            let p = Problem::new(&ls.blocks[est.best], w, h);
+            let p = Problem::with_cancel(&ls.blocks[est.best], w, h, opts.cancel.clone());
             let g = minus(capture, ls.offsets[est.best].as_ref());
             let set = AdmmSettings {
                 iters: opts.iters.unwrap_or(AdmmSettings::default().iters),

@@ -22,6 +22,7 @@ pub mod joint;
 pub mod layered;
 pub mod metrics;
 // The layers below, under the names this crate's modules use (`crate::io::…`).
+use stscam_base::cancel::Token;
 #[cfg(test)]
 use stscam_base::sampler;
 use stscam_base::{cancel, cie, noise, sparse, spectra};
@@ -67,6 +68,9 @@ pub struct Problem {
     pub height: usize,
     /// Stored entries of G.
     pub gram_nnz: usize,
+    /// Stops the solvers between iterations once set (the set-up checks it between rows of
+    /// G); a problem made by [`Problem::new`] has a token that is never set.
+    pub cancel: Token,
 }
 
 /// Rows of G per parallel task.
@@ -96,14 +100,19 @@ pub fn setup_bytes_bound_blocks(blocks: &[&CsrMatrix], threads: usize) -> u128 {
 }
 
 impl Problem {
-    /// Prepares H (rows = captures values, columns = object pixels, object `width`×`height`).
+    /// Prepares H (rows = captures values, columns = object pixels, object `width`×`height`),
+    /// never cancelled.
     pub fn new(h: &CsrMatrix, width: usize, height: usize) -> Problem {
+        Self::with_cancel(h, width, height, Token::default())
+    }
+
+    /// [`Problem::new`] that stops once `cancel` is set (Ctrl-C in Python): the set-up skips
+    /// its remaining rows and the solvers stop between iterations; the meaningless result is
+    /// discarded by the front end.
+    pub fn with_cancel(h: &CsrMatrix, width: usize, height: usize, cancel: Token) -> Problem {
         assert_eq!(width * height, h.cols, "object shape does not match H");
         let ht = h.transpose();
         let n = h.cols;
-        // A cancelled job (Ctrl-C in Python, `crate::cancel`) skips the remaining rows; its
-        // meaningless result is discarded by the front end.
-        let cancel = crate::cancel::current();
         // Row a of G: Σ_m H[m,a]·H[m,:], accumulated in a fixed order (m increasing).
         let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..n)
             .into_par_iter()
@@ -187,6 +196,7 @@ impl Problem {
             width,
             height,
             gram_nnz,
+            cancel,
         }
     }
 

@@ -96,17 +96,18 @@ pub struct ColourDemoOutput {
 /// Share of each primary's light through each grating of `sys`'s film (see the module notes),
 /// from every `stride`-th crop pixel in both directions at `spp` samples (seed `seed`).
 pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[f64; 3]> {
-    use rayon::prelude::*;
     let g = sys.waveguide.gratings.len();
     let set = RenderSettings::lattice(spp, seed, false);
     let rule = (set.spp, crate::render::lattice_rule(&set, set.spp));
     let (w, h) = (sys.camera.width_px, sys.camera.height_px);
     let stride = stride.max(1);
-    let rows: Vec<Vec<[f64; 3]>> = (0..h)
-        .step_by(stride)
-        .collect::<Vec<_>>()
-        .into_par_iter()
-        .map(|row| {
+    let rows: Vec<Vec<[f64; 3]>> = crate::rows::par_rows(
+        h.div_ceil(stride),
+        false,
+        "grating shares",
+        &crate::cancel::current(),
+        |i| {
+            let row = i * stride;
             let mut shares = Shares {
                 sys,
                 acc: vec![[0.0f64; 3]; g],
@@ -118,8 +119,9 @@ pub fn grating_shares(sys: &System, spp: u32, seed: u64, stride: usize) -> Vec<[
                 crate::render::drive_pixel(sys, &set, rule, (col, row), &mut stats, &mut shares);
             }
             shares.acc
-        })
-        .collect();
+        },
+        |_| vec![[0.0f64; 3]; g],
+    );
     let mut tot = vec![[0.0f64; 3]; g];
     for r in &rows {
         for (t, a) in tot.iter_mut().zip(r) {
@@ -279,8 +281,8 @@ fn colour_design(
         },
     )
     .map_err(|e| format!("{name}: display.image: {e}"))?;
-    let p_true = Problem::new(&m.h, ow, 3 * oh);
-    let p_est = Problem::new(&h_est, ow, 3 * oh);
+    let p_true = Problem::with_cancel(&m.h, ow, 3 * oh, crate::cancel::current());
+    let p_est = Problem::with_cancel(&h_est, ow, 3 * oh, crate::cancel::current());
     let xyz = primaries_to_xyz(&primaries_of(sys));
     let short = if sys.waveguide.gratings.len() > 1 {
         "RGB"

@@ -249,8 +249,8 @@ pub fn run_demo(sys: &System, set: &DemoSettings) -> Result<DemoOutput, String> 
     let calibration = t0.elapsed().as_secs_f64();
     // 4. Reconstructions.
     let t0 = Instant::now();
-    let p_true = Problem::new(&run.m.h, ow, oh);
-    let p_est = Problem::new(&cal.h_est, ow, oh);
+    let p_true = Problem::with_cancel(&run.m.h, ow, oh, crate::cancel::current());
+    let p_est = Problem::with_cancel(&cal.h_est, ow, oh, crate::cancel::current());
     let setup = t0.elapsed().as_secs_f64();
     let (table, recons) = run.table(&shots, &p_true, &p_est);
     let recon = t0.elapsed().as_secs_f64();
@@ -452,6 +452,7 @@ impl DemoRun<'_> {
             &frames,
             grid,
             crate::recon::depth::DEFAULT_DEPTH_CG_ITERS,
+            &crate::cancel::current(),
         );
         let mut rows = Vec::new();
         let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
@@ -460,7 +461,9 @@ impl DemoRun<'_> {
             let mut scores = [[(0.0, 0.0); 2]; 2];
             let mut per = Vec::new();
             for (k, d) in [NOMINAL, est.best].into_iter().enumerate() {
-                let p = problems[d].get_or_insert_with(|| Problem::new(&self.stack[d].h, ow, oh));
+                let p = problems[d].get_or_insert_with(|| {
+                    Problem::with_cancel(&self.stack[d].h, ow, oh, crate::cancel::current())
+                });
                 let g: Vec<f64> = frame
                     .iter()
                     .zip(&self.stack[d].offset)

@@ -18,7 +18,7 @@ pub mod tolerance;
 #[cfg(test)]
 use stscam_base::options;
 use stscam_base::{
-    VERSION, cancel, limits, noise, numfmt, progress, sampler, sparse, spectra, targets,
+    VERSION, cancel, limits, noise, numfmt, progress, rows, sampler, sparse, spectra, targets,
 };
 use stscam_dataset as dataset;
 use stscam_io as io;

@@ -335,7 +335,12 @@ impl StaleCalibration {
         );
         let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
         Ok(StaleCalibration {
-            problem: crate::recon::Problem::new(&m.h, sys.display.width_px, sys.display.height_px),
+            problem: crate::recon::Problem::with_cancel(
+                &m.h,
+                sys.display.width_px,
+                sys.display.height_px,
+                crate::cancel::current(),
+            ),
             truth,
             noise,
             dark,

@@ -561,7 +561,12 @@ pub fn psnr_problem(sys: &System, p: &PsnrSettings, progress: bool) -> crate::re
         sys,
         &crate::render::RenderSettings::lattice(p.spp, p.seed, progress),
     );
-    crate::recon::Problem::new(&m.h, sys.display.width_px, sys.display.height_px)
+    crate::recon::Problem::with_cancel(
+        &m.h,
+        sys.display.width_px,
+        sys.display.height_px,
+        crate::cancel::current(),
+    )
 }
 
 /// The PSNR of [`psnr_figure`] and, with `nominal` (the problem of another scene's H, e.g. the
@@ -582,7 +587,7 @@ pub fn psnr_figures(
     );
     let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
     let (_, g) = crate::capture::measured_capture(sys, &truth, &set, &noise, &dark, 0);
-    let problem = crate::recon::Problem::new(&m.h, ow, oh);
+    let problem = crate::recon::Problem::with_cancel(&m.h, ow, oh, crate::cancel::current());
     // τ by the discrepancy principle on the sensor noise, as the demo's table chooses it.
     let black = crate::capture::black_level_of(&dark, &noise);
     let solve = |pr: &crate::recon::Problem| {
