@@ -211,7 +211,7 @@ pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<ExrChannel>), IoError>
 
 /// Decodes EXR `bytes` (read from `path`, which is used only in errors).
 /// Images of more than `max_pixels` pixels are refused from the header, before decoding.
-pub fn decode_exr(
+pub(crate) fn decode_exr(
     path: &Path,
     bytes: Vec<u8>,
     max_pixels: usize,

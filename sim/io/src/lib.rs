@@ -37,7 +37,7 @@ pub use self::png::{PngTransfer, encode_png16, preview_u16};
 
 /// Largest pixel count accepted when reading an image, so that a corrupt or
 /// hostile header cannot trigger a huge allocation.
-pub const MAX_PIXELS: usize = 1 << 28;
+pub(crate) const MAX_PIXELS: usize = 1 << 28;
 
 /// The first value of `values` that is not a finite float32 (NaN or infinite; a float64
 /// beyond float32's range becomes infinite when read), as (index, value).

@@ -170,7 +170,7 @@ impl VolumeGrating {
     /// The incident wave's quantities shared by all its orders; `None` if it cannot enter
     /// the film.
     #[inline]
-    pub fn incident(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> Option<Incident> {
+    pub(crate) fn incident(&self, u: DVec2, z_sign: f64, lambda_nm: f64) -> Option<Incident> {
         let k_vac = 2.0 * PI / lambda_nm;
         let beta = k_vac * self.n_film;
         let beta2 = beta * beta;
@@ -331,7 +331,7 @@ impl VolumeGrating {
     /// [`Self::undiffracted_with`] of the wave `incident` = `self.incident(u, …)` (computed
     /// once for several uses).
     #[inline]
-    pub fn undiffracted_from(
+    pub(crate) fn undiffracted_from(
         &self,
         incident: Option<Incident>,
         u: DVec2,

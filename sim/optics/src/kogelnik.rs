@@ -159,7 +159,7 @@ pub(crate) mod tests {
     ///   c_R R' + α0 R = −iκS,  c_S S' + (α0 + iϑ) S = −iκR
     /// by classical RK4 with two fundamental solutions and the boundary conditions
     /// R(0) = 1, S(d) = 0 (reflection). Independent of the closed forms above.
-    pub fn ode_reflection_efficiency(cw: &CoupledWave, steps: usize) -> f64 {
+    pub(crate) fn ode_reflection_efficiency(cw: &CoupledWave, steps: usize) -> f64 {
         let i = Complex64::i();
         let f = |y: [Complex64; 2]| -> [Complex64; 2] {
             let (r, s) = (y[0], y[1]);
@@ -192,9 +192,9 @@ pub(crate) mod tests {
     }
 
     /// Tiny deterministic generator for test cases (splitmix64).
-    pub struct TestRng(pub u64);
+    pub(crate) struct TestRng(pub u64);
     impl TestRng {
-        pub fn next_f64(&mut self) -> f64 {
+        pub(crate) fn next_f64(&mut self) -> f64 {
             self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
             let mut z = self.0;
             z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -202,7 +202,7 @@ pub(crate) mod tests {
             z ^= z >> 31;
             (z >> 11) as f64 / (1u64 << 53) as f64
         }
-        pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        pub(crate) fn range(&mut self, lo: f64, hi: f64) -> f64 {
             lo + (hi - lo) * self.next_f64()
         }
     }

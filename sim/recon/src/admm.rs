@@ -129,7 +129,7 @@ pub fn total_variation(f: &[f64], w: usize, h: usize, kind: TvKind) -> f64 {
 /// The z-update of TV-ADMM for one image of n pixels (x differences in [..n], y differences in
 /// [n..]): z = soft(Df + u, κ) elementwise (anisotropic) or the 2-vector shrinkage per pixel
 /// (isotropic).
-pub fn tv_shrink(df: &[f64], u: &[f64], kappa: f64, kind: TvKind, z: &mut [f64]) {
+pub(crate) fn tv_shrink(df: &[f64], u: &[f64], kappa: f64, kind: TvKind, z: &mut [f64]) {
     let n = z.len() / 2;
     match kind {
         TvKind::Aniso => {
@@ -156,7 +156,7 @@ pub fn tv_shrink(df: &[f64], u: &[f64], kappa: f64, kind: TvKind, z: &mut [f64])
 
 /// Number of forward differences at pixel q of a w×h image that involve it (the diagonal of
 /// DᵀD).
-pub fn grad_degree(q: usize, w: usize, h: usize) -> usize {
+pub(crate) fn grad_degree(q: usize, w: usize, h: usize) -> usize {
     let (r, c) = (q / w, q % w);
     usize::from(c + 1 < w) + usize::from(c > 0) + usize::from(r + 1 < h) + usize::from(r > 0)
 }

@@ -36,7 +36,7 @@ pub struct CgResult {
 /// optional inverse diagonal preconditioner, stopped between iterations once `cancel` is set.
 /// Returns (iterations, relative residual).
 #[allow(clippy::too_many_arguments)]
-pub fn pcg(
+pub(crate) fn pcg(
     apply: impl FnMut(&[f64], &mut [f64]),
     inv_diag: Option<&[f64]>,
     b: &[f64],
@@ -51,7 +51,7 @@ pub fn pcg(
 /// [`pcg`] that also stops after the first iteration at which `stop(x, r)` holds (x the
 /// iterate, r = b − A x its residual).
 #[allow(clippy::too_many_arguments)]
-pub fn pcg_until(
+pub(crate) fn pcg_until(
     mut apply: impl FnMut(&[f64], &mut [f64]),
     inv_diag: Option<&[f64]>,
     b: &[f64],
@@ -142,7 +142,7 @@ mod tests {
     use crate::sparse::CsrMatrix;
 
     /// A random sparse, well-conditioned tall matrix (identity block plus noise).
-    pub fn synthetic(rows: usize, cols: usize, seed: u64) -> CsrMatrix {
+    pub(crate) fn synthetic(rows: usize, cols: usize, seed: u64) -> CsrMatrix {
         let mut indptr = vec![0u64];
         let mut indices = Vec::new();
         let mut data = Vec::new();

@@ -264,7 +264,7 @@ impl Problem {
 
 /// Dot product in f64 (fixed order).
 #[inline]
-pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     // Four partial sums in a fixed pattern: vectorisable and deterministic.
     let mut s = [0.0f64; 4];
     let chunks = a.len() / 4;

@@ -814,7 +814,7 @@ const GAP: usize = 6;
 
 /// Column labels of the demo's figure and of the colour demo's: object, capture, then CGM and
 /// ADMM-TV with the true H and with the calibrated one.
-pub const FIGURE_COLUMNS: [&str; 6] = [
+pub(crate) const FIGURE_COLUMNS: [&str; 6] = [
     "OBJECT",
     "CAPTURE",
     "CGM H TRUE",
@@ -852,7 +852,7 @@ fn figure(
 /// The figure's canvas (width, height, display code values in [0, 1]) of [`figure`]; each
 /// capture is scaled by `capture_peaks[row]` if given, else by its own 99.9th percentile.
 #[allow(clippy::too_many_arguments)]
-pub fn figure_canvas(
+pub(crate) fn figure_canvas(
     labels: &[&str],
     shots: &[(&str, &[f64], &[f64])],
     recons: &[Vec<Vec<f64>>],
@@ -933,7 +933,7 @@ pub fn figure_canvas(
 
 /// The 99.9th percentile of a capture (its display scale in the figures), at least the
 /// smallest positive number.
-pub fn percentile_peak(capture: &[f64]) -> f64 {
+pub(crate) fn percentile_peak(capture: &[f64]) -> f64 {
     let mut s: Vec<f64> = capture.to_vec();
     s.sort_by(f64::total_cmp);
     s[((s.len() as f64 - 1.0) * 0.999) as usize].max(f64::MIN_POSITIVE)

@@ -218,7 +218,7 @@ struct PreparedGuided {
 
 /// Whether [`prepare_paths`] serves this waveguide: one grating, Kogelnik's model, a lossless
 /// film (the packet's forms, optics::packet); other films are traced by the scalar code alone.
-pub fn packets_apply(wg: &Waveguide) -> bool {
+pub(crate) fn packets_apply(wg: &Waveguide) -> bool {
     wg.rcwa.is_none() && wg.gratings.len() == 1 && wg.gratings.film().alpha0_per_nm == 0.0
 }
 
@@ -277,7 +277,7 @@ pub fn prepare_paths(wg: &Waveguide, rays: &[(DVec3, DVec3, f64); LANES]) -> [Pr
 
 /// [`trace_camera_path_until`] of the ray (lens point, unit direction, wavelength) whose film
 /// quantities were [`prepare_paths`]'d: the same branches, bit for bit.
-pub fn trace_prepared_until(
+pub(crate) fn trace_prepared_until(
     wg: &Waveguide,
     display_z_mm: f64,
     limits: TraceLimits,

@@ -410,7 +410,7 @@ pub fn solve_in_basis(
 
 /// [`solve`] with one eigendecomposition per slice even where the shift trick applies (tests).
 #[cfg(test)]
-pub fn solve_per_slice(
+pub(crate) fn solve_per_slice(
     film: &Film,
     stack: &Stack,
     lambda_nm: f64,

@@ -10,41 +10,41 @@ use faer::linalg::solvers::DenseSolveCore;
 use num_complex::Complex64 as C;
 
 /// Dense complex matrix.
-pub type CMat = Mat<C>;
+pub(crate) type CMat = Mat<C>;
 
 /// Inverse by LU with partial pivoting.
-pub fn inv(a: &CMat) -> CMat {
+pub(crate) fn inv(a: &CMat) -> CMat {
     a.partial_piv_lu().inverse()
 }
 
 /// `a − b`.
-pub fn sub(a: &CMat, b: &CMat) -> CMat {
+pub(crate) fn sub(a: &CMat, b: &CMat) -> CMat {
     a - b
 }
 
 /// `a + b`.
-pub fn add(a: &CMat, b: &CMat) -> CMat {
+pub(crate) fn add(a: &CMat, b: &CMat) -> CMat {
     a + b
 }
 
 /// `s·a`.
-pub fn scale(a: &CMat, s: f64) -> CMat {
+pub(crate) fn scale(a: &CMat, s: f64) -> CMat {
     CMat::from_fn(a.nrows(), a.ncols(), |i, j| a[(i, j)] * s)
 }
 
 /// diag(d)·a (rows scaled).
-pub fn diag_left(d: &[C], a: &CMat) -> CMat {
+pub(crate) fn diag_left(d: &[C], a: &CMat) -> CMat {
     CMat::from_fn(a.nrows(), a.ncols(), |i, j| d[i] * a[(i, j)])
 }
 
 /// a·diag(d) (columns scaled).
-pub fn diag_right(a: &CMat, d: &[C]) -> CMat {
+pub(crate) fn diag_right(a: &CMat, d: &[C]) -> CMat {
     CMat::from_fn(a.nrows(), a.ncols(), |i, j| a[(i, j)] * d[j])
 }
 
 /// Scattering matrix with 2N×2N blocks.
 #[derive(Clone, Debug)]
-pub struct SMatrix {
+pub(crate) struct SMatrix {
     pub s11: CMat,
     pub s12: CMat,
     pub s21: CMat,
@@ -94,7 +94,7 @@ impl SMatrix {
 /// S-matrix of a homogeneous-in-z layer of normalised thickness `dz` (k0·d) with modes W, V
 /// and propagation constants q, in the gap basis with mode matrix `v0` (W0 = I).
 /// Symmetric: S22 = S11, S21 = S12 (Rumpf Eqs. 2.92–2.93 with our e^{+iqz} convention).
-pub fn layer(w: &CMat, v: &CMat, q: &[C], v0: &CMat, dz: f64) -> SMatrix {
+pub(crate) fn layer(w: &CMat, v: &CMat, q: &[C], v0: &CMat, dz: f64) -> SMatrix {
     let wi = inv(w);
     let vi = inv(v);
     let viv0 = &vi * v0;
@@ -118,7 +118,7 @@ pub fn layer(w: &CMat, v: &CMat, q: &[C], v0: &CMat, dz: f64) -> SMatrix {
 
 /// S-matrix of the half-space the light comes from (mode matrix `v_ref`, W = I), joined to
 /// the gap (Rumpf Eq. 2.100).
-pub fn reflection_side(v_ref: &CMat, v0i: &CMat) -> SMatrix {
+pub(crate) fn reflection_side(v_ref: &CMat, v0i: &CMat) -> SMatrix {
     let n = v_ref.nrows();
     let id = CMat::identity(n, n);
     let t = v0i * v_ref;
@@ -135,7 +135,7 @@ pub fn reflection_side(v_ref: &CMat, v0i: &CMat) -> SMatrix {
 
 /// S-matrix of the half-space the light leaves into (mode matrix `v_trn`, W = I), joined to
 /// the gap (Rumpf Eq. 2.105).
-pub fn transmission_side(v_trn: &CMat, v0i: &CMat) -> SMatrix {
+pub(crate) fn transmission_side(v_trn: &CMat, v0i: &CMat) -> SMatrix {
     let n = v_trn.nrows();
     let id = CMat::identity(n, n);
     let t = v0i * v_trn;

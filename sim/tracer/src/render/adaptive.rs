@@ -109,7 +109,7 @@ pub fn extra_bytes_per_pixel(values: u128) -> u128 {
 }
 
 /// The seed of pilot render `k` (0 or 1) of a render seeded `seed`.
-pub fn pilot_seed(seed: u64, k: u64) -> u64 {
+pub(crate) fn pilot_seed(seed: u64, k: u64) -> u64 {
     crate::sampler::hash(&[seed, PILOT_TAG, k])
 }
 

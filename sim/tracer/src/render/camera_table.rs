@@ -85,17 +85,17 @@ impl Default for TableSettings {
 
 /// One representative exit ray of a pixel.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Rep {
+pub(crate) struct Rep {
     /// Front-face exit point (x, y), mm.
-    pub exit_mm: [f64; 2],
+    pub(crate) exit_mm: [f64; 2],
     /// Direction of the exit ray (the camera ray's, unit).
-    pub dir: [f64; 3],
+    pub(crate) dir: [f64; 3],
     /// Wavelength, nm.
-    pub lambda_nm: f64,
+    pub(crate) lambda_nm: f64,
     /// Coefficients of the display seen directly (polarised) and of all other radiance.
-    pub coef: [f64; 2],
+    pub(crate) coef: [f64; 2],
     /// The replica (grating, contact), as [`crate::trace::replica_key`].
-    pub replica: u64,
+    pub(crate) replica: u64,
 }
 
 /// A design's camera side: per pixel, its representative exit rays ([`Rep`]), for the
@@ -103,7 +103,7 @@ pub struct Rep {
 #[derive(Clone, Debug)]
 pub struct CameraTable {
     /// The design's key ([`design_key`]).
-    pub key: [u64; 2],
+    pub(crate) key: [u64; 2],
     /// How it was drawn.
     pub settings: TableSettings,
     /// Crop width, px.
@@ -111,9 +111,9 @@ pub struct CameraTable {
     /// Crop height, px.
     pub height: usize,
     /// Pixel p's representatives are `reps[offsets[p]..offsets[p + 1]]`.
-    pub offsets: Vec<u64>,
+    pub(crate) offsets: Vec<u64>,
     /// Every pixel's representatives, pixel after pixel.
-    pub reps: Vec<Rep>,
+    pub(crate) reps: Vec<Rep>,
     /// The build's counters (zero for a table read from disk).
     pub stats: RenderStats,
 }
@@ -148,7 +148,7 @@ impl CameraTable {
 
     /// Pixel `p`'s representatives (row-major index).
     #[inline]
-    pub fn pixel(&self, p: usize) -> &[Rep] {
+    pub(crate) fn pixel(&self, p: usize) -> &[Rep] {
         &self.reps[self.offsets[p] as usize..self.offsets[p + 1] as usize]
     }
 
@@ -186,7 +186,7 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
 
 /// Checks the camera samples a table of `sys` draws (`ts.spp`, at least 1) against
 /// [`crate::limits`]: the part of [`check_table_limits`] that display tables (H) share.
-pub fn check_table_spp(sys: &System, ts: &TableSettings) -> Result<(), TableError> {
+pub(crate) fn check_table_spp(sys: &System, ts: &TableSettings) -> Result<(), TableError> {
     if ts.spp == 0 {
         return Err(TableError::Unsupported(
             "--table-spp must be at least 1".into(),
@@ -222,7 +222,7 @@ pub fn design_key(sys: &System) -> [u64; 2] {
 
 /// The first 128 bits of the SHA-256 of `bytes` (FIPS 180-4), as two little-endian words:
 /// the key of a table and the check word of its file.
-pub fn digest128(bytes: &[u8]) -> [u64; 2] {
+pub(crate) fn digest128(bytes: &[u8]) -> [u64; 2] {
     use sha2::{Digest, Sha256};
     let d = Sha256::digest(bytes);
     let word = |i: usize| u64::from_le_bytes(d[8 * i..8 * i + 8].try_into().unwrap_or([0; 8]));
@@ -257,7 +257,7 @@ pub fn build(sys: &System, ts: &TableSettings, progress: bool) -> Result<CameraT
 }
 
 /// [`build`] for `sys` whose [`design_key`] is `key`.
-pub fn build_keyed(
+pub(crate) fn build_keyed(
     sys: &System,
     key: [u64; 2],
     ts: &TableSettings,

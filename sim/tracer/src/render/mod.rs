@@ -25,7 +25,7 @@ pub mod adaptive;
 mod analog;
 pub mod camera_table;
 mod display;
-pub mod samples;
+pub(crate) mod samples;
 pub mod table_file;
 mod user_side;
 
@@ -303,7 +303,7 @@ pub fn render_with(sys: &System, set: &RenderSettings, estimator: Estimator) -> 
 }
 
 /// The work of one pixel: its sums over its `spp` samples (counters added to `stats`).
-pub trait PixelJob<'a> {
+pub(crate) trait PixelJob<'a> {
     /// Pixel (col, row)'s sums over `spp` samples.
     fn pixel(
         &mut self,

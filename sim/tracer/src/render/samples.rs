@@ -44,7 +44,7 @@ pub struct CameraSample {
 /// Camera samples drawn at a time: drawing a sample is a chain of dependent steps (lattice
 /// point, ray, Bragg wavelength, plate crossing, table inversion), and drawing several in a
 /// row, apart from the tracing, lets the processor overlap their chains.
-pub const SAMPLE_BATCH: usize = 16;
+pub(crate) const SAMPLE_BATCH: usize = 16;
 
 /// What is done with a pixel's camera samples: [`drive_pixel`] calls, for every sample index
 /// `i` in order, `begin`, `branch` for each branch that reaches the object plane, and `end`
@@ -245,20 +245,20 @@ pub fn lattice_rule(set: &RenderSettings, spp: u32) -> Option<LatticeRule> {
 
 /// A pixel's sums over its samples: the sensor channels and the optional spectral bins, with
 /// the pixel's row-major index (the key of its random streams).
-pub struct PixelSums<'a> {
+pub(crate) struct PixelSums<'a> {
     sys: &'a System,
     /// The pixel's row-major index.
-    pub pixel: u64,
+    pub(crate) pixel: u64,
     bins: Option<(f64, f64, usize)>,
     /// Channel sums (unused channels stay 0).
-    pub acc: [f64; 4],
+    pub(crate) acc: [f64; 4],
     /// Spectral-bin sums, per nm.
-    pub spectral: Vec<f64>,
+    pub(crate) spectral: Vec<f64>,
 }
 
 impl<'a> PixelSums<'a> {
     /// Empty sums for the channels of `sys` and the bins of `set`.
-    pub fn new(sys: &'a System, set: &RenderSettings) -> Self {
+    pub(crate) fn new(sys: &'a System, set: &RenderSettings) -> Self {
         PixelSums {
             sys,
             pixel: 0,
@@ -270,7 +270,7 @@ impl<'a> PixelSums<'a> {
 
     /// Empty sums for pixel `pixel`.
     #[inline]
-    pub fn start(&mut self, pixel: u64) {
+    pub(crate) fn start(&mut self, pixel: u64) {
         self.pixel = pixel;
         self.acc = [0.0; 4];
         self.spectral.fill(0.0);
@@ -279,7 +279,7 @@ impl<'a> PixelSums<'a> {
     /// Adds a sample's value `base` (before the sensor response) at `lambda_nm`; a non-finite
     /// value is counted and dropped.
     #[inline(always)]
-    pub fn add(&mut self, base: f64, lambda_nm: f64, stats: &mut RenderStats) {
+    pub(crate) fn add(&mut self, base: f64, lambda_nm: f64, stats: &mut RenderStats) {
         if !base.is_finite() {
             stats.nonfinite_samples += 1;
             return;
@@ -304,7 +304,7 @@ impl<'a> PixelSums<'a> {
 
 /// A pixel estimator of the image: a [`SampleConsumer`] that sums its samples' values into
 /// [`PixelSums`].
-pub trait PixelEstimator<'a>: SampleConsumer {
+pub(crate) trait PixelEstimator<'a>: SampleConsumer {
     /// The pixel's sums.
     fn sums(&mut self) -> &mut PixelSums<'a>;
 
