@@ -630,7 +630,6 @@ fn reconstruct_stack<'py>(
         tau_rel: tau,
         mu_rel: mu,
         tv,
-        cancel: stscam::cancel::current(),
         ..StackOptions::default()
     };
     let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
@@ -640,7 +639,15 @@ fn reconstruct_stack<'py>(
         stack_setup_bytes(&ls, method, threads_n),
     )
     .map_err(value_error)?;
-    let sol = run_job(py, threads, || solve_stack(&ls, &g, &opts))?.map_err(value_error)?;
+    // The token is the job's: read inside `run_job`, on the thread whose flag Ctrl-C sets.
+    let sol = run_job(py, threads, || {
+        let opts = StackOptions {
+            cancel: stscam::cancel::current(),
+            ..opts
+        };
+        solve_stack(&ls, &g, &opts)
+    })?
+    .map_err(value_error)?;
     let planes = sol
         .planes
         .iter()
@@ -864,7 +871,9 @@ fn reconstruct<'py>(
 /// builds them) for many captures: the Python `Operator`'s solver.
 #[pyclass(frozen, module = "stscam._native")]
 struct Solver {
-    problem: stscam::recon::Problem,
+    /// The set-up; each `solve` installs its own job's cancellation token in it (the token of
+    /// the set-up's job is never set again, so a solve with it could not be interrupted).
+    problem: std::sync::Mutex<stscam::recon::Problem>,
     rows: usize,
 }
 
@@ -903,7 +912,10 @@ impl Solver {
         let problem = run_job(py, threads, || {
             stscam::recon::Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current())
         })?;
-        Ok(Solver { problem, rows })
+        Ok(Solver {
+            problem: std::sync::Mutex::new(problem),
+            rows,
+        })
     }
 
     /// Solves for each of `frames` captures (float64 bytes, frame-major, the offset already
@@ -936,12 +948,17 @@ impl Solver {
                 "capture: value {i} is not a finite number"
             )));
         }
-        let problem = &self.problem;
         let rows = self.rows;
         let sols = run_job(py, threads, || {
-            g.chunks_exact(rows)
-                .map(|gi| stscam::recon::solve(problem, gi, &opts))
-                .collect::<Vec<_>>()
+            // One solve at a time per set-up, each stopped by its own job's Ctrl-C.
+            let mut problem = self.problem.lock().unwrap_or_else(|p| p.into_inner());
+            problem.cancel = stscam::cancel::current();
+            let sols = g
+                .chunks_exact(rows)
+                .map(|gi| stscam::recon::solve(&problem, gi, &opts))
+                .collect::<Vec<_>>();
+            problem.cancel = stscam::cancel::Token::default();
+            sols
         })?;
         let f: Vec<f64> = sols.iter().flat_map(|s| s.f.iter().copied()).collect();
         let infos = sols
