@@ -46,6 +46,14 @@ enum Command {
     /// optionally the PSNR with the nominal H; yield and sensitivity ranking: DIR/draws.{csv,jsonl},
     /// summary.json and PNG plots; or shards merged (`stscam tolerance merge SHARD_DIR... --out DIR`).
     Tolerance(jobs::tolerance::ToleranceOptions),
+    /// One design's metrics (captured and waveguide FOV, replicas, efficiency, colour bands,
+    /// reconstruction PSNR and SSIM at a fixed exposure, yield and tolerance quantiles): text
+    /// or one JSON object with `<name>_error` beside each Monte Carlo metric.
+    Evaluate(jobs::evaluate::EvaluateOptions),
+    /// Optimise a design study (TOML: parameters, objectives, constraints, fidelity) by
+    /// constrained Bayesian optimisation, a Pareto front for several objectives, resumable:
+    /// DIR/history.{csv,jsonl}, pareto.csv, best.toml, report.md and plots.
+    Optimize(jobs::optimize::OptimizeOptions),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -133,6 +141,8 @@ where
         Command::Dataset(o) => jobs::dataset::run(o, con),
         Command::Sweep(o) => jobs::sweep::run(o, con),
         Command::Tolerance(o) => jobs::tolerance::run(o, con),
+        Command::Evaluate(o) => jobs::evaluate::run(o, con),
+        Command::Optimize(o) => jobs::optimize::run(o, con),
         Command::Bench { which } => match which {
             BenchCommand::Bvh(o) => jobs::bench::run_bvh(o, con),
             BenchCommand::Recon(o) => jobs::bench::run_recon(o, con),

@@ -785,7 +785,7 @@ pub fn depth_table_markdown(
 }
 
 /// Area (box) resampling of a `w`×`h` image to `tw`×`th`.
-fn resample(src: &[f64], w: usize, h: usize, tw: usize, th: usize) -> Vec<f64> {
+pub fn resample(src: &[f64], w: usize, h: usize, tw: usize, th: usize) -> Vec<f64> {
     let (sx, sy) = (w as f64 / tw as f64, h as f64 / th as f64);
     let mut out = vec![0.0; tw * th];
     for ty in 0..th {

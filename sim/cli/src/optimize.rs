@@ -1,0 +1,142 @@
+//! `stscam optimize`: a design study (TOML) optimised within a budget of evaluations.
+
+use std::path::PathBuf;
+
+use stscam_design::optimize::{Outcome, RunSettings, optimize};
+use stscam_design::report;
+use stscam_design::study::Study;
+
+use super::*;
+
+/// Optimise a design study: DIR/history.{csv,jsonl}, pareto.csv, best.toml, summary.json,
+/// report.md and plots.
+#[derive(clap::Args, Debug, Clone)]
+pub struct OptimizeOptions {
+    /// The study file (TOML, docs/design-studies.md).
+    pub study: PathBuf,
+    /// Evaluations of the search (the base design's is extra).
+    #[arg(long, default_value_t = 40)]
+    pub budget: usize,
+    /// Seed of the initial design, the optimiser and the evaluations.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output directory.
+    #[arg(long, default_value = "out/optimize")]
+    pub out: PathBuf,
+    /// Continue the run whose checkpoint (DIR/history.jsonl) is in --out.
+    #[arg(long)]
+    pub resume: bool,
+    /// Skip the final re-evaluation of the best and Pareto designs at the final fidelity.
+    #[arg(long)]
+    pub skip_final: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// The files of a finished run.
+fn files(study: &Study, o: &Outcome, seed: u64, budget: usize) -> Result<Vec<(String, Vec<u8>)>, Failure> {
+    let mut f = vec![
+        ("history.csv".to_string(), report::history_csv(study, o).into_bytes()),
+        ("pareto.csv".to_string(), report::pareto_csv(study, o).into_bytes()),
+        ("report.md".to_string(), report::report_md(study, o, seed, budget).into_bytes()),
+    ];
+    let mut jsonl = String::new();
+    for r in &o.records {
+        jsonl.push_str(&serde_json::to_string(r).map_err(write_failure)?);
+        jsonl.push('\n');
+    }
+    f.push(("history.jsonl".to_string(), jsonl.into_bytes()));
+    if let Some(b) = o.best {
+        let r = &o.records[o.records.iter().position(|r| r.index == b).unwrap_or(0)];
+        let toml = report::scene_toml(study, &r.params).map_err(write_failure)?;
+        f.push(("best.toml".to_string(), toml.into_bytes()));
+    }
+    let summary = serde_json::json!({
+        "study": study.file,
+        "seed": seed,
+        "budget": budget,
+        "version": crate::VERSION,
+        "feasible": o.best.is_some(),
+        "best": o.best,
+        "least_violating": o.least_violating.as_ref().map(|(i, c)| serde_json::json!({"index": i, "binding_constraint": c})),
+        "pareto": o.pareto,
+        "white_peak": o.white_peak,
+        "base": o.base,
+        "finals": o.finals.iter().map(|(i, m)| serde_json::json!({"index": i, "metrics": m})).collect::<Vec<_>>(),
+    });
+    // NaN is not JSON: serde_json writes null.
+    f.push(("summary.json".to_string(), to_json(&summary)?.into_bytes()));
+    for (stem, plot) in report::plots(study, o) {
+        f.push((format!("{stem}.svg"), plot.to_svg().into_bytes()));
+        f.push((format!("{stem}.png"), plot.to_png().map_err(write_failure)?));
+    }
+    Ok(f)
+}
+
+/// Runs the job.
+pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
+    let study = Study::load(&o.study).map_err(|e| bad_input(e.to_string()))?;
+    if o.budget == 0 || o.budget > stscam_design::study::MAX_BUDGET {
+        return Err(bad_input(format!("--budget {}: must be 1..={}", o.budget, stscam_design::study::MAX_BUDGET)));
+    }
+    check_out_dir(&o.out)?;
+    if !o.resume && o.out.join("history.jsonl").exists() {
+        return Err(bad_input(format!(
+            "{}: holds a run already (history.jsonl); pass --resume to continue it or choose another --out",
+            o.out.display()
+        )));
+    }
+    let pool = thread_pool(o.threads)?;
+    let set = RunSettings {
+        budget: o.budget,
+        seed: o.seed,
+        resume: o.resume,
+        skip_final: o.skip_final,
+    };
+    let goal = study.objectives[0].metric.to_string();
+    let t0 = std::time::Instant::now();
+    let on_record = |r: &stscam_design::optimize::Record, best: Option<f64>| {
+        let v = r.metrics.get(&goal).copied().unwrap_or(f64::NAN);
+        con.err(format_args!(
+            "[{}/{}] step {}: {goal} {v:.4}{} ({:.1} s); best feasible {}",
+            r.index + 1,
+            o.budget,
+            r.step,
+            if r.feasible { "" } else { ", infeasible" },
+            r.seconds,
+            best.map_or("none yet".to_string(), |b| format!("{b:.4}"))
+        ));
+    };
+    let outcome = pool
+        .install(|| optimize(&study, &set, &o.out, &on_record))
+        .map_err(|e| match e {
+            stscam_design::optimize::OptimizeError::Write(m) => write_failure(m),
+            e => bad_input(e.to_string()),
+        })?;
+    let f = files(&study, &outcome, o.seed, o.budget)?;
+    write_files(&o.out, &f)?;
+    match (outcome.best, &outcome.least_violating) {
+        (Some(b), _) => {
+            let r = &outcome.records[outcome.records.iter().position(|r| r.index == b).unwrap_or(0)];
+            con.out(format_args!(
+                "best feasible design: evaluation {b}, {goal} {:.4}: {}",
+                r.metrics.get(&goal).copied().unwrap_or(f64::NAN),
+                study.parameters.iter().zip(&r.params).map(|(p, v)| format!("{}={v}", p.keys[0])).collect::<Vec<_>>().join(" ")
+            ));
+        }
+        (None, Some((i, c))) => con.out(format_args!(
+            "infeasible: no evaluation met every constraint; the least-violating is evaluation {i}, where `{c}` binds most (no best.toml)"
+        )),
+        (None, None) => {}
+    }
+    con.err(format_args!(
+        "wrote {} ({} evaluations, {} files) in {:.1} s ({} threads)",
+        o.out.display(),
+        outcome.records.len(),
+        f.len(),
+        t0.elapsed().as_secs_f64(),
+        pool.current_num_threads()
+    ));
+    Ok(())
+}

@@ -1,0 +1,450 @@
+//! Design optimisation (`stscam optimize`): constrained Bayesian optimisation of a study's
+//! objective over its free parameters, a Pareto front for several objectives, checkpointed
+//! and resumable, the same history for any thread count.
+//!
+//! # Method
+//! The search runs in the unit cube of the parameters (`study::Parameter::unit`; log scales
+//! and integer or discrete choices mapped there). Step 0 is a Latin hypercube of `initial`
+//! points (default 2·d + 2; stratum and permutation of each axis from `sampler::hash` of the
+//! seed). Each further step asks `egobox-ego`'s EGO service (Gaussian-process mixture
+//! surrogates, expected-improvement infill, q-EI with the kriging believer for a batch) for
+//! `batch` points given every evaluation so far: the first objective (negated to maximise),
+//! and one modelled inequality c ≤ 0 per constraint (`study::Constraint::violation`,
+//! normalised by its bound). The suggestion is a pure function of the history and the step's
+//! seed, so a resumed run or any thread count proposes the same points.
+//!
+//! Several objectives: the ε-constraint method (Haimes et al. 1971; Miettinen, *Nonlinear
+//! Multiobjective Optimization*, 1999, §4.1): each step optimises the first objective with
+//! the others bounded at an ε level, cycling through `epsilon_levels` levels spread evenly
+//! over the range of each other objective seen so far; the front is the non-dominated set of
+//! the feasible evaluations.
+//!
+//! Designs are compared at a fixed exposure: the base design's all-white peak at the search
+//! fidelity (and at the final fidelity for the final check) holds for every candidate.
+//!
+//! # Files (in `--out`)
+//! `history.jsonl` is the checkpoint: one JSON line per finished evaluation, appended and
+//! flushed as each ends; `--resume` reads it back (each line checked against the study's
+//! digest and the parameters), skips the evaluations it holds and continues. At the end every
+//! output is written from the records sorted by index: `history.csv`, `history.jsonl`,
+//! `pareto.csv`, `best.toml`, `summary.json`, `report.md` and the plots.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::Path;
+
+use ndarray::Array2;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::evaluate::{EvalError, Evaluation, Exposure, Fidelity, evaluate};
+use crate::metric::Metric;
+use crate::scene::SceneSource;
+use crate::study::{Bounded, Goal, Study, scene_value};
+
+/// An optimisation error.
+#[derive(Debug, thiserror::Error)]
+pub enum OptimizeError {
+    /// Bad input (study, settings, a checkpoint that does not belong to the study).
+    #[error("{0}")]
+    Input(String),
+    /// An evaluation failed.
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    /// A file could not be written.
+    #[error("{0}")]
+    Write(String),
+    /// Cancelled.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// Settings of a run.
+#[derive(Clone, Debug)]
+pub struct RunSettings {
+    /// Evaluations of the search (the base design's is not counted).
+    pub budget: usize,
+    /// Seed of the design of experiments, the optimiser and the evaluations.
+    pub seed: u64,
+    /// Continue from the checkpoint in the output directory.
+    pub resume: bool,
+    /// Skip the final re-evaluation at full fidelity.
+    pub skip_final: bool,
+}
+
+/// One evaluation of the search.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Record {
+    /// Index (0-based, the order of proposal).
+    pub index: usize,
+    /// Step (0: the initial design).
+    pub step: usize,
+    /// Unit coordinates.
+    pub unit: Vec<f64>,
+    /// Parameter values.
+    pub params: Vec<f64>,
+    /// Metrics (and their errors).
+    pub metrics: BTreeMap<String, f64>,
+    /// Each constraint's normalised violation (≤ 0 met).
+    pub violations: Vec<f64>,
+    /// All constraints met.
+    pub feasible: bool,
+    /// Seconds.
+    pub seconds: f64,
+    /// The study's digest (checked on resume).
+    pub study: String,
+}
+
+/// What a run found.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outcome {
+    /// Every evaluation, by index.
+    pub records: Vec<Record>,
+    /// The base design's metrics at the search fidelity.
+    pub base: BTreeMap<String, f64>,
+    /// The fixed exposure (white peak) of the search.
+    pub white_peak: f64,
+    /// Index of the best feasible evaluation (None: infeasible study).
+    pub best: Option<usize>,
+    /// Infeasible study: the least-violating evaluation and the constraint that binds.
+    pub least_violating: Option<(usize, String)>,
+    /// Indices of the Pareto front (feasible, non-dominated), by the first objective.
+    pub pareto: Vec<usize>,
+    /// Final re-evaluations at the final fidelity: (index, metrics); the base design first
+    /// (index None).
+    pub finals: Vec<(Option<usize>, BTreeMap<String, f64>)>,
+}
+
+/// The violations of every constraint of `study` at a point with scene `overrides` and
+/// `metrics`.
+pub fn violations(study: &Study, overrides: &[String], metrics: &BTreeMap<String, f64>) -> Result<Vec<f64>, OptimizeError> {
+    let scene = SceneSource::File(study.scene.as_deref())
+        .load(overrides)
+        .map_err(|e| OptimizeError::Input(e.to_string()))?
+        .scene;
+    let value = |k: &str| scene_value(&scene, k).unwrap_or(f64::NAN);
+    Ok(study
+        .constraints
+        .iter()
+        .map(|c| {
+            let v = match &c.what {
+                Bounded::Metric(m) => metrics.get(&m.to_string()).copied().unwrap_or(f64::NAN),
+                Bounded::Key(k) => value(k),
+                Bounded::Sum(ks) => ks.iter().map(|k| value(k)).sum(),
+            };
+            c.violation(v)
+        })
+        .collect())
+}
+
+/// The Latin hypercube of `n` points in `d` dimensions (module notes).
+pub fn latin_hypercube(n: usize, d: usize, seed: u64) -> Vec<Vec<f64>> {
+    use crate::sampler::{hash, to_unit};
+    let mut pts = vec![vec![0.0; d]; n];
+    for a in 0..d {
+        // A seeded permutation of the strata: sort by hash.
+        let mut order: Vec<(u64, usize)> = (0..n).map(|i| (hash(&[seed, 0x4C48_5300, a as u64, i as u64]), i)).collect();
+        order.sort_unstable();
+        for (stratum, &(_, i)) in order.iter().enumerate() {
+            let jitter = to_unit(hash(&[seed, 0x4C48_5301, a as u64, i as u64]));
+            pts[i][a] = (stratum as f64 + jitter) / n as f64;
+        }
+    }
+    pts
+}
+
+/// The objective value of a record for the optimiser (minimised): NaN replaced by `worst`.
+fn minimised(study: &Study, k: usize, r: &Record) -> f64 {
+    let o = &study.objectives[k];
+    let v = r.metrics.get(&o.metric.to_string()).copied().unwrap_or(f64::NAN);
+    match o.goal {
+        Goal::Maximize => -v,
+        Goal::Minimize => v,
+    }
+}
+
+/// The points of step `step` (≥ 1) given the records of the earlier steps.
+fn suggest(study: &Study, records: &[Record], step: usize, seed: u64) -> Vec<Vec<f64>> {
+    use egobox_ego::EgorServiceBuilder;
+    let d = study.parameters.len();
+    let n_obj = study.objectives.len();
+    let mut eps: Vec<f64> = Vec::new();
+    // ε levels of the other objectives (minimised form: value ≤ ε).
+    for k in 1..n_obj {
+        let vals: Vec<f64> = records.iter().map(|r| minimised(study, k, r)).filter(|v| v.is_finite()).collect();
+        let (lo, hi) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        let l = (step + k) % study.epsilon_levels;
+        eps.push(if lo.is_finite() { lo + (l as f64 + 0.5) / study.epsilon_levels as f64 * (hi - lo) } else { 0.0 });
+    }
+    let n_cstr = study.constraints.len() + eps.len();
+    let xs = Array2::from_shape_fn((records.len(), d), |(i, j)| records[i].unit[j]);
+    let obj: Vec<f64> = records.iter().map(|r| minimised(study, 0, r)).collect();
+    let worst = obj.iter().copied().filter(|v| v.is_finite()).fold(f64::NEG_INFINITY, f64::max);
+    let worst = if worst.is_finite() { worst } else { 0.0 };
+    let ys = Array2::from_shape_fn((records.len(), 1 + n_cstr), |(i, j)| {
+        if j == 0 {
+            let v = obj[i];
+            if v.is_finite() { v } else { worst }
+        } else if j <= study.constraints.len() {
+            records[i].violations[j - 1].min(1.0)
+        } else {
+            let k = j - study.constraints.len();
+            let v = minimised(study, k, &records[i]);
+            let span = eps[k - 1].abs().max(1e-9);
+            if v.is_finite() { ((v - eps[k - 1]) / span).min(1.0) } else { 1.0 }
+        }
+    });
+    let mut limits = Array2::zeros((d, 2));
+    for j in 0..d {
+        limits[[j, 1]] = 1.0;
+    }
+    let batch = study.batch;
+    let service = EgorServiceBuilder::optimize()
+        .configure(|c| {
+            c.n_cstr(n_cstr)
+                .seed(crate::sampler::hash(&[seed, 0x5355_4747, step as u64]))
+                .configure_qei(|q| q.batch(batch))
+        })
+        .min_within(&limits);
+    let pts = match service {
+        Ok(s) => s.suggest(&xs, &ys),
+        Err(_) => Array2::zeros((0, d)),
+    };
+    let mut out: Vec<Vec<f64>> = pts.outer_iter().map(|r| r.iter().map(|v| v.clamp(0.0, 1.0)).collect()).collect();
+    // Fewer points than asked (or none): fill with Latin hypercube points of this step.
+    let fill = latin_hypercube(batch, d, crate::sampler::hash(&[seed, 0x4649_4C4C, step as u64]));
+    out.extend(fill.into_iter().skip(out.len()));
+    out.truncate(batch);
+    out
+}
+
+/// The scene overrides of unit point `u`.
+fn point(study: &Study, u: &[f64]) -> (Vec<f64>, Vec<String>) {
+    let params: Vec<f64> = study.parameters.iter().zip(u).map(|(p, &x)| p.value(x)).collect();
+    let o = study.overrides(&params);
+    (params, o)
+}
+
+/// Evaluates the design of `overrides` for `study` at `fidelity`.
+pub fn evaluate_design(study: &Study, overrides: &[String], fidelity: &Fidelity, exposure: Exposure) -> Result<Evaluation, EvalError> {
+    let req = study.request(fidelity, exposure);
+    evaluate(SceneSource::File(study.scene.as_deref()), overrides, &req)
+}
+
+/// Reads the checkpoint of a resumed run.
+fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Record>, OptimizeError> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(OptimizeError::Input(format!("{}: {e}", path.display()))),
+    };
+    let mut out: Vec<Record> = Vec::new();
+    let lines: Vec<&str> = text.lines().collect();
+    for (i, line) in lines.iter().enumerate() {
+        let bad = |m: String| OptimizeError::Input(format!("{}: line {}: {m}", path.display(), i + 1));
+        let r: Record = match serde_json::from_str(line) {
+            Ok(r) => r,
+            // A last line cut by a kill is dropped (it is evaluated again).
+            Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => break,
+            Err(e) => return Err(bad(format!("not an evaluation record ({e})"))),
+        };
+        if r.study != digest {
+            return Err(bad(format!("written for another study or seed (digest {} against {digest}); use a new --out", r.study)));
+        }
+        if r.unit.len() != study.parameters.len() || r.violations.len() != study.constraints.len() {
+            return Err(bad("does not match the study's parameters and constraints".into()));
+        }
+        if out.iter().any(|o| o.index == r.index) {
+            return Err(bad(format!("evaluation {} twice", r.index)));
+        }
+        out.push(r);
+    }
+    out.sort_by_key(|r| r.index);
+    Ok(out)
+}
+
+/// Runs the study (module notes), writing the checkpoint into `out`; `on_record` is called
+/// after each evaluation with the record and the best feasible first objective so far.
+pub fn optimize(
+    study: &Study,
+    set: &RunSettings,
+    out: &Path,
+    on_record: &(dyn Fn(&Record, Option<f64>) + Sync),
+) -> Result<Outcome, OptimizeError> {
+    if set.budget == 0 || set.budget > crate::study::MAX_BUDGET {
+        return Err(OptimizeError::Input(format!("--budget {}: must be 1..={}", set.budget, crate::study::MAX_BUDGET)));
+    }
+    let digest = study.digest(set.seed);
+    let ckpt = out.join("history.jsonl");
+    let mut records = if set.resume {
+        read_checkpoint(&ckpt, study, &digest)?
+    } else {
+        Vec::new()
+    };
+    let mut search = study.search.clone();
+    search.seed = set.seed;
+    // The base design fixes the exposure.
+    let base = evaluate_design(study, &study.set, &search, Exposure::Own)?;
+    let exposure = if base.white_peak.is_finite() { Exposure::WhitePeak(base.white_peak) } else { Exposure::Own };
+    std::fs::create_dir_all(out).map_err(|e| OptimizeError::Write(format!("{}: {e}", out.display())))?;
+    // Rewrite the checkpoint with the records kept (drops a cut last line).
+    let mut file = std::fs::File::create(&ckpt).map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    for r in &records {
+        writeln!(file, "{}", serde_json::to_string(r).unwrap_or_default()).map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    }
+    file.sync_data().map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    let file = std::sync::Mutex::new(file);
+    let d = study.parameters.len();
+    let initial = study.initial.unwrap_or(2 * d + 2).min(set.budget);
+    let cancel = crate::cancel::current();
+    let best_of = |rs: &[Record]| {
+        rs.iter()
+            .filter(|r| r.feasible)
+            .map(|r| -minimised(study, 0, r))
+            .filter(|v| v.is_finite())
+            .fold(None, |b: Option<f64>, v| Some(b.map_or(v, |b| b.max(v))))
+    };
+    let sign = if study.objectives[0].goal == Goal::Maximize { 1.0 } else { -1.0 };
+    let mut step = 0;
+    let mut next = 0usize;
+    while next < set.budget {
+        let pts = if step == 0 {
+            latin_hypercube(initial, d, set.seed)
+        } else {
+            let done: Vec<Record> = records.iter().filter(|r| r.step < step).cloned().collect();
+            suggest(study, &done, step, set.seed)
+        };
+        let pts: Vec<(usize, Vec<f64>)> = pts.into_iter().enumerate().map(|(k, u)| (next + k, u)).filter(|(i, _)| *i < set.budget).collect();
+        next += pts.len();
+        let todo: Vec<&(usize, Vec<f64>)> = pts.iter().filter(|(i, _)| !records.iter().any(|r| r.index == *i)).collect();
+        let new: Vec<Result<Record, OptimizeError>> = todo
+            .par_iter()
+            .map(|(index, u)| {
+                if cancel.is_cancelled() {
+                    return Err(OptimizeError::Cancelled);
+                }
+                let (params, overrides) = point(study, u);
+                let ev = evaluate_design(study, &overrides, &search, exposure)?;
+                let violations = violations(study, &overrides, &ev.values)?;
+                let r = Record {
+                    index: *index,
+                    step,
+                    unit: u.clone(),
+                    params,
+                    feasible: violations.iter().all(|v| *v <= 0.0),
+                    metrics: ev.values,
+                    violations,
+                    seconds: ev.seconds,
+                    study: digest.clone(),
+                };
+                let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
+                writeln!(f, "{}", serde_json::to_string(&r).unwrap_or_default())
+                    .and_then(|()| f.sync_data())
+                    .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+                Ok(r)
+            })
+            .collect();
+        for r in new {
+            let r = r?;
+            records.push(r.clone());
+            on_record(&r, best_of(&records).map(|b| b * sign));
+        }
+        records.sort_by_key(|r| r.index);
+        step += 1;
+    }
+    records.sort_by_key(|r| r.index);
+    let best = records
+        .iter()
+        .filter(|r| r.feasible && minimised(study, 0, r).is_finite())
+        .min_by(|a, b| minimised(study, 0, a).total_cmp(&minimised(study, 0, b)).then(a.index.cmp(&b.index)))
+        .map(|r| r.index);
+    let least_violating = if best.is_none() {
+        records
+            .iter()
+            .map(|r| (r.index, r.violations.iter().map(|v| v.max(0.0)).sum::<f64>(), r))
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+            .map(|(i, _, r)| {
+                let k = (0..r.violations.len()).max_by(|&a, &b| r.violations[a].total_cmp(&r.violations[b])).unwrap_or(0);
+                (i, study.constraints.get(k).map_or_else(String::new, |c| c.name()))
+            })
+    } else {
+        None
+    };
+    let pareto = pareto_front(study, &records);
+    let mut finals = Vec::new();
+    if !set.skip_final && !cancel.is_cancelled() {
+        let mut fin = study.final_check.clone();
+        fin.seed = set.seed;
+        let base_final = evaluate_design(study, &study.set, &fin, Exposure::Own)?;
+        let fexp = if base_final.white_peak.is_finite() { Exposure::WhitePeak(base_final.white_peak) } else { Exposure::Own };
+        finals.push((None, base_final.values));
+        let mut chosen: Vec<usize> = best.into_iter().collect();
+        for &p in pareto.iter() {
+            if chosen.len() >= 8 {
+                break;
+            }
+            if !chosen.contains(&p) {
+                chosen.push(p);
+            }
+        }
+        for i in chosen {
+            let r = &records[records.iter().position(|r| r.index == i).unwrap_or(0)];
+            let ev = evaluate_design(study, &study.overrides(&r.params), &fin, fexp)?;
+            finals.push((Some(i), ev.values));
+        }
+    }
+    Ok(Outcome {
+        records,
+        base: base.values,
+        white_peak: base.white_peak,
+        best,
+        least_violating,
+        pareto,
+        finals,
+    })
+}
+
+/// The feasible evaluations no other feasible one dominates (every objective at least as
+/// good, one better), sorted by the first objective, best first.
+pub fn pareto_front(study: &Study, records: &[Record]) -> Vec<usize> {
+    let n_obj = study.objectives.len();
+    let vals = |r: &Record| (0..n_obj).map(|k| minimised(study, k, r)).collect::<Vec<f64>>();
+    let cand: Vec<(&Record, Vec<f64>)> = records
+        .iter()
+        .filter(|r| r.feasible)
+        .map(|r| (r, vals(r)))
+        .filter(|(_, v)| v.iter().all(|x| x.is_finite()))
+        .collect();
+    let mut front: Vec<(&Record, &Vec<f64>)> = cand
+        .iter()
+        .filter(|(_, v)| {
+            !cand.iter().any(|(_, w)| w.iter().zip(v.iter()).all(|(a, b)| a <= b) && w.iter().zip(v.iter()).any(|(a, b)| a < b))
+        })
+        .map(|(r, v)| (*r, v))
+        .collect();
+    front.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]).then(a.0.index.cmp(&b.0.index)));
+    front.iter().map(|(r, _)| r.index).collect()
+}
+
+/// Whether `m` is an objective of the study.
+pub fn is_objective(study: &Study, m: &Metric) -> bool {
+    study.objectives.iter().any(|o| o.metric == *m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latin_hypercube_fills_every_stratum_once() {
+        let n = 7;
+        let pts = latin_hypercube(n, 3, 42);
+        for a in 0..3 {
+            let mut strata: Vec<usize> = pts.iter().map(|p| (p[a] * n as f64).floor() as usize).collect();
+            strata.sort_unstable();
+            assert_eq!(strata, (0..n).collect::<Vec<_>>());
+        }
+        assert_eq!(pts, latin_hypercube(n, 3, 42));
+        assert_ne!(pts, latin_hypercube(n, 3, 43));
+    }
+}
