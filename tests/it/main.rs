@@ -12,6 +12,7 @@ mod coverage;
 mod dataset;
 mod dataset3d;
 mod depth;
+mod design;
 mod estimators;
 mod frontal_colour;
 mod gltf_coverage;

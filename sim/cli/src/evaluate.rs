@@ -68,7 +68,8 @@ fn items(s: &str) -> impl Iterator<Item = &str> {
 
 /// The request of the options (checked).
 fn request(o: &EvaluateOptions, gamma: f64) -> Result<Request, Failure> {
-    let metrics = Metric::parse_list(&o.metrics).map_err(|e| bad_input(format!("--metrics: {e}")))?;
+    let metrics =
+        Metric::parse_list(&o.metrics).map_err(|e| bad_input(format!("--metrics: {e}")))?;
     let dir = o
         .scene
         .scene
@@ -78,20 +79,27 @@ fn request(o: &EvaluateOptions, gamma: f64) -> Result<Request, Failure> {
         .unwrap_or_default();
     let targets = match &o.targets {
         Some(t) => items(t)
-            .map(|t| Target::parse(t, &dir, gamma).map_err(|e| bad_input(format!("--targets: {e}"))))
+            .map(|t| {
+                Target::parse(t, &dir, gamma).map_err(|e| bad_input(format!("--targets: {e}")))
+            })
             .collect::<Result<Vec<_>, _>>()?,
         None => stscam_design::evaluate::default_targets(),
     };
     let depths_mm = match &o.depth_mm {
         Some(d) => items(d)
-            .map(|v| v.parse::<f64>().map_err(|_| bad_input(format!("--depth-mm: {v:?} is not a number"))))
+            .map(|v| {
+                v.parse::<f64>()
+                    .map_err(|_| bad_input(format!("--depth-mm: {v:?} is not a number")))
+            })
             .collect::<Result<Vec<_>, _>>()?,
         None => Vec::new(),
     };
     let draws = o
         .draw
         .iter()
-        .map(|d| stscam_studies::tolerance::DrawSpec::parse(d).map_err(|e| bad_input(e.to_string())))
+        .map(|d| {
+            stscam_studies::tolerance::DrawSpec::parse(d).map_err(|e| bad_input(e.to_string()))
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let requirements = o
         .require
@@ -133,25 +141,40 @@ pub fn run(o: &EvaluateOptions, con: &Console) -> Result<(), JobError> {
         })
         .map_err(|e| bad_input(e.to_string()))?;
     for w in &ev.warnings {
-        con.err(format_args!("warning: {}", w.trim_start_matches("warning: ")));
+        con.err(format_args!(
+            "warning: {}",
+            w.trim_start_matches("warning: ")
+        ));
     }
     if o.json {
         // NaN is not JSON: an undefined metric is null.
         let obj: serde_json::Map<String, serde_json::Value> = ev
             .values
             .iter()
-            .map(|(k, v)| (k.clone(), serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, serde_json::Value::Number)))
+            .map(|(k, v)| {
+                (
+                    k.clone(),
+                    serde_json::Number::from_f64(*v)
+                        .map_or(serde_json::Value::Null, serde_json::Value::Number),
+                )
+            })
             .collect();
         con.out(format_args!("{}", to_json(&obj)?));
     } else {
         for m in &req.metrics {
             let name = m.to_string();
             let v = ev.values.get(&name).copied().unwrap_or(f64::NAN);
-            let e = ev.values.get(&format!("{name}_error")).map_or(String::new(), |e| format!(" ± {e:.4}"));
+            let e = ev
+                .values
+                .get(&format!("{name}_error"))
+                .map_or(String::new(), |e| format!(" ± {e:.4}"));
             con.out(format_args!("{name}: {v:.4}{e}"));
         }
     }
-    let recon = req.metrics.iter().any(|m| m.base.kind() == stscam_design::metric::Kind::Reconstruction);
+    let recon = req
+        .metrics
+        .iter()
+        .any(|m| m.base.kind() == stscam_design::metric::Kind::Reconstruction);
     con.err(format_args!(
         "evaluated {} metrics in {:.2} s ({} threads){}",
         req.metrics.len(),

@@ -35,11 +35,25 @@ pub struct OptimizeOptions {
 }
 
 /// The files of a finished run.
-fn files(study: &Study, o: &Outcome, seed: u64, budget: usize) -> Result<Vec<(String, Vec<u8>)>, Failure> {
+fn files(
+    study: &Study,
+    o: &Outcome,
+    seed: u64,
+    budget: usize,
+) -> Result<Vec<(String, Vec<u8>)>, Failure> {
     let mut f = vec![
-        ("history.csv".to_string(), report::history_csv(study, o).into_bytes()),
-        ("pareto.csv".to_string(), report::pareto_csv(study, o).into_bytes()),
-        ("report.md".to_string(), report::report_md(study, o, seed, budget).into_bytes()),
+        (
+            "history.csv".to_string(),
+            report::history_csv(study, o).into_bytes(),
+        ),
+        (
+            "pareto.csv".to_string(),
+            report::pareto_csv(study, o).into_bytes(),
+        ),
+        (
+            "report.md".to_string(),
+            report::report_md(study, o, seed, budget).into_bytes(),
+        ),
     ];
     let mut jsonl = String::new();
     for r in &o.records {
@@ -78,7 +92,11 @@ fn files(study: &Study, o: &Outcome, seed: u64, budget: usize) -> Result<Vec<(St
 pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
     let study = Study::load(&o.study).map_err(|e| bad_input(e.to_string()))?;
     if o.budget == 0 || o.budget > stscam_design::study::MAX_BUDGET {
-        return Err(bad_input(format!("--budget {}: must be 1..={}", o.budget, stscam_design::study::MAX_BUDGET)));
+        return Err(bad_input(format!(
+            "--budget {}: must be 1..={}",
+            o.budget,
+            stscam_design::study::MAX_BUDGET
+        )));
     }
     check_out_dir(&o.out)?;
     if !o.resume && o.out.join("history.jsonl").exists() {

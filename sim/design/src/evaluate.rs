@@ -148,9 +148,11 @@ impl Target {
     /// colour object; a colour image's luminance-free mean for a grey one).
     pub fn planes(&self, n: usize, planes: usize, gamma: f64) -> Result<Vec<f64>, String> {
         match self {
-            Target::Builtin(spec) => crate::capture::planes_of_spec(&format!("{spec}@{n}"), gamma, planes)
-                .map(|t| t.2)
-                .map_err(|e| format!("target {spec:?}: {e}")),
+            Target::Builtin(spec) => {
+                crate::capture::planes_of_spec(&format!("{spec}@{n}"), gamma, planes)
+                    .map(|t| t.2)
+                    .map_err(|e| format!("target {spec:?}: {e}"))
+            }
             Target::Image {
                 width,
                 height,
@@ -160,7 +162,10 @@ impl Target {
             } => {
                 let len = width * height;
                 if *width == 0 || *height == 0 || values.len() != len * p {
-                    return Err(format!("target {name:?}: {} values are not {p} planes of {width}x{height}", values.len()));
+                    return Err(format!(
+                        "target {name:?}: {} values are not {p} planes of {width}x{height}",
+                        values.len()
+                    ));
                 }
                 if let Some(i) = values.iter().position(|v| !v.is_finite()) {
                     return Err(format!("target {name:?}: value {i} is not a finite number"));
@@ -250,7 +255,12 @@ impl Requirement {
             return Err(err());
         };
         let m = Metric::parse(name).map_err(|e| format!("--require {spec:?}: {e}"))?;
-        let v: f64 = value.trim().parse().ok().filter(|v: &f64| v.is_finite()).ok_or_else(err)?;
+        let v: f64 = value
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(err)?;
         let r = Requirement {
             metric: m.base,
             min: min.then_some(v),
@@ -258,7 +268,9 @@ impl Requirement {
         };
         r.check().map_err(|e| format!("--require {spec:?}: {e}"))?;
         if m.q05 {
-            return Err(format!("--require {spec:?}: a requirement is on a draw's own value, not a quantile"));
+            return Err(format!(
+                "--require {spec:?}: a requirement is on a draw's own value, not a quantile"
+            ));
         }
         Ok(r)
     }
@@ -301,7 +313,11 @@ impl Request {
     /// Checks the request before anything is computed.
     pub fn check(&self) -> Result<(), EvalError> {
         let f = &self.fidelity;
-        if self.metrics.iter().any(|m| m.base.kind() == Kind::Reconstruction) {
+        if self
+            .metrics
+            .iter()
+            .any(|m| m.base.kind() == Kind::Reconstruction)
+        {
             if f.spp == 0 {
                 return Err(input("fidelity spp: must be at least 1"));
             }
@@ -309,7 +325,9 @@ impl Request {
                 return Err(input("fidelity binning: must be 1..=64"));
             }
             if f.replicates == 0 || f.replicates > MAX_REPLICATES {
-                return Err(input(format!("fidelity replicates: must be 1..={MAX_REPLICATES}")));
+                return Err(input(format!(
+                    "fidelity replicates: must be 1..={MAX_REPLICATES}"
+                )));
             }
             if f.targets.is_empty() {
                 return Err(input("fidelity targets: give at least one target"));
@@ -325,7 +343,9 @@ impl Request {
             if let Exposure::WhitePeak(v) = self.exposure
                 && !(v.is_finite() && v > 0.0)
             {
-                return Err(input(format!("exposure white peak {v}: must be a positive number")));
+                return Err(input(format!(
+                    "exposure white peak {v}: must be a positive number"
+                )));
             }
         }
         for m in &self.metrics {
@@ -341,10 +361,15 @@ impl Request {
             }
         }
         if self.metrics.iter().any(|m| m.base == Base::Yield) && self.requirements.is_empty() {
-            return Err(input("metric yield: needs requirements (--require METRIC>=VALUE)"));
+            return Err(input(
+                "metric yield: needs requirements (--require METRIC>=VALUE)",
+            ));
         }
         if self.draw_count > MAX_DRAWS {
-            return Err(input(format!("--draws {}: at most {MAX_DRAWS}", self.draw_count)));
+            return Err(input(format!(
+                "--draws {}: at most {MAX_DRAWS}",
+                self.draw_count
+            )));
         }
         for r in &self.requirements {
             r.check().map_err(input)?;
@@ -380,7 +405,11 @@ pub fn evaluate(
     let sys = System::build(&loaded)?;
     let mut values = BTreeMap::new();
     let mut warnings = Vec::new();
-    let want = |k: Kind| req.metrics.iter().any(|m| !m.q05 && m.base.kind() == k && m.base != Base::Yield);
+    let want = |k: Kind| {
+        req.metrics
+            .iter()
+            .any(|m| !m.q05 && m.base.kind() == k && m.base != Base::Yield)
+    };
     if want(Kind::Geometry) || want(Kind::Colour) {
         let g = geometry(&sys);
         for m in req.metrics.iter().filter(|m| !m.q05) {
@@ -393,7 +422,11 @@ pub fn evaluate(
     if want(Kind::Reconstruction) {
         let r = reconstruction(scene, overrides, &loaded, req, &mut warnings)?;
         white_peak = r.white_peak;
-        for m in req.metrics.iter().filter(|m| m.base.kind() == Kind::Reconstruction) {
+        for m in req
+            .metrics
+            .iter()
+            .filter(|m| m.base.kind() == Kind::Reconstruction)
+        {
             let (v, e) = r.values[&m.base];
             values.insert(m.base.name().to_string(), v);
             values.insert(format!("{}_error", m.base.name()), e);
@@ -418,7 +451,10 @@ pub fn geometry(sys: &System) -> BTreeMap<Base, f64> {
     let f = crate::sweep::design_figures(sys, &crate::sweep::SweepSettings::default());
     let mut m = BTreeMap::new();
     m.insert(Base::FovCaptureVerticalDeg, f.fov_vertical_capture.full_deg);
-    m.insert(Base::FovCaptureHorizontalDeg, f.fov_horizontal_capture.full_deg);
+    m.insert(
+        Base::FovCaptureHorizontalDeg,
+        f.fov_horizontal_capture.full_deg,
+    );
     m.insert(Base::FovWaveguideVerticalDeg, f.fov_vertical.full_deg);
     m.insert(Base::FovWaveguideHorizontalDeg, f.fov_horizontal.full_deg);
     m.insert(Base::SceneFieldVerticalMm, f.scene_field_vertical.extent_mm);
@@ -434,9 +470,13 @@ pub fn geometry(sys: &System) -> BTreeMap<Base, f64> {
     } else {
         Vec::new()
     };
-    for (p, b) in [Base::BandCoverageR, Base::BandCoverageG, Base::BandCoverageB]
-        .into_iter()
-        .enumerate()
+    for (p, b) in [
+        Base::BandCoverageR,
+        Base::BandCoverageG,
+        Base::BandCoverageB,
+    ]
+    .into_iter()
+    .enumerate()
     {
         let v = if bands.is_empty() {
             f64::NAN
@@ -467,7 +507,10 @@ pub fn fidelity_overrides(loaded: &LoadedScene, f: &Fidelity) -> Result<Vec<Stri
                 "fidelity object_px {n}: the target spans {extent} LCD pixels, which {n} object pixels do not divide"
             )));
         }
-        o.push(format!("display.lcd_pixels_per_image_pixel={}", extent / u64::from(n)));
+        o.push(format!(
+            "display.lcd_pixels_per_image_pixel={}",
+            extent / u64::from(n)
+        ));
         // The object grid (the targets replace its values).
         o.push(format!("display.image=\"white@{n}\""));
     }
@@ -478,12 +521,23 @@ pub fn fidelity_overrides(loaded: &LoadedScene, f: &Fidelity) -> Result<Vec<Stri
             if v % b == 0 {
                 Ok(v / b)
             } else {
-                Err(input(format!("fidelity binning {b}: {what} {v} is not a multiple of it")))
+                Err(input(format!(
+                    "fidelity binning {b}: {what} {v} is not a multiple of it"
+                )))
             }
         };
-        o.push(format!("sensor.width_px={}", div(s.sensor.width_px, "sensor.width_px")?));
-        o.push(format!("sensor.height_px={}", div(s.sensor.height_px, "sensor.height_px")?));
-        o.push(format!("sensor.pitch_um={}", s.sensor.pitch_um * f64::from(b)));
+        o.push(format!(
+            "sensor.width_px={}",
+            div(s.sensor.width_px, "sensor.width_px")?
+        ));
+        o.push(format!(
+            "sensor.height_px={}",
+            div(s.sensor.height_px, "sensor.height_px")?
+        ));
+        o.push(format!(
+            "sensor.pitch_um={}",
+            s.sensor.pitch_um * f64::from(b)
+        ));
         o.push(format!(
             "sensor.crop_px=[{},{}]",
             div(crop.0, "the crop width")?,
@@ -536,7 +590,11 @@ fn reconstruction(
             }
             let ls = scene.load(&set)?;
             let sys = System::build(&ls)?;
-            let (ow, oh, planes) = (sys.display.width_px, sys.display.height_px, sys.display.planes());
+            let (ow, oh, planes) = (
+                sys.display.width_px,
+                sys.display.height_px,
+                sys.display.planes(),
+            );
             if ow != oh {
                 return Err(input(format!(
                     "display.image: the reconstruction metrics need a square object, got {ow}x{oh}"
@@ -555,7 +613,10 @@ fn reconstruction(
                     warnings.push(format!("{w}{at}"));
                 }
             }
-            let m = crate::matrix::compute_matrix(&sys, &crate::render::RenderSettings::lattice(f.spp, seed, false));
+            let m = crate::matrix::compute_matrix(
+                &sys,
+                &crate::render::RenderSettings::lattice(f.spp, seed, false),
+            );
             let m2 = crate::matrix::compute_matrix(
                 &sys,
                 &crate::render::RenderSettings::lattice(f.spp, seed ^ 0x9E37_79B9_7F4A_7C15, false),
@@ -577,13 +638,22 @@ fn reconstruction(
             let problem = crate::recon::Problem::with_cancel(&m.h, ow, planes * oh, cancel.clone());
             let admm = crate::recon::admm::AdmmSettings::default();
             for (ti, t) in f.targets.iter().enumerate() {
-                let truth = t.planes(ow, planes, sys.scene.display.gamma).map_err(input)?;
-                let frame = crate::capture::noisy_capture_of(&m2, &truth, &noise, seed, (di * 1000 + ti) as u64);
+                let truth = t
+                    .planes(ow, planes, sys.scene.display.gamma)
+                    .map_err(input)?;
+                let frame = crate::capture::noisy_capture_of(
+                    &m2,
+                    &truth,
+                    &noise,
+                    seed,
+                    (di * 1000 + ti) as u64,
+                );
                 let g: Vec<f64> = frame.iter().zip(&dark).map(|(a, b)| a - b).collect();
                 let level = NoiseLevel::of_capture(&problem, &g, &black, true, &noise);
                 let htg = problem.back_project(&g);
                 let fa = admm_tv_discrepancy(&problem, &htg, &level, &admm).result.f;
-                let fc = cg_discrepancy(&problem, &htg, &level, crate::recon::cg::DEFAULT_CG_ITERS).f;
+                let fc =
+                    cg_discrepancy(&problem, &htg, &level, crate::recon::cg::DEFAULT_CG_ITERS).f;
                 acc[0] += crate::recon::metrics::psnr(&fa, &truth);
                 acc[1] += crate::recon::metrics::psnr(&fc, &truth);
                 acc[2] += (0..planes)
@@ -602,7 +672,10 @@ fn reconstruction(
         reps.push(acc.map(|a| a / n as f64));
     }
     let mut values = BTreeMap::new();
-    for (k, b) in [Base::PsnrDb, Base::PsnrCgDb, Base::Ssim].into_iter().enumerate() {
+    for (k, b) in [Base::PsnrDb, Base::PsnrCgDb, Base::Ssim]
+        .into_iter()
+        .enumerate()
+    {
         let xs: Vec<f64> = reps.iter().map(|r| r[k]).collect();
         values.insert(b, mean_and_error(&xs));
     }
@@ -643,7 +716,12 @@ fn tolerance(
     let sets: Vec<Vec<String>> = (0..n as u64)
         .map(|i| {
             let mut s = overrides.to_vec();
-            s.extend(req.draws.iter().enumerate().map(|(k, d)| format!("{}={}", d.key, d.sample(seed, i, k))));
+            s.extend(
+                req.draws
+                    .iter()
+                    .enumerate()
+                    .map(|(k, d)| format!("{}={}", d.key, d.sample(seed, i, k))),
+            );
             s
         })
         .collect();
@@ -673,13 +751,20 @@ fn tolerance(
         if m.base == Base::Yield {
             let ok = per_draw
                 .iter()
-                .filter(|d| req.requirements.iter().all(|r| d.get(&r.metric).is_some_and(|&v| r.met_by(v))))
+                .filter(|d| {
+                    req.requirements
+                        .iter()
+                        .all(|r| d.get(&r.metric).is_some_and(|&v| r.met_by(v)))
+                })
                 .count();
             let p = ok as f64 / n as f64;
             values.insert("yield".into(), p);
             values.insert("yield_error".into(), (p * (1.0 - p) / n as f64).sqrt());
         } else if m.q05 {
-            let mut xs: Vec<f64> = per_draw.iter().filter_map(|d| d.get(&m.base).copied()).collect();
+            let mut xs: Vec<f64> = per_draw
+                .iter()
+                .filter_map(|d| d.get(&m.base).copied())
+                .collect();
             xs.sort_by(f64::total_cmp);
             let se = (0.05 * 0.95 / n as f64).sqrt();
             values.insert(m.to_string(), quantile(&xs, 0.05));
@@ -731,7 +816,10 @@ mod tests {
         };
         let p = t.planes(2, 1, 2.2).unwrap();
         // Box means of columns (0,1) and (2,3): 1/6 and 5/6.
-        assert!((p[0] - 1.0 / 6.0).abs() < 1e-12 && (p[1] - 5.0 / 6.0).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p[0] - 1.0 / 6.0).abs() < 1e-12 && (p[1] - 5.0 / 6.0).abs() < 1e-12,
+            "{p:?}"
+        );
         assert_eq!(t.planes(2, 3, 2.2).unwrap().len(), 12);
         let bad = Target::Image {
             name: "bad".into(),

@@ -223,7 +223,10 @@ mod tests {
     #[test]
     fn bad_names_are_refused_with_the_list() {
         let e = Metric::parse("psnr").unwrap_err();
-        assert!(e.contains("unknown metric \"psnr\"") && e.contains("psnr_db"), "{e}");
+        assert!(
+            e.contains("unknown metric \"psnr\"") && e.contains("psnr_db"),
+            "{e}"
+        );
         assert!(Metric::parse("yield_q05").is_err());
         assert!(Metric::parse_list("psnr_db,psnr_db").is_err());
         assert!(Metric::parse_list(" , ").is_err());

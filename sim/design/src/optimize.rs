@@ -117,7 +117,11 @@ pub struct Outcome {
 
 /// The violations of every constraint of `study` at a point with scene `overrides` and
 /// `metrics`.
-pub fn violations(study: &Study, overrides: &[String], metrics: &BTreeMap<String, f64>) -> Result<Vec<f64>, OptimizeError> {
+pub fn violations(
+    study: &Study,
+    overrides: &[String],
+    metrics: &BTreeMap<String, f64>,
+) -> Result<Vec<f64>, OptimizeError> {
     let scene = SceneSource::File(study.scene.as_deref())
         .load(overrides)
         .map_err(|e| OptimizeError::Input(e.to_string()))?
@@ -143,7 +147,9 @@ pub fn latin_hypercube(n: usize, d: usize, seed: u64) -> Vec<Vec<f64>> {
     let mut pts = vec![vec![0.0; d]; n];
     for a in 0..d {
         // A seeded permutation of the strata: sort by hash.
-        let mut order: Vec<(u64, usize)> = (0..n).map(|i| (hash(&[seed, 0x4C48_5300, a as u64, i as u64]), i)).collect();
+        let mut order: Vec<(u64, usize)> = (0..n)
+            .map(|i| (hash(&[seed, 0x4C48_5300, a as u64, i as u64]), i))
+            .collect();
         order.sort_unstable();
         for (stratum, &(_, i)) in order.iter().enumerate() {
             let jitter = to_unit(hash(&[seed, 0x4C48_5301, a as u64, i as u64]));
@@ -156,7 +162,11 @@ pub fn latin_hypercube(n: usize, d: usize, seed: u64) -> Vec<Vec<f64>> {
 /// The objective value of a record for the optimiser (minimised): NaN replaced by `worst`.
 fn minimised(study: &Study, k: usize, r: &Record) -> f64 {
     let o = &study.objectives[k];
-    let v = r.metrics.get(&o.metric.to_string()).copied().unwrap_or(f64::NAN);
+    let v = r
+        .metrics
+        .get(&o.metric.to_string())
+        .copied()
+        .unwrap_or(f64::NAN);
     match o.goal {
         Goal::Maximize => -v,
         Goal::Minimize => v,
@@ -171,15 +181,31 @@ fn suggest(study: &Study, records: &[Record], step: usize, seed: u64) -> Vec<Vec
     let mut eps: Vec<f64> = Vec::new();
     // ε levels of the other objectives (minimised form: value ≤ ε).
     for k in 1..n_obj {
-        let vals: Vec<f64> = records.iter().map(|r| minimised(study, k, r)).filter(|v| v.is_finite()).collect();
-        let (lo, hi) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        let vals: Vec<f64> = records
+            .iter()
+            .map(|r| minimised(study, k, r))
+            .filter(|v| v.is_finite())
+            .collect();
+        let (lo, hi) = vals
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
         let l = (step + k) % study.epsilon_levels;
-        eps.push(if lo.is_finite() { lo + (l as f64 + 0.5) / study.epsilon_levels as f64 * (hi - lo) } else { 0.0 });
+        eps.push(if lo.is_finite() {
+            lo + (l as f64 + 0.5) / study.epsilon_levels as f64 * (hi - lo)
+        } else {
+            0.0
+        });
     }
     let n_cstr = study.constraints.len() + eps.len();
     let xs = Array2::from_shape_fn((records.len(), d), |(i, j)| records[i].unit[j]);
     let obj: Vec<f64> = records.iter().map(|r| minimised(study, 0, r)).collect();
-    let worst = obj.iter().copied().filter(|v| v.is_finite()).fold(f64::NEG_INFINITY, f64::max);
+    let worst = obj
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(f64::NEG_INFINITY, f64::max);
     let worst = if worst.is_finite() { worst } else { 0.0 };
     let ys = Array2::from_shape_fn((records.len(), 1 + n_cstr), |(i, j)| {
         if j == 0 {
@@ -191,7 +217,11 @@ fn suggest(study: &Study, records: &[Record], step: usize, seed: u64) -> Vec<Vec
             let k = j - study.constraints.len();
             let v = minimised(study, k, &records[i]);
             let span = eps[k - 1].abs().max(1e-9);
-            if v.is_finite() { ((v - eps[k - 1]) / span).min(1.0) } else { 1.0 }
+            if v.is_finite() {
+                ((v - eps[k - 1]) / span).min(1.0)
+            } else {
+                1.0
+            }
         }
     });
     let mut limits = Array2::zeros((d, 2));
@@ -210,9 +240,16 @@ fn suggest(study: &Study, records: &[Record], step: usize, seed: u64) -> Vec<Vec
         Ok(s) => s.suggest(&xs, &ys),
         Err(_) => Array2::zeros((0, d)),
     };
-    let mut out: Vec<Vec<f64>> = pts.outer_iter().map(|r| r.iter().map(|v| v.clamp(0.0, 1.0)).collect()).collect();
+    let mut out: Vec<Vec<f64>> = pts
+        .outer_iter()
+        .map(|r| r.iter().map(|v| v.clamp(0.0, 1.0)).collect())
+        .collect();
     // Fewer points than asked (or none): fill with Latin hypercube points of this step.
-    let fill = latin_hypercube(batch, d, crate::sampler::hash(&[seed, 0x4649_4C4C, step as u64]));
+    let fill = latin_hypercube(
+        batch,
+        d,
+        crate::sampler::hash(&[seed, 0x4649_4C4C, step as u64]),
+    );
     out.extend(fill.into_iter().skip(out.len()));
     out.truncate(batch);
     out
@@ -220,13 +257,23 @@ fn suggest(study: &Study, records: &[Record], step: usize, seed: u64) -> Vec<Vec
 
 /// The scene overrides of unit point `u`.
 fn point(study: &Study, u: &[f64]) -> (Vec<f64>, Vec<String>) {
-    let params: Vec<f64> = study.parameters.iter().zip(u).map(|(p, &x)| p.value(x)).collect();
+    let params: Vec<f64> = study
+        .parameters
+        .iter()
+        .zip(u)
+        .map(|(p, &x)| p.value(x))
+        .collect();
     let o = study.overrides(&params);
     (params, o)
 }
 
 /// Evaluates the design of `overrides` for `study` at `fidelity`.
-pub fn evaluate_design(study: &Study, overrides: &[String], fidelity: &Fidelity, exposure: Exposure) -> Result<Evaluation, EvalError> {
+pub fn evaluate_design(
+    study: &Study,
+    overrides: &[String],
+    fidelity: &Fidelity,
+    exposure: Exposure,
+) -> Result<Evaluation, EvalError> {
     let req = study.request(fidelity, exposure);
     evaluate(SceneSource::File(study.scene.as_deref()), overrides, &req)
 }
@@ -241,7 +288,8 @@ fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Recor
     let mut out: Vec<Record> = Vec::new();
     let lines: Vec<&str> = text.lines().collect();
     for (i, line) in lines.iter().enumerate() {
-        let bad = |m: String| OptimizeError::Input(format!("{}: line {}: {m}", path.display(), i + 1));
+        let bad =
+            |m: String| OptimizeError::Input(format!("{}: line {}: {m}", path.display(), i + 1));
         let r: Record = match serde_json::from_str(line) {
             Ok(r) => r,
             // A last line cut by a kill is dropped (it is evaluated again).
@@ -249,10 +297,15 @@ fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Recor
             Err(e) => return Err(bad(format!("not an evaluation record ({e})"))),
         };
         if r.study != digest {
-            return Err(bad(format!("written for another study or seed (digest {} against {digest}); use a new --out", r.study)));
+            return Err(bad(format!(
+                "written for another study or seed (digest {} against {digest}); use a new --out",
+                r.study
+            )));
         }
         if r.unit.len() != study.parameters.len() || r.violations.len() != study.constraints.len() {
-            return Err(bad("does not match the study's parameters and constraints".into()));
+            return Err(bad(
+                "does not match the study's parameters and constraints".into()
+            ));
         }
         if out.iter().any(|o| o.index == r.index) {
             return Err(bad(format!("evaluation {} twice", r.index)));
@@ -272,7 +325,11 @@ pub fn optimize(
     on_record: &(dyn Fn(&Record, Option<f64>) + Sync),
 ) -> Result<Outcome, OptimizeError> {
     if set.budget == 0 || set.budget > crate::study::MAX_BUDGET {
-        return Err(OptimizeError::Input(format!("--budget {}: must be 1..={}", set.budget, crate::study::MAX_BUDGET)));
+        return Err(OptimizeError::Input(format!(
+            "--budget {}: must be 1..={}",
+            set.budget,
+            crate::study::MAX_BUDGET
+        )));
     }
     let digest = study.digest(set.seed);
     let ckpt = out.join("history.jsonl");
@@ -285,14 +342,22 @@ pub fn optimize(
     search.seed = set.seed;
     // The base design fixes the exposure.
     let base = evaluate_design(study, &study.set, &search, Exposure::Own)?;
-    let exposure = if base.white_peak.is_finite() { Exposure::WhitePeak(base.white_peak) } else { Exposure::Own };
-    std::fs::create_dir_all(out).map_err(|e| OptimizeError::Write(format!("{}: {e}", out.display())))?;
+    let exposure = if base.white_peak.is_finite() {
+        Exposure::WhitePeak(base.white_peak)
+    } else {
+        Exposure::Own
+    };
+    std::fs::create_dir_all(out)
+        .map_err(|e| OptimizeError::Write(format!("{}: {e}", out.display())))?;
     // Rewrite the checkpoint with the records kept (drops a cut last line).
-    let mut file = std::fs::File::create(&ckpt).map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    let mut file = std::fs::File::create(&ckpt)
+        .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
     for r in &records {
-        writeln!(file, "{}", serde_json::to_string(r).unwrap_or_default()).map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+        writeln!(file, "{}", serde_json::to_string(r).unwrap_or_default())
+            .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
     }
-    file.sync_data().map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    file.sync_data()
+        .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
     let file = std::sync::Mutex::new(file);
     let d = study.parameters.len();
     let initial = study.initial.unwrap_or(2 * d + 2).min(set.budget);
@@ -304,7 +369,11 @@ pub fn optimize(
             .filter(|v| v.is_finite())
             .fold(None, |b: Option<f64>, v| Some(b.map_or(v, |b| b.max(v))))
     };
-    let sign = if study.objectives[0].goal == Goal::Maximize { 1.0 } else { -1.0 };
+    let sign = if study.objectives[0].goal == Goal::Maximize {
+        1.0
+    } else {
+        -1.0
+    };
     let mut step = 0;
     let mut next = 0usize;
     while next < set.budget {
@@ -314,9 +383,17 @@ pub fn optimize(
             let done: Vec<Record> = records.iter().filter(|r| r.step < step).cloned().collect();
             suggest(study, &done, step, set.seed)
         };
-        let pts: Vec<(usize, Vec<f64>)> = pts.into_iter().enumerate().map(|(k, u)| (next + k, u)).filter(|(i, _)| *i < set.budget).collect();
+        let pts: Vec<(usize, Vec<f64>)> = pts
+            .into_iter()
+            .enumerate()
+            .map(|(k, u)| (next + k, u))
+            .filter(|(i, _)| *i < set.budget)
+            .collect();
         next += pts.len();
-        let todo: Vec<&(usize, Vec<f64>)> = pts.iter().filter(|(i, _)| !records.iter().any(|r| r.index == *i)).collect();
+        let todo: Vec<&(usize, Vec<f64>)> = pts
+            .iter()
+            .filter(|(i, _)| !records.iter().any(|r| r.index == *i))
+            .collect();
         let new: Vec<Result<Record, OptimizeError>> = todo
             .par_iter()
             .map(|(index, u)| {
@@ -356,16 +433,34 @@ pub fn optimize(
     let best = records
         .iter()
         .filter(|r| r.feasible && minimised(study, 0, r).is_finite())
-        .min_by(|a, b| minimised(study, 0, a).total_cmp(&minimised(study, 0, b)).then(a.index.cmp(&b.index)))
+        .min_by(|a, b| {
+            minimised(study, 0, a)
+                .total_cmp(&minimised(study, 0, b))
+                .then(a.index.cmp(&b.index))
+        })
         .map(|r| r.index);
     let least_violating = if best.is_none() {
         records
             .iter()
-            .map(|r| (r.index, r.violations.iter().map(|v| v.max(0.0)).sum::<f64>(), r))
+            .map(|r| {
+                (
+                    r.index,
+                    r.violations.iter().map(|v| v.max(0.0)).sum::<f64>(),
+                    r,
+                )
+            })
             .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
             .map(|(i, _, r)| {
-                let k = (0..r.violations.len()).max_by(|&a, &b| r.violations[a].total_cmp(&r.violations[b])).unwrap_or(0);
-                (i, study.constraints.get(k).map_or_else(String::new, |c| c.name()))
+                let k = (0..r.violations.len())
+                    .max_by(|&a, &b| r.violations[a].total_cmp(&r.violations[b]))
+                    .unwrap_or(0);
+                (
+                    i,
+                    study
+                        .constraints
+                        .get(k)
+                        .map_or_else(String::new, |c| c.name()),
+                )
             })
     } else {
         None
@@ -376,7 +471,11 @@ pub fn optimize(
         let mut fin = study.final_check.clone();
         fin.seed = set.seed;
         let base_final = evaluate_design(study, &study.set, &fin, Exposure::Own)?;
-        let fexp = if base_final.white_peak.is_finite() { Exposure::WhitePeak(base_final.white_peak) } else { Exposure::Own };
+        let fexp = if base_final.white_peak.is_finite() {
+            Exposure::WhitePeak(base_final.white_peak)
+        } else {
+            Exposure::Own
+        };
         finals.push((None, base_final.values));
         let mut chosen: Vec<usize> = best.into_iter().collect();
         for &p in pareto.iter() {
@@ -408,7 +507,11 @@ pub fn optimize(
 /// good, one better), sorted by the first objective, best first.
 pub fn pareto_front(study: &Study, records: &[Record]) -> Vec<usize> {
     let n_obj = study.objectives.len();
-    let vals = |r: &Record| (0..n_obj).map(|k| minimised(study, k, r)).collect::<Vec<f64>>();
+    let vals = |r: &Record| {
+        (0..n_obj)
+            .map(|k| minimised(study, k, r))
+            .collect::<Vec<f64>>()
+    };
     let cand: Vec<(&Record, Vec<f64>)> = records
         .iter()
         .filter(|r| r.feasible)
@@ -418,7 +521,10 @@ pub fn pareto_front(study: &Study, records: &[Record]) -> Vec<usize> {
     let mut front: Vec<(&Record, &Vec<f64>)> = cand
         .iter()
         .filter(|(_, v)| {
-            !cand.iter().any(|(_, w)| w.iter().zip(v.iter()).all(|(a, b)| a <= b) && w.iter().zip(v.iter()).any(|(a, b)| a < b))
+            !cand.iter().any(|(_, w)| {
+                w.iter().zip(v.iter()).all(|(a, b)| a <= b)
+                    && w.iter().zip(v.iter()).any(|(a, b)| a < b)
+            })
         })
         .map(|(r, v)| (*r, v))
         .collect();
@@ -440,7 +546,10 @@ mod tests {
         let n = 7;
         let pts = latin_hypercube(n, 3, 42);
         for a in 0..3 {
-            let mut strata: Vec<usize> = pts.iter().map(|p| (p[a] * n as f64).floor() as usize).collect();
+            let mut strata: Vec<usize> = pts
+                .iter()
+                .map(|p| (p[a] * n as f64).floor() as usize)
+                .collect();
             strata.sort_unstable();
             assert_eq!(strata, (0..n).collect::<Vec<_>>());
         }

@@ -17,12 +17,20 @@ pub const TIMING_COLUMNS: &[&str] = &["seconds"];
 
 /// A number as CSV/Markdown text (shortest round trip; empty for NaN).
 fn num(v: f64) -> String {
-    if v.is_finite() { format!("{v}") } else { String::new() }
+    if v.is_finite() {
+        format!("{v}")
+    } else {
+        String::new()
+    }
 }
 
 /// Every metric name in the records, sorted.
 fn metric_names(outcome: &Outcome) -> Vec<String> {
-    let mut names: Vec<String> = outcome.records.iter().flat_map(|r| r.metrics.keys().cloned()).collect();
+    let mut names: Vec<String> = outcome
+        .records
+        .iter()
+        .flat_map(|r| r.metrics.keys().cloned())
+        .collect();
     names.extend(outcome.base.keys().cloned());
     names.sort();
     names.dedup();
@@ -49,7 +57,11 @@ pub fn history_csv(study: &Study, outcome: &Outcome) -> String {
             let _ = write!(s, ",{}", num(*v));
         }
         for n in &names {
-            let _ = write!(s, ",{}", r.metrics.get(n).map_or(String::new(), |v| num(*v)));
+            let _ = write!(
+                s,
+                ",{}",
+                r.metrics.get(n).map_or(String::new(), |v| num(*v))
+            );
         }
         for v in &r.violations {
             let _ = write!(s, ",{}", num(*v));
@@ -76,7 +88,13 @@ pub fn pareto_csv(study: &Study, outcome: &Outcome) -> String {
             let _ = write!(s, ",{}", num(*v));
         }
         for o in &study.objectives {
-            let _ = write!(s, ",{}", r.metrics.get(&o.metric.to_string()).map_or(String::new(), |v| num(*v)));
+            let _ = write!(
+                s,
+                ",{}",
+                r.metrics
+                    .get(&o.metric.to_string())
+                    .map_or(String::new(), |v| num(*v))
+            );
         }
         s.push('\n');
     }
@@ -84,7 +102,11 @@ pub fn pareto_csv(study: &Study, outcome: &Outcome) -> String {
 }
 
 fn record(outcome: &Outcome, i: usize) -> &Record {
-    &outcome.records[outcome.records.iter().position(|r| r.index == i).unwrap_or(0)]
+    &outcome.records[outcome
+        .records
+        .iter()
+        .position(|r| r.index == i)
+        .unwrap_or(0)]
 }
 
 /// `best.toml`: the complete scene of evaluation `index` (the study's base scene with its
@@ -96,11 +118,18 @@ pub fn scene_toml(study: &Study, params: &[f64]) -> Result<String, String> {
         .map_err(|e| e.to_string())?;
     let mut scene = ls.scene.clone();
     let img = std::path::Path::new(&scene.display.image);
-    if crate::targets::builtin_image(&format!("{}@8", scene.display.image)).is_err() && img.is_relative() {
+    if crate::targets::builtin_image(&format!("{}@8", scene.display.image)).is_err()
+        && img.is_relative()
+    {
         scene.display.image = ls.base_dir.join(img).display().to_string();
     }
     let body = toml::to_string(&scene).map_err(|e| e.to_string())?;
-    let values: Vec<String> = study.parameters.iter().zip(params).map(|(p, v)| format!("# {} = {v}", p.keys.join(", "))).collect();
+    let values: Vec<String> = study
+        .parameters
+        .iter()
+        .zip(params)
+        .map(|(p, v)| format!("# {} = {v}", p.keys.join(", ")))
+        .collect();
     Ok(format!(
         "# The design stscam optimize found for {} (a complete scene; render, demo, info and evaluate take it).\n{}\n\n{body}",
         study.file,
@@ -115,7 +144,10 @@ fn scatter(name: &str, pts: impl Iterator<Item = (f64, f64)>) -> Series {
         points.push(p);
         points.push((f64::NAN, f64::NAN));
     }
-    Series { name: name.into(), points }
+    Series {
+        name: name.into(),
+        points,
+    }
 }
 
 /// The plots: (file stem, plot).
@@ -145,14 +177,23 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
             y_label: name0.clone(),
             log_x: false,
             log_y: false,
-            series: vec![Series { name: "best feasible".into(), points: curve }],
-            h_line: base0.is_finite().then(|| (base0, "base design".to_string())),
+            series: vec![Series {
+                name: "best feasible".into(),
+                points: curve,
+            }],
+            h_line: base0
+                .is_finite()
+                .then(|| (base0, "base design".to_string())),
         },
     )];
     if study.objectives.len() >= 2 {
         let n1 = study.objectives[1].metric.to_string();
         let xy = |r: &Record| (get(r, &n1), get(r, &name0));
-        let mut front: Vec<(f64, f64)> = outcome.pareto.iter().map(|&i| xy(record(outcome, i))).collect();
+        let mut front: Vec<(f64, f64)> = outcome
+            .pareto
+            .iter()
+            .map(|&i| xy(record(outcome, i)))
+            .collect();
         front.sort_by(|a, b| a.0.total_cmp(&b.0));
         out.push((
             "pareto".to_string(),
@@ -163,10 +204,25 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
                 log_x: false,
                 log_y: false,
                 series: vec![
-                    scatter("feasible", outcome.records.iter().filter(|r| r.feasible).map(xy)),
-                    scatter("infeasible", outcome.records.iter().filter(|r| !r.feasible).map(xy)),
-                    Series { name: "front".into(), points: front },
-                    scatter("base design", std::iter::once((outcome.base.get(&n1).copied().unwrap_or(f64::NAN), base0))),
+                    scatter(
+                        "feasible",
+                        outcome.records.iter().filter(|r| r.feasible).map(xy),
+                    ),
+                    scatter(
+                        "infeasible",
+                        outcome.records.iter().filter(|r| !r.feasible).map(xy),
+                    ),
+                    Series {
+                        name: "front".into(),
+                        points: front,
+                    },
+                    scatter(
+                        "base design",
+                        std::iter::once((
+                            outcome.base.get(&n1).copied().unwrap_or(f64::NAN),
+                            base0,
+                        )),
+                    ),
                 ],
                 h_line: None,
             },
@@ -182,10 +238,26 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
                 log_x: false,
                 log_y: false,
                 series: vec![
-                    scatter("feasible", outcome.records.iter().filter(|r| r.feasible).map(|r| (r.params[j], get(r, &name0)))),
-                    scatter("infeasible", outcome.records.iter().filter(|r| !r.feasible).map(|r| (r.params[j], get(r, &name0)))),
+                    scatter(
+                        "feasible",
+                        outcome
+                            .records
+                            .iter()
+                            .filter(|r| r.feasible)
+                            .map(|r| (r.params[j], get(r, &name0))),
+                    ),
+                    scatter(
+                        "infeasible",
+                        outcome
+                            .records
+                            .iter()
+                            .filter(|r| !r.feasible)
+                            .map(|r| (r.params[j], get(r, &name0))),
+                    ),
                 ],
-                h_line: base0.is_finite().then(|| (base0, "base design".to_string())),
+                h_line: base0
+                    .is_finite()
+                    .then(|| (base0, "base design".to_string())),
             },
         ));
     }
@@ -196,39 +268,99 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
 pub fn report_md(study: &Study, outcome: &Outcome, seed: u64, budget: usize) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Design study {}\n", study.file);
-    let _ = writeln!(s, "{budget} evaluations, seed {seed}; objectives: {}; constraints: {}.\n",
-        study.objectives.iter().map(|o| format!("{} {}", if o.goal == Goal::Maximize { "maximise" } else { "minimise" }, o.metric)).collect::<Vec<_>>().join(", "),
-        if study.constraints.is_empty() { "none".to_string() } else { study.constraints.iter().map(|c| c.name()).collect::<Vec<_>>().join("; ") });
+    let _ = writeln!(
+        s,
+        "{budget} evaluations, seed {seed}; objectives: {}; constraints: {}.\n",
+        study
+            .objectives
+            .iter()
+            .map(|o| format!(
+                "{} {}",
+                if o.goal == Goal::Maximize {
+                    "maximise"
+                } else {
+                    "minimise"
+                },
+                o.metric
+            ))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if study.constraints.is_empty() {
+            "none".to_string()
+        } else {
+            study
+                .constraints
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join("; ")
+        }
+    );
     match (outcome.best, &outcome.least_violating) {
         (Some(b), _) => {
             let r = record(outcome, b);
-            let _ = writeln!(s, "**Best feasible design**: evaluation {b} (step {}), `best.toml`:\n", r.step);
+            let _ = writeln!(
+                s,
+                "**Best feasible design**: evaluation {b} (step {}), `best.toml`:\n",
+                r.step
+            );
             for (p, v) in study.parameters.iter().zip(&r.params) {
                 let _ = writeln!(s, "- `{}` = {v}", p.keys.join("`, `"));
             }
         }
         (None, Some((i, c))) => {
-            let _ = writeln!(s, "**The study is infeasible** within its budget: no evaluation met every constraint. The least-violating design is evaluation {i}; the constraint that binds most there: `{c}`. `best.toml` is not written.");
+            let _ = writeln!(
+                s,
+                "**The study is infeasible** within its budget: no evaluation met every constraint. The least-violating design is evaluation {i}; the constraint that binds most there: `{c}`. `best.toml` is not written."
+            );
         }
         (None, None) => {
             let _ = writeln!(s, "**No design was evaluated.**");
         }
     }
     let names: Vec<String> = study.metrics().iter().map(|m| m.to_string()).collect();
-    let _ = writeln!(s, "\n## Search fidelity (object {} px, binning {}, {} spp, {} replicates, fixed exposure: white peak {:.6e})\n",
-        study.search.object_px.map_or("scene".into(), |n| n.to_string()), study.search.binning, study.search.spp, study.search.replicates, outcome.white_peak);
+    let _ = writeln!(
+        s,
+        "\n## Search fidelity (object {} px, binning {}, {} spp, {} replicates, fixed exposure: white peak {:.6e})\n",
+        study
+            .search
+            .object_px
+            .map_or("scene".into(), |n| n.to_string()),
+        study.search.binning,
+        study.search.spp,
+        study.search.replicates,
+        outcome.white_peak
+    );
     let _ = writeln!(s, "| metric | base | best |\n|---|---|---|");
     for n in &names {
         let b = outcome.base.get(n).copied().unwrap_or(f64::NAN);
-        let e = |m: &std::collections::BTreeMap<String, f64>| m.get(&format!("{n}_error")).map_or(String::new(), |e| format!(" ± {}", fmt4(*e)));
+        let e = |m: &std::collections::BTreeMap<String, f64>| {
+            m.get(&format!("{n}_error"))
+                .map_or(String::new(), |e| format!(" ± {}", fmt4(*e)))
+        };
         let best = outcome.best.map(|i| record(outcome, i));
-        let _ = writeln!(s, "| {n} | {}{} | {} |", fmt4(b), e(&outcome.base),
-            best.map_or("-".into(), |r| format!("{}{}", fmt4(r.metrics.get(n).copied().unwrap_or(f64::NAN)), e(&r.metrics))));
+        let _ = writeln!(
+            s,
+            "| {n} | {}{} | {} |",
+            fmt4(b),
+            e(&outcome.base),
+            best.map_or("-".into(), |r| format!(
+                "{}{}",
+                fmt4(r.metrics.get(n).copied().unwrap_or(f64::NAN)),
+                e(&r.metrics)
+            ))
+        );
     }
     if !outcome.finals.is_empty() {
         let f = &study.final_check;
-        let _ = writeln!(s, "\n## Final fidelity (object {} px, binning {}, {} spp, {} replicates)\n",
-            f.object_px.map_or("scene".into(), |n| n.to_string()), f.binning, f.spp, f.replicates);
+        let _ = writeln!(
+            s,
+            "\n## Final fidelity (object {} px, binning {}, {} spp, {} replicates)\n",
+            f.object_px.map_or("scene".into(), |n| n.to_string()),
+            f.binning,
+            f.spp,
+            f.replicates
+        );
         let _ = write!(s, "| design |");
         for n in &names {
             let _ = write!(s, " {n} |");
@@ -247,29 +379,55 @@ pub fn report_md(study: &Study, outcome: &Outcome, seed: u64, budget: usize) -> 
             let _ = write!(s, "| {label} |");
             for n in &names {
                 let v = m.get(n).copied().unwrap_or(f64::NAN);
-                let e = m.get(&format!("{n}_error")).map_or(String::new(), |e| format!(" ± {}", fmt4(*e)));
+                let e = m
+                    .get(&format!("{n}_error"))
+                    .map_or(String::new(), |e| format!(" ± {}", fmt4(*e)));
                 let _ = write!(s, " {}{e} |", fmt4(v));
             }
             s.push('\n');
         }
     }
     if study.objectives.len() >= 2 {
-        let _ = writeln!(s, "\n## Pareto front ({} designs, `pareto.csv`, `pareto.png`)\n", outcome.pareto.len());
+        let _ = writeln!(
+            s,
+            "\n## Pareto front ({} designs, `pareto.csv`, `pareto.png`)\n",
+            outcome.pareto.len()
+        );
         if let Some(d) = dominating(study, outcome) {
             let r = record(outcome, d);
-            let _ = writeln!(s, "The nearest evaluated design that dominates the base design (every objective at least as good, one better): evaluation {d}, {}.",
-                study.parameters.iter().zip(&r.params).map(|(p, v)| format!("`{}` = {v}", p.keys[0])).collect::<Vec<_>>().join(", "));
+            let _ = writeln!(
+                s,
+                "The nearest evaluated design that dominates the base design (every objective at least as good, one better): evaluation {d}, {}.",
+                study
+                    .parameters
+                    .iter()
+                    .zip(&r.params)
+                    .map(|(p, v)| format!("`{}` = {v}", p.keys[0]))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
         } else {
             let _ = writeln!(s, "No evaluated feasible design dominates the base design.");
         }
     }
-    let _ = writeln!(s, "\nPlots: `convergence.png`{}, `parameter_*.png`. Every evaluation: `history.csv`, `history.jsonl`.",
-        if study.objectives.len() >= 2 { ", `pareto.png`" } else { "" });
+    let _ = writeln!(
+        s,
+        "\nPlots: `convergence.png`{}, `parameter_*.png`. Every evaluation: `history.csv`, `history.jsonl`.",
+        if study.objectives.len() >= 2 {
+            ", `pareto.png`"
+        } else {
+            ""
+        }
+    );
     s
 }
 
 fn fmt4(v: f64) -> String {
-    if v.is_finite() { format!("{v:.4}") } else { "NaN".into() }
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        "NaN".into()
+    }
 }
 
 /// The feasible evaluation dominating the base design nearest to it in unit coordinates.
@@ -283,8 +441,12 @@ pub fn dominating(study: &Study, outcome: &Outcome) -> Option<usize> {
         .parameters
         .iter()
         .map(|p| {
-            let ls = SceneSource::File(study.scene.as_deref()).load(&study.set).ok();
-            let v = ls.and_then(|l| crate::study::scene_value(&l.scene, &p.keys[0])).unwrap_or(f64::NAN);
+            let ls = SceneSource::File(study.scene.as_deref())
+                .load(&study.set)
+                .ok();
+            let v = ls
+                .and_then(|l| crate::study::scene_value(&l.scene, &p.keys[0]))
+                .unwrap_or(f64::NAN);
             p.unit(v)
         })
         .collect();
@@ -294,10 +456,17 @@ pub fn dominating(study: &Study, outcome: &Outcome) -> Option<usize> {
         .iter()
         .filter(|r| r.feasible)
         .filter(|r| {
-            (0..k).all(|j| val(&r.metrics, j) >= val(&outcome.base, j)) && (0..k).any(|j| val(&r.metrics, j) > val(&outcome.base, j))
+            (0..k).all(|j| val(&r.metrics, j) >= val(&outcome.base, j))
+                && (0..k).any(|j| val(&r.metrics, j) > val(&outcome.base, j))
         })
         .min_by(|a, b| {
-            let d = |r: &Record| r.unit.iter().zip(&base_unit).map(|(x, y)| (x - y).powi(2)).sum::<f64>();
+            let d = |r: &Record| {
+                r.unit
+                    .iter()
+                    .zip(&base_unit)
+                    .map(|(x, y)| (x - y).powi(2))
+                    .sum::<f64>()
+            };
             d(a).total_cmp(&d(b)).then(a.index.cmp(&b.index))
         })
         .map(|r| r.index)

@@ -159,7 +159,12 @@ impl Parameter {
     pub fn value(&self, u: f64) -> f64 {
         let u = u.clamp(0.0, 1.0);
         match &self.domain {
-            Domain::Range { min, max, log, integer } => {
+            Domain::Range {
+                min,
+                max,
+                log,
+                integer,
+            } => {
                 let v = if *log {
                     (min.ln() + u * (max.ln() - min.ln())).exp()
                 } else {
@@ -184,7 +189,11 @@ impl Parameter {
                 } else {
                     (v - min) / (max - min)
                 };
-                if u.is_finite() { u.clamp(0.0, 1.0) } else { 0.0 }
+                if u.is_finite() {
+                    u.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
             }
             Domain::Choice(vals) => {
                 let i = vals.iter().position(|x| *x == v).unwrap_or(0);
@@ -321,7 +330,12 @@ impl Study {
             let msg = e.message().to_string();
             let key = e
                 .span()
-                .map(|s| format!("line {}", text[..s.start.min(text.len())].lines().count().max(1)))
+                .map(|s| {
+                    format!(
+                        "line {}",
+                        text[..s.start.min(text.len())].lines().count().max(1)
+                    )
+                })
                 .unwrap_or_else(|| "(toml)".into());
             err(&key, msg)
         })?;
@@ -341,7 +355,10 @@ impl Study {
             return Err(err("parameter", "give at least one [[parameter]]".into()));
         }
         if raw.parameter.len() > MAX_PARAMETERS {
-            return Err(err("parameter", format!("at most {MAX_PARAMETERS} parameters")));
+            return Err(err(
+                "parameter",
+                format!("at most {MAX_PARAMETERS} parameters"),
+            ));
         }
         let mut parameters = Vec::new();
         let mut all_keys: Vec<String> = Vec::new();
@@ -361,7 +378,9 @@ impl Study {
                 all_keys.push(k.clone());
             }
             let finite = |k: &str, v: Option<f64>| match v {
-                Some(x) if !x.is_finite() => Err(err(&at(k), format!("{x} is not a finite number"))),
+                Some(x) if !x.is_finite() => {
+                    Err(err(&at(k), format!("{x} is not a finite number")))
+                }
                 _ => Ok(v),
             };
             let (min, max) = (finite("min", p.min)?, finite("max", p.max)?);
@@ -373,11 +392,17 @@ impl Study {
                     Domain::Choice(vals.clone())
                 }
                 (Some(_), _, _) => {
-                    return Err(err(&at("values"), "give either values or min and max".into()));
+                    return Err(err(
+                        &at("values"),
+                        "give either values or min and max".into(),
+                    ));
                 }
                 (None, Some(a), Some(b)) => {
                     if !(a < b) {
-                        return Err(err(&at("max"), format!("max {b} must be greater than min {a}")));
+                        return Err(err(
+                            &at("max"),
+                            format!("max {b} must be greater than min {a}"),
+                        ));
                     }
                     if p.log && a <= 0.0 {
                         return Err(err(&at("min"), format!("log scale needs min > 0, got {a}")));
@@ -385,10 +410,25 @@ impl Study {
                     if p.integer && a.ceil() > b.floor() {
                         return Err(err(&at("min"), format!("no integer in [{a}, {b}]")));
                     }
-                    Domain::Range { min: a, max: b, log: p.log, integer: p.integer }
+                    Domain::Range {
+                        min: a,
+                        max: b,
+                        log: p.log,
+                        integer: p.integer,
+                    }
                 }
-                (None, None, _) => return Err(err(&at("min"), "missing (give min and max, or values)".into())),
-                (None, _, None) => return Err(err(&at("max"), "missing (give min and max, or values)".into())),
+                (None, None, _) => {
+                    return Err(err(
+                        &at("min"),
+                        "missing (give min and max, or values)".into(),
+                    ));
+                }
+                (None, _, None) => {
+                    return Err(err(
+                        &at("max"),
+                        "missing (give min and max, or values)".into(),
+                    ));
+                }
             };
             let param = Parameter { keys, domain };
             // Both ends load into the scene (key exists, value accepted).
@@ -407,7 +447,8 @@ impl Study {
         }
         let mut objectives = Vec::new();
         for (i, o) in raw.objective.iter().enumerate() {
-            let metric = Metric::parse(&o.metric).map_err(|e| err(&format!("objective[{i}].metric"), e))?;
+            let metric =
+                Metric::parse(&o.metric).map_err(|e| err(&format!("objective[{i}].metric"), e))?;
             let goal = match o.goal.as_str() {
                 "maximize" | "maximise" | "max" => Goal::Maximize,
                 "minimize" | "minimise" | "min" => Goal::Minimize,
@@ -419,7 +460,10 @@ impl Study {
                 }
             };
             if objectives.iter().any(|x: &Objective| x.metric == metric) {
-                return Err(err(&format!("objective[{i}].metric"), format!("{metric} is already an objective")));
+                return Err(err(
+                    &format!("objective[{i}].metric"),
+                    format!("{metric} is already an objective"),
+                ));
             }
             objectives.push(Objective { metric, goal });
         }
@@ -427,19 +471,31 @@ impl Study {
         for (i, c) in raw.constraint.iter().enumerate() {
             let at = |k: &str| format!("constraint[{i}].{k}");
             let what = match (&c.metric, &c.key, &c.sum) {
-                (Some(m), None, None) => Bounded::Metric(Metric::parse(m).map_err(|e| err(&at("metric"), e))?),
+                (Some(m), None, None) => {
+                    Bounded::Metric(Metric::parse(m).map_err(|e| err(&at("metric"), e))?)
+                }
                 (None, Some(k), None) => Bounded::Key(k.clone()),
                 (None, None, Some(ks)) if !ks.is_empty() => Bounded::Sum(ks.clone()),
-                _ => return Err(err(&at("metric"), "give exactly one of metric, key or sum (a non-empty list of keys)".into())),
+                _ => {
+                    return Err(err(
+                        &at("metric"),
+                        "give exactly one of metric, key or sum (a non-empty list of keys)".into(),
+                    ));
+                }
             };
             for (k, v) in [("min", c.min), ("max", c.max)] {
                 if v.is_some_and(|v| !v.is_finite()) {
-                    return Err(err(&at(k), format!("{} is not a finite number", v.unwrap_or(f64::NAN))));
+                    return Err(err(
+                        &at(k),
+                        format!("{} is not a finite number", v.unwrap_or(f64::NAN)),
+                    ));
                 }
             }
             match (c.min, c.max) {
                 (None, None) => return Err(err(&at("min"), "give min and/or max".into())),
-                (Some(a), Some(b)) if a > b => return Err(err(&at("max"), format!("max {b} is below min {a}"))),
+                (Some(a), Some(b)) if a > b => {
+                    return Err(err(&at("max"), format!("max {b} is below min {a}")));
+                }
                 _ => {}
             }
             let keys: Vec<&String> = match &what {
@@ -455,7 +511,11 @@ impl Study {
                     return Err(err(&at("key"), format!("{k:?} is not a numeric scene key")));
                 }
             }
-            constraints.push(Constraint { what, min: c.min, max: c.max });
+            constraints.push(Constraint {
+                what,
+                min: c.min,
+                max: c.max,
+            });
         }
         let search = fidelity(&raw.search, Fidelity::default(), "search", &err, dir, gamma)?;
         let final_check = fidelity(
@@ -479,11 +539,19 @@ impl Study {
             .draw
             .iter()
             .enumerate()
-            .map(|(i, d)| DrawSpec::parse(d).map_err(|e| err(&format!("tolerance.draw[{i}]"), e.to_string())))
+            .map(|(i, d)| {
+                DrawSpec::parse(d).map_err(|e| err(&format!("tolerance.draw[{i}]"), e.to_string()))
+            })
             .collect::<Result<Vec<_>, _>>()?;
-        let draw_count = raw.tolerance.draws.unwrap_or(if draws.is_empty() { 0 } else { 64 });
+        let draw_count = raw
+            .tolerance
+            .draws
+            .unwrap_or(if draws.is_empty() { 0 } else { 64 });
         if draw_count > crate::evaluate::MAX_DRAWS {
-            return Err(err("tolerance.draws", format!("at most {}", crate::evaluate::MAX_DRAWS)));
+            return Err(err(
+                "tolerance.draws",
+                format!("at most {}", crate::evaluate::MAX_DRAWS),
+            ));
         }
         let study = Study {
             file: file.to_string(),
@@ -502,7 +570,10 @@ impl Study {
             text: text.to_string(),
         };
         if !(1..=64).contains(&study.batch) {
-            return Err(err("optimizer.batch", format!("{}: must be 1..=64", study.batch)));
+            return Err(err(
+                "optimizer.batch",
+                format!("{}: must be 1..=64", study.batch),
+            ));
         }
         if !(2..=100).contains(&study.epsilon_levels) {
             return Err(err("optimizer.epsilon_levels", "must be 2..=100".into()));
@@ -514,11 +585,19 @@ impl Study {
         if needs_draws && (study.draws.is_empty() || study.draw_count == 0) {
             return Err(err("tolerance.draw", "a yield or _q05 metric needs tolerance draws ([tolerance] draw = [\"hoe.…=normal(M,SD)\"])".into()));
         }
-        if study.metrics().iter().any(|m| m.base == Base::Yield) && study.requirements().is_empty() {
-            return Err(err("constraint", "the yield counts draws that meet the constraints on geometry metrics: give one".into()));
+        if study.metrics().iter().any(|m| m.base == Base::Yield) && study.requirements().is_empty()
+        {
+            return Err(err(
+                "constraint",
+                "the yield counts draws that meet the constraints on geometry metrics: give one"
+                    .into(),
+            ));
         }
         // The request the search makes is valid (e.g. q05 of a reconstruction metric is not).
-        study.request(&study.search, crate::evaluate::Exposure::Own).check().map_err(|e| err("objective", e.to_string()))?;
+        study
+            .request(&study.search, crate::evaluate::Exposure::Own)
+            .check()
+            .map_err(|e| err("objective", e.to_string()))?;
         Ok(study)
     }
 
@@ -540,18 +619,26 @@ impl Study {
         self.constraints
             .iter()
             .filter_map(|c| match c.what {
-                Bounded::Metric(m) if !m.q05 && matches!(m.base.kind(), Kind::Geometry | Kind::Colour) => Some(Requirement {
-                    metric: m.base,
-                    min: c.min,
-                    max: c.max,
-                }),
+                Bounded::Metric(m)
+                    if !m.q05 && matches!(m.base.kind(), Kind::Geometry | Kind::Colour) =>
+                {
+                    Some(Requirement {
+                        metric: m.base,
+                        min: c.min,
+                        max: c.max,
+                    })
+                }
                 _ => None,
             })
             .collect()
     }
 
     /// The evaluation request at `fidelity`.
-    pub fn request(&self, fidelity: &Fidelity, exposure: crate::evaluate::Exposure) -> crate::evaluate::Request {
+    pub fn request(
+        &self,
+        fidelity: &Fidelity,
+        exposure: crate::evaluate::Exposure,
+    ) -> crate::evaluate::Request {
         crate::evaluate::Request {
             metrics: self.metrics(),
             fidelity: fidelity.clone(),
@@ -609,12 +696,17 @@ fn fidelity(
         Some(ts) => ts
             .iter()
             .enumerate()
-            .map(|(i, t)| Target::parse(t, dir, gamma).map_err(|e| err(&format!("{section}.targets[{i}]"), e)))
+            .map(|(i, t)| {
+                Target::parse(t, dir, gamma).map_err(|e| err(&format!("{section}.targets[{i}]"), e))
+            })
             .collect::<Result<Vec<_>, _>>()?,
         None => default.targets,
     };
     if targets.is_empty() {
-        return Err(err(&format!("{section}.targets"), "give at least one target".into()));
+        return Err(err(
+            &format!("{section}.targets"),
+            "give at least one target".into(),
+        ));
     }
     let f = Fidelity {
         object_px: raw.object_px.or(default.object_px),
@@ -673,10 +765,16 @@ min = 15.0
     #[test]
     fn bad_studies_name_file_and_key() {
         let cases = [
-            (GOOD.replace("bottom_hoe.height_mm", "bottom_hoe.nope_mm"), "parameter[0].key"),
+            (
+                GOOD.replace("bottom_hoe.height_mm", "bottom_hoe.nope_mm"),
+                "parameter[0].key",
+            ),
             (GOOD.replace("max = 80.0", "max = 5.0"), "parameter[0].max"),
             (GOOD.replace("min = 10.0", "min = nan"), "parameter[0].min"),
-            (GOOD.replace("\"psnr_db\"", "\"psnr\""), "objective[0].metric"),
+            (
+                GOOD.replace("\"psnr_db\"", "\"psnr\""),
+                "objective[0].metric",
+            ),
             (GOOD.replace("\"maximize\"", "\"up\""), "objective[0].goal"),
             (GOOD.replace("min = 15.0", "colour = 1"), "line"),
         ];
@@ -691,15 +789,31 @@ min = 15.0
     fn units_invert_values() {
         let p = Parameter {
             keys: vec!["a".into()],
-            domain: Domain::Range { min: 1.0, max: 100.0, log: true, integer: false },
+            domain: Domain::Range {
+                min: 1.0,
+                max: 100.0,
+                log: true,
+                integer: false,
+            },
         };
         assert!((p.value(0.5) - 10.0).abs() < 1e-12);
         assert!((p.unit(10.0) - 0.5).abs() < 1e-12);
-        let c = Parameter { keys: vec!["a".into()], domain: Domain::Choice(vec![1.0, 2.0, 4.0]) };
+        let c = Parameter {
+            keys: vec!["a".into()],
+            domain: Domain::Choice(vec![1.0, 2.0, 4.0]),
+        };
         assert_eq!(c.value(0.0), 1.0);
         assert_eq!(c.value(0.99), 4.0);
         assert_eq!(c.value(c.unit(2.0)), 2.0);
-        let i = Parameter { keys: vec!["a".into()], domain: Domain::Range { min: 1.0, max: 4.0, log: false, integer: true } };
+        let i = Parameter {
+            keys: vec!["a".into()],
+            domain: Domain::Range {
+                min: 1.0,
+                max: 4.0,
+                log: false,
+                integer: true,
+            },
+        };
         assert_eq!(i.value(0.49), 2.0);
     }
 }
