@@ -15,6 +15,7 @@ pub use stscam_base::{
 };
 pub use stscam_cli as jobs;
 pub use stscam_dataset as dataset;
+pub use stscam_design as design;
 pub use stscam_io as io;
 pub use stscam_io::plot;
 pub use stscam_optics as optics;
