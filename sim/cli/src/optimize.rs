@@ -62,7 +62,7 @@ fn files(
     }
     f.push(("history.jsonl".to_string(), jsonl.into_bytes()));
     if let Some(b) = o.best {
-        let r = &o.records[o.records.iter().position(|r| r.index == b).unwrap_or(0)];
+        let r = report::record(o, b);
         let toml = report::scene_toml(study, &r.params).map_err(write_failure)?;
         f.push(("best.toml".to_string(), toml.into_bytes()));
     }
@@ -136,7 +136,7 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
     write_files(&o.out, &f)?;
     match (outcome.best, &outcome.least_violating) {
         (Some(b), _) => {
-            let r = &outcome.records[outcome.records.iter().position(|r| r.index == b).unwrap_or(0)];
+            let r = report::record(&outcome, b);
             con.out(format_args!(
                 "best feasible design: evaluation {b}, {goal} {:.4}: {}",
                 r.metrics.get(&goal).copied().unwrap_or(f64::NAN),

@@ -90,6 +90,11 @@ pub enum Target {
     },
 }
 
+/// Whether `spec` (without size) names a built-in target rather than a file.
+pub fn is_builtin(spec: &str) -> bool {
+    crate::targets::builtin_image(&format!("{spec}@8")).is_ok()
+}
+
 /// The demo's four targets (a glyph, a shape, a Siemens star and a smooth field).
 pub fn default_targets() -> Vec<Target> {
     crate::demo::DEMO_TARGETS
@@ -107,7 +112,7 @@ impl Target {
                 "target {spec:?}: give it without @SIZE (the size is the fidelity's object_px)"
             ));
         }
-        if crate::targets::builtin_image(&format!("{spec}@8")).is_ok() {
+        if is_builtin(spec) {
             return Ok(Target::Builtin(spec.to_string()));
         }
         let path = dir.join(spec);
@@ -420,7 +425,7 @@ pub fn evaluate(
     }
     let mut white_peak = f64::NAN;
     if want(Kind::Reconstruction) {
-        let r = reconstruction(scene, overrides, &loaded, req, &mut warnings)?;
+        let r = reconstruction(scene, overrides, &loaded, &sys, req, &mut warnings)?;
         white_peak = r.white_peak;
         for m in req
             .metrics
@@ -488,13 +493,17 @@ pub fn geometry(sys: &System) -> BTreeMap<Base, f64> {
     m
 }
 
-/// The overrides that put a scene at the fidelity (module notes), after the design's own.
-pub fn fidelity_overrides(loaded: &LoadedScene, f: &Fidelity) -> Result<Vec<String>, EvalError> {
+/// The overrides that put a scene (`loaded`, built as `sys`) at the fidelity (module notes),
+/// after the design's own.
+pub fn fidelity_overrides(
+    loaded: &LoadedScene,
+    sys: &System,
+    f: &Fidelity,
+) -> Result<Vec<String>, EvalError> {
     let s = &loaded.scene;
     let mut o = Vec::new();
     if let Some(n) = f.object_px {
         // The target keeps its size on the display: n × ppi' = n₀ × ppi₀.
-        let sys = System::build(loaded)?;
         let (w0, h0) = (sys.display.width_px, sys.display.height_px);
         if w0 != h0 {
             return Err(input(format!(
@@ -502,7 +511,7 @@ pub fn fidelity_overrides(loaded: &LoadedScene, f: &Fidelity) -> Result<Vec<Stri
             )));
         }
         let extent = w0 as u64 * u64::from(s.display.lcd_pixels_per_image_pixel);
-        if extent % u64::from(n) != 0 {
+        if !extent.is_multiple_of(u64::from(n)) {
             return Err(input(format!(
                 "fidelity object_px {n}: the target spans {extent} LCD pixels, which {n} object pixels do not divide"
             )));
@@ -518,7 +527,7 @@ pub fn fidelity_overrides(loaded: &LoadedScene, f: &Fidelity) -> Result<Vec<Stri
     if b > 1 {
         let crop = s.sensor.crop_px.size();
         let div = |v: u32, what: &str| {
-            if v % b == 0 {
+            if v.is_multiple_of(b) {
                 Ok(v / b)
             } else {
                 Err(input(format!(
@@ -563,18 +572,46 @@ fn reconstruction(
     scene: SceneSource<'_>,
     overrides: &[String],
     loaded: &LoadedScene,
+    sys: &System,
     req: &Request,
     warnings: &mut Vec<String>,
 ) -> Result<Recon, EvalError> {
     use crate::recon::discrepancy::{NoiseLevel, admm_tv_discrepancy, cg_discrepancy};
     let f = &req.fidelity;
     let mut base_set: Vec<String> = overrides.to_vec();
-    base_set.extend(fidelity_overrides(loaded, f)?);
+    base_set.extend(fidelity_overrides(loaded, sys, f)?);
     let depths: Vec<Option<f64>> = if f.depths_mm.is_empty() {
         vec![None]
     } else {
         f.depths_mm.iter().map(|&d| Some(d)).collect()
     };
+    // The system at each depth, built and checked once for every replicate.
+    let mut systems = Vec::with_capacity(depths.len());
+    for d in &depths {
+        let mut set = base_set.clone();
+        if let Some(d) = d {
+            set.push(format!("display.distance_mm={d}"));
+        }
+        let sys = System::build(&scene.load(&set)?)?;
+        let (ow, oh) = (sys.display.width_px, sys.display.height_px);
+        if ow != oh {
+            return Err(input(format!(
+                "display.image: the reconstruction metrics need a square object, got {ow}x{oh}"
+            )));
+        }
+        crate::render::check_limits(
+            &sys,
+            &crate::render::RenderSettings::lattice(f.spp, 0, false),
+            2,
+            "fidelity spp",
+        )
+        .map_err(|e| input(e.to_string()))?;
+        if let Some(w) = crate::analysis::object_coverage(&sys).warning() {
+            let at = d.map_or(String::new(), |d| format!(" (object at {d} mm)"));
+            warnings.push(format!("{w}{at}"));
+        }
+        systems.push(sys);
+    }
     let cancel = crate::cancel::current();
     // Per replicate: (PSNR ADMM, PSNR CG, SSIM) means over depths and targets.
     let mut reps: Vec<[f64; 3]> = Vec::with_capacity(f.replicates);
@@ -583,42 +620,18 @@ fn reconstruction(
         let seed = crate::sampler::hash(&[f.seed, 0x4556_414C, r as u64]);
         let mut acc = [0.0; 3];
         let mut n = 0usize;
-        for (di, d) in depths.iter().enumerate() {
-            let mut set = base_set.clone();
-            if let Some(d) = d {
-                set.push(format!("display.distance_mm={d}"));
-            }
-            let ls = scene.load(&set)?;
-            let sys = System::build(&ls)?;
+        for (di, sys) in systems.iter().enumerate() {
             let (ow, oh, planes) = (
                 sys.display.width_px,
                 sys.display.height_px,
                 sys.display.planes(),
             );
-            if ow != oh {
-                return Err(input(format!(
-                    "display.image: the reconstruction metrics need a square object, got {ow}x{oh}"
-                )));
-            }
-            crate::render::check_limits(
-                &sys,
-                &crate::render::RenderSettings::lattice(f.spp, 0, false),
-                2,
-                "fidelity spp",
-            )
-            .map_err(|e| input(e.to_string()))?;
-            if r == 0 {
-                if let Some(w) = crate::analysis::object_coverage(&sys).warning() {
-                    let at = d.map_or(String::new(), |d| format!(" (object at {d} mm)"));
-                    warnings.push(format!("{w}{at}"));
-                }
-            }
             let m = crate::matrix::compute_matrix(
-                &sys,
+                sys,
                 &crate::render::RenderSettings::lattice(f.spp, seed, false),
             );
             let m2 = crate::matrix::compute_matrix(
-                &sys,
+                sys,
                 &crate::render::RenderSettings::lattice(f.spp, seed ^ 0x9E37_79B9_7F4A_7C15, false),
             );
             if cancel.is_cancelled() {

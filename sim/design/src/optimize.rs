@@ -5,8 +5,9 @@
 //! # Method
 //! The search runs in the unit cube of the parameters (`study::Parameter::unit`; log scales
 //! and integer or discrete choices mapped there). Step 0 is a Latin hypercube of `initial`
-//! points (default 2·d + 2; stratum and permutation of each axis from `sampler::hash` of the
-//! seed). Each further step asks `egobox-ego`'s EGO service (Gaussian-process mixture
+//! points (McKay, Beckman & Conover, Technometrics 21, 1979: each axis cut into `initial`
+//! strata, each stratum used once; default 2·d + 2; stratum order and jitter from
+//! `sampler::hash` of the seed). Each further step asks `egobox-ego`'s EGO service (Gaussian-process mixture
 //! surrogates, expected-improvement infill, q-EI with the kriging believer for a batch) for
 //! `batch` points given every evaluation so far: the first objective (negated to maximise),
 //! and one modelled inequality c ≤ 0 per constraint (`study::Constraint::violation`,
@@ -38,7 +39,6 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::evaluate::{EvalError, Evaluation, Exposure, Fidelity, evaluate};
-use crate::metric::Metric;
 use crate::scene::SceneSource;
 use crate::study::{Bounded, Goal, Study, scene_value};
 
@@ -530,11 +530,6 @@ pub fn pareto_front(study: &Study, records: &[Record]) -> Vec<usize> {
         .collect();
     front.sort_by(|a, b| a.1[0].total_cmp(&b.1[0]).then(a.0.index.cmp(&b.0.index)));
     front.iter().map(|(r, _)| r.index).collect()
-}
-
-/// Whether `m` is an objective of the study.
-pub fn is_objective(study: &Study, m: &Metric) -> bool {
-    study.objectives.iter().any(|o| o.metric == *m)
 }
 
 #[cfg(test)]

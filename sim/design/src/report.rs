@@ -101,7 +101,8 @@ pub fn pareto_csv(study: &Study, outcome: &Outcome) -> String {
     s
 }
 
-fn record(outcome: &Outcome, i: usize) -> &Record {
+/// The record of evaluation `i`.
+pub fn record(outcome: &Outcome, i: usize) -> &Record {
     &outcome.records[outcome
         .records
         .iter()
@@ -437,14 +438,15 @@ pub fn dominating(study: &Study, outcome: &Outcome) -> Option<usize> {
         let v = m.get(&o.metric.to_string()).copied().unwrap_or(f64::NAN);
         if o.goal == Goal::Maximize { v } else { -v }
     };
+    let base = SceneSource::File(study.scene.as_deref())
+        .load(&study.set)
+        .ok();
     let base_unit: Vec<f64> = study
         .parameters
         .iter()
         .map(|p| {
-            let ls = SceneSource::File(study.scene.as_deref())
-                .load(&study.set)
-                .ok();
-            let v = ls
+            let v = base
+                .as_ref()
                 .and_then(|l| crate::study::scene_value(&l.scene, &p.keys[0]))
                 .unwrap_or(f64::NAN);
             p.unit(v)

@@ -345,12 +345,10 @@ impl Study {
         {
             return Err(err("scene", format!("{} is not a file", p.display())));
         }
-        let gamma = crate::scene::SceneSource::File(scene.as_deref())
+        let base = crate::scene::SceneSource::File(scene.as_deref())
             .load(&raw.set)
-            .map_err(|e| err("set", e.to_string()))?
-            .scene
-            .display
-            .gamma;
+            .map_err(|e| err("set", e.to_string()))?;
+        let gamma = base.scene.display.gamma;
         if raw.parameter.is_empty() {
             return Err(err("parameter", "give at least one [[parameter]]".into()));
         }
@@ -398,7 +396,7 @@ impl Study {
                     ));
                 }
                 (None, Some(a), Some(b)) => {
-                    if !(a < b) {
+                    if a >= b {
                         return Err(err(
                             &at("max"),
                             format!("max {b} must be greater than min {a}"),
@@ -503,9 +501,6 @@ impl Study {
                 Bounded::Sum(ks) => ks.iter().collect(),
                 Bounded::Metric(_) => Vec::new(),
             };
-            let base = crate::scene::SceneSource::File(scene.as_deref())
-                .load(&raw.set)
-                .map_err(|e| err("set", e.to_string()))?;
             for k in keys {
                 if scene_value(&base.scene, k).is_none() {
                     return Err(err(&at("key"), format!("{k:?} is not a numeric scene key")));
