@@ -57,7 +57,7 @@ fn files(
     ];
     let mut jsonl = String::new();
     for r in &o.records {
-        jsonl.push_str(&serde_json::to_string(r).map_err(write_failure)?);
+        jsonl.push_str(&r.to_line());
         jsonl.push('\n');
     }
     f.push(("history.jsonl".to_string(), jsonl.into_bytes()));

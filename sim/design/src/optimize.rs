@@ -95,6 +95,79 @@ pub struct Record {
     pub study: String,
 }
 
+impl Record {
+    /// The record's numbers in a fixed order (unit, params, violations, metrics by name):
+    /// the ones its checkpoint line also holds as bit patterns.
+    fn numbers(&self) -> impl Iterator<Item = f64> + '_ {
+        self.unit
+            .iter()
+            .chain(&self.params)
+            .chain(&self.violations)
+            .chain(self.metrics.values())
+            .copied()
+    }
+
+    /// The record as one JSON line: its fields, and `bits`, the IEEE-754 bit patterns of its
+    /// numbers, so that [`Record::from_line`] gives back the numbers written exactly (a JSON
+    /// reader's decimal parsing may be off by an ulp, and NaN is written as null).
+    pub fn to_line(&self) -> String {
+        let mut v = serde_json::to_value(self).unwrap_or_default();
+        if let serde_json::Value::Object(m) = &mut v {
+            m.insert(
+                "bits".into(),
+                self.numbers()
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<u64>>()
+                    .into(),
+            );
+        }
+        v.to_string()
+    }
+
+    /// Reads a line of [`Record::to_line`]; the numbers come from its bit patterns.
+    pub fn from_line(line: &str) -> Result<Record, String> {
+        use serde_json::Value;
+        let v: Value = serde_json::from_str(line).map_err(|e| e.to_string())?;
+        let len = |k: &str| v[k].as_array().map(Vec::len).ok_or(format!("no {k}"));
+        let (nu, np, nv) = (len("unit")?, len("params")?, len("violations")?);
+        let names: Vec<String> = v["metrics"]
+            .as_object()
+            .ok_or("no metrics")?
+            .keys()
+            .cloned()
+            .collect();
+        let bits: Vec<u64> = v["bits"]
+            .as_array()
+            .ok_or("no bits")?
+            .iter()
+            .map(|b| b.as_u64().ok_or("a bit pattern is not an integer"))
+            .collect::<Result<_, _>>()?;
+        if bits.len() != nu + np + nv + names.len() {
+            return Err(format!(
+                "{} bit patterns for {} numbers",
+                bits.len(),
+                nu + np + nv + names.len()
+            ));
+        }
+        let mut x = bits.into_iter().map(f64::from_bits);
+        let mut take = |n: usize| x.by_ref().take(n).collect::<Vec<f64>>();
+        let (unit, params, violations) = (take(nu), take(np), take(nv));
+        let metrics = names.into_iter().zip(take(usize::MAX)).collect();
+        let int = |k: &str| v[k].as_u64().map(|i| i as usize).ok_or(format!("no {k}"));
+        Ok(Record {
+            index: int("index")?,
+            step: int("step")?,
+            unit,
+            params,
+            metrics,
+            violations,
+            feasible: v["feasible"].as_bool().ok_or("no feasible")?,
+            seconds: v["seconds"].as_f64().unwrap_or(f64::NAN),
+            study: v["study"].as_str().ok_or("no study")?.to_string(),
+        })
+    }
+}
+
 /// What a run found.
 #[derive(Clone, Debug, Serialize)]
 pub struct Outcome {
@@ -290,7 +363,7 @@ fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Recor
     for (i, line) in lines.iter().enumerate() {
         let bad =
             |m: String| OptimizeError::Input(format!("{}: line {}: {m}", path.display(), i + 1));
-        let r: Record = match serde_json::from_str(line) {
+        let r: Record = match Record::from_line(line) {
             Ok(r) => r,
             // A last line cut by a kill is dropped (it is evaluated again).
             Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => break,
@@ -353,7 +426,7 @@ pub fn optimize(
     let mut file = std::fs::File::create(&ckpt)
         .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
     for r in &records {
-        writeln!(file, "{}", serde_json::to_string(r).unwrap_or_default())
+        writeln!(file, "{}", r.to_line())
             .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
     }
     file.sync_data()
@@ -415,7 +488,7 @@ pub fn optimize(
                     study: digest.clone(),
                 };
                 let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
-                writeln!(f, "{}", serde_json::to_string(&r).unwrap_or_default())
+                writeln!(f, "{}", r.to_line())
                     .and_then(|()| f.sync_data())
                     .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
                 Ok(r)
@@ -535,6 +608,38 @@ pub fn pareto_front(study: &Study, records: &[Record]) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn checkpoint_lines_give_back_every_number_to_the_bit() {
+        let r = Record {
+            index: 3,
+            step: 1,
+            unit: vec![0.1 + 0.2, 1.0 / 3.0],
+            params: vec![9.354450572158317, 1e-300],
+            metrics: [
+                ("a".to_string(), f64::NAN),
+                ("b".to_string(), -0.0),
+                ("c".to_string(), 2.0f64.sqrt()),
+            ]
+            .into(),
+            violations: vec![f64::MIN_POSITIVE],
+            feasible: true,
+            seconds: 1.5,
+            study: "x".into(),
+        };
+        let back = Record::from_line(&r.to_line()).unwrap();
+        let bits = |r: &Record| r.numbers().map(f64::to_bits).collect::<Vec<_>>();
+        assert_eq!(bits(&back), bits(&r));
+        assert_eq!(
+            (back.index, back.step, back.feasible, back.study.as_str()),
+            (3, 1, true, "x")
+        );
+        // A line whose bit patterns were cut is refused.
+        let cut = r
+            .to_line()
+            .replace(&format!("{},", (0.1f64 + 0.2).to_bits()), "");
+        assert!(Record::from_line(&cut).is_err());
+    }
 
     #[test]
     fn latin_hypercube_fills_every_stratum_once() {
