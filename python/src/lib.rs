@@ -1286,6 +1286,143 @@ fn cli(py: Python<'_>, argv: Vec<std::ffi::OsString>) -> u8 {
     py.allow_threads(|| stscam::jobs::cli::run(argv))
 }
 
+/// Targets held in memory for `evaluate`: (name, image) pairs, converted with the scene's
+/// display `gamma` into the linear planes the metrics compare (as a PNG or EXR target file).
+fn image_targets(
+    images: &[(String, ImageArg)],
+    gamma: f64,
+) -> PyResult<Vec<stscam::design::evaluate::Target>> {
+    images
+        .iter()
+        .enumerate()
+        .map(|(i, (name, img))| {
+            let v = image_values(img)
+                .map_err(|e| value_error(e.replacen("display.image", &format!("targets[{i}]"), 1)))?;
+            let (w, h, c, _, linear) = img;
+            let planes = if *c == 3 { 3 } else { 1 };
+            Ok(stscam::design::evaluate::Target::Image {
+                name: name.clone(),
+                width: *w,
+                height: *h,
+                planes,
+                values: stscam::display::Display::planes_of(&v, *c, *linear, gamma, planes),
+            })
+        })
+        .collect()
+}
+
+/// One design's metrics (as `stscam evaluate --json`): (the JSON object, warnings). `images`
+/// are targets held in memory, evaluated after the `targets` list's (or alone when it is None).
+#[pyfunction]
+#[pyo3(signature = (scene, metrics, object_px, binning, spp, replicates, targets, images, depth_mm, white_peak, draw, draws, require, seed, threads, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn evaluate(
+    py: Python<'_>,
+    scene: SceneArg,
+    metrics: String,
+    object_px: u32,
+    binning: u32,
+    spp: u32,
+    replicates: usize,
+    targets: Option<String>,
+    images: Vec<(String, ImageArg)>,
+    depth_mm: Option<String>,
+    white_peak: Option<f64>,
+    draw: Vec<String>,
+    draws: usize,
+    require: Vec<String>,
+    seed: u64,
+    threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<(String, Vec<String>)> {
+    use stscam::jobs::evaluate::{EvaluateOptions, evaluation, json_object};
+    if scene.2.is_some() {
+        return Err(value_error(
+            "evaluate: the scene shows an array on its display; pass arrays as targets= instead (the metrics show each target in turn)",
+        ));
+    }
+    let o = EvaluateOptions {
+        scene: stscam::jobs::SceneArgs {
+            scene: scene.0.as_ref().map(PathBuf::from),
+            set: scene.1.clone(),
+        },
+        metrics,
+        json: true,
+        object_px,
+        binning,
+        spp,
+        replicates,
+        targets,
+        depth_mm,
+        white_peak,
+        draw,
+        draws,
+        require,
+        seed,
+        threads,
+    };
+    let gamma = scene_source(&scene)
+        .load(&scene.1)
+        .map_err(value_error)?
+        .scene
+        .display
+        .gamma;
+    let images = image_targets(&images, gamma)?;
+    let ev = run_job_with(py, threads, progress.as_ref(), || {
+        evaluation(&o, scene_source(&scene), gamma, images)
+    })?
+    .map_err(value_error)?;
+    let obj = json_object(&ev.1);
+    Ok((json(&obj)?, ev.1.warnings))
+}
+
+/// A design study held as TOML text: (text, the name messages blame, the directory its
+/// relative paths resolve against).
+type StudyText = (String, String, String);
+
+/// Optimises a design study (as `stscam optimize STUDY --out OUT`): the files are written
+/// into `out` as the CLI writes them; returns the number of evaluations. Progress counts
+/// evaluations.
+#[pyfunction]
+#[pyo3(signature = (study, text, budget, seed, out, resume, skip_final, threads, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn optimize(
+    py: Python<'_>,
+    study: Option<PathBuf>,
+    text: Option<StudyText>,
+    budget: usize,
+    seed: u64,
+    out: PathBuf,
+    resume: bool,
+    skip_final: bool,
+    threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<usize> {
+    use stscam::design::study::Study;
+    use stscam::jobs::optimize::{OptimizeOptions, run_study};
+    let (s, path) = match (&study, &text) {
+        (Some(p), None) => (Study::load(p), p.clone()),
+        (None, Some((t, name, dir))) => (Study::parse(t, name, Path::new(dir)), PathBuf::from(name)),
+        _ => return Err(value_error("optimize: give a study file or a study dict")),
+    };
+    let s = s.map_err(value_error)?;
+    let o = OptimizeOptions {
+        study: path,
+        budget,
+        seed,
+        out,
+        resume,
+        skip_final,
+        threads,
+    };
+    let outcome = run_job_with(py, threads, progress.as_ref(), || {
+        let count = stscam::progress::Progress::new(false, budget as u64, "evaluations");
+        run_study(&s, &o, &|_, _| count.inc(1))
+    })?
+    .map_err(value_error)?;
+    Ok(outcome.0.records.len())
+}
+
 /// The shipped scenes: [(name, TOML text)].
 #[pyfunction]
 fn shipped_scenes() -> Vec<(&'static str, &'static str)> {
@@ -1306,6 +1443,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(reconstruct_stack, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate, m)?)?;
+    m.add_function(wrap_pyfunction!(optimize, m)?)?;
     m.add_function(wrap_pyfunction!(build_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(merge_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;

@@ -25,7 +25,8 @@ from .operators import Operator, _object_shape_of
 
 __all__ = [
     "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
-    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "build_dataset",
+    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "evaluate",
+    "optimize", "Optimization", "build_dataset",
     "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise", "Operator",
     "read_exr", "write_exr", "scenes", "to_toml", "__version__",
 ]
@@ -648,6 +649,152 @@ def sweep(scene: Optional[Scene] = None, vary: Sequence[str] | Mapping[str, tupl
     return json.loads(_native.sweep(s._arg, list(vary), float(fov_fraction), psnr,
                                     _uint(psnr_spp, "--psnr-spp <PSNR_SPP>", _U32), _threads(threads),
                                     _progress(progress)))
+
+
+def _csv_floats(v: Any, flag: str) -> Optional[str]:
+    """A list of numbers (or one number) as the CLI's comma-separated ``flag`` value."""
+    if v is None:
+        return None
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+        v = [v]
+    try:
+        return ",".join(repr(float(x)) for x in v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{flag}: expected a number or a list of numbers, got {v!r}") from None
+
+
+def evaluate(scene: Optional[Scene] = None, metrics: Sequence[str] | str = ("psnr_db",),
+             targets: Optional[Sequence[Any]] = None, encoding: Optional[str] = None,
+             depth_mm: Any = None, object_px: int = 32, binning: int = 2, spp: int = 8,
+             replicates: int = 2, white_peak: Optional[float] = None,
+             draw: Sequence[str] = (), draws: int = 64, require: Sequence[str] = (),
+             seed: int = 1, threads: Optional[int] = None,
+             progress: Optional[Callable[[int, int, str], Any]] = None) -> dict[str, float]:
+    """One design's metrics, equal to ``stscam evaluate --metrics ... --json``: a dict of
+    metric name to value, with ``<name>_error`` where the metric carries Monte Carlo error (an
+    undefined metric, e.g. the band coverage of a monochrome design, is NaN).
+
+    ``targets`` (reconstruction metrics) mixes built-in specs without size (``"letter:A"``),
+    PNG/EXR paths and numpy arrays ((h, w) or (h, w, 3); their ``encoding`` is ``"linear"``
+    or ``"display"``, as for :func:`render`'s ``target``); default the demo's four.
+    ``depth_mm`` is one object depth or a list (default the scene's display distance).
+    ``white_peak`` fixes the exposure (``optimize`` holds its base design's); ``draw``
+    (``KEY=normal(M,SD)``), ``draws`` and ``require`` (``METRIC>=V``) give the yield and
+    ``_q05`` quantiles. Defaults are the CLI's (docs/design-studies.md)."""
+    s = _scene(scene)
+    if isinstance(metrics, str):
+        metrics = [metrics]
+    names = ",".join(str(m) for m in metrics)
+    specs: list[str] = []
+    images = []
+    for i, t in enumerate(targets or ()):
+        if isinstance(t, (str, os.PathLike)):
+            specs.append(os.fspath(t))
+        else:
+            images.append((f"targets[{i}]", _image_arg(t, encoding, f"targets[{i}]")))
+    if targets is not None and not specs and not images:
+        raise ValueError("targets: give at least one target (or None for the demo's four)")
+    for t in specs:
+        if "," in t:
+            raise ValueError(f"targets: {t!r} contains a comma")
+    out, warns = _native.evaluate(
+        s._arg, names, _uint(object_px, "--object-px <OBJECT_PX>", _U32),
+        _uint(binning, "--binning <BINNING>", _U32), _uint(spp, "--spp <SPP>", _U32),
+        _uint(replicates, "--replicates <REPLICATES>", _U64),
+        ",".join(specs) if specs else None, images, _csv_floats(depth_mm, "--depth-mm"),
+        None if white_peak is None else float(white_peak), [str(d) for d in draw],
+        _uint(draws, "--draws <DRAWS>", _U64), [str(r) for r in require],
+        _uint(seed, "--seed <SEED>", _U64), _threads(threads), _progress(progress))
+    for w in warns:
+        _warn_coverage(w)
+    return {k: (float("nan") if v is None else float(v)) for k, v in json.loads(out).items()}
+
+
+class Optimization:
+    """What :func:`optimize` found (the files of ``out`` read back): ``history`` (one dict per
+    evaluation: ``index``, ``step``, ``params`` by parameter name, ``metrics``,
+    ``violations``, ``feasible``, ``seconds``), ``best`` (the index of the best feasible
+    design, or None for an infeasible study), ``best_scene`` (its :class:`Scene`, from
+    ``best.toml``, or None), ``pareto`` (indices of the Pareto front), ``summary`` (the
+    ``summary.json`` dict) and ``out`` (the folder of the files, or None when they were not
+    kept)."""
+
+    def __init__(self, history: list[dict], summary: dict, best_scene: Optional[Scene],
+                 out: Optional[str]):
+        self.history = history
+        self.summary = summary
+        self.best: Optional[int] = summary.get("best")
+        self.pareto: list[int] = list(summary.get("pareto") or [])
+        self.best_scene = best_scene
+        self.out = out
+
+    def params(self) -> np.ndarray:
+        """The parameters of every evaluation, (evaluations, parameters), float64."""
+        return np.array([list(h["params"].values()) for h in self.history], dtype=np.float64)
+
+    def metric(self, name: str) -> np.ndarray:
+        """One metric of every evaluation (NaN where it was not computed), float64."""
+        return np.array([h["metrics"].get(name, float("nan")) for h in self.history],
+                        dtype=np.float64)
+
+    def __repr__(self) -> str:
+        return (f"Optimization({len(self.history)} evaluations, best={self.best}, "
+                f"pareto={self.pareto})")
+
+
+def optimize(study: str | os.PathLike | Mapping[str, Any], budget: int = 40, seed: int = 1,
+             out: Optional[str | os.PathLike] = None, resume: bool = False,
+             skip_final: bool = False, threads: Optional[int] = None,
+             progress: Optional[Callable[[int, int, str], Any]] = None,
+             base_dir: str | os.PathLike = ".") -> Optimization:
+    """Optimises a design study (``stscam optimize STUDY --budget N --seed S --out OUT``):
+    ``study`` is a study file or a dict with the file's tables (``parameter``, ``objective``,
+    ``constraint`` lists, ``search``, ``final``, ``optimizer``; relative paths resolve
+    against ``base_dir``). The files are the CLI's, written into ``out`` (kept) or into a
+    temporary folder that is removed after they are read back (``out=None``). ``progress``
+    counts evaluations."""
+    import tempfile
+    path, text = None, None
+    if isinstance(study, Mapping):
+        text = (to_toml(study), "<dict>", os.fspath(base_dir))
+        name_dir = os.fspath(base_dir)
+    elif isinstance(study, (str, os.PathLike)):
+        path = os.fspath(study)
+        name_dir = os.path.dirname(os.path.abspath(path))
+    else:
+        raise ValueError(f"study: expected a path or a dict, got {type(study).__name__}")
+    tmp = tempfile.TemporaryDirectory(prefix="stscam-optimize-") if out is None else None
+    try:
+        folder = tmp.name if tmp is not None else os.fspath(out)
+        _native.optimize(path, text, _uint(budget, "--budget <BUDGET>", _U64),
+                         _uint(seed, "--seed <SEED>", _U64), folder, bool(resume),
+                         bool(skip_final), _threads(threads), _progress(progress))
+        with open(os.path.join(folder, "summary.json"), encoding="utf-8") as f:
+            summary = json.load(f)
+        names: list[str] = []
+        with open(os.path.join(folder, "history.csv"), encoding="utf-8") as f:
+            header = f.readline().strip().split(",")
+        history = []
+        with open(os.path.join(folder, "history.jsonl"), encoding="utf-8") as f:
+            for line in f:
+                r = json.loads(line)
+                r.pop("bits", None)
+                if not names:
+                    # history.csv's columns after index, step and fidelity are the parameters.
+                    names = header[3:3 + len(r["params"])]
+                r["params"] = dict(zip(names, r["params"]))
+                r["metrics"] = {k: (float("nan") if v is None else v)
+                                for k, v in r["metrics"].items()}
+                history.append(r)
+        best_scene = None
+        best = os.path.join(folder, "best.toml")
+        if os.path.exists(best):
+            with open(best, encoding="utf-8") as f:
+                best_scene = Scene(None, _text=(f.read(), "best.toml", name_dir))
+        return Optimization(history, summary, best_scene, None if tmp is not None else folder)
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
 
 
 def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,

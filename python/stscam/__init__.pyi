@@ -12,7 +12,8 @@ from .operators import Operator as Operator
 __version__: str
 __all__ = [
     "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
-    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "build_dataset",
+    "reconstruct_stack", "info", "probe", "reconstruct", "calibrate", "sweep", "evaluate",
+    "optimize", "Optimization", "build_dataset",
     "merge_dataset", "load_dataset", "load_splits", "Dataset", "target", "sensor_noise",
     "Operator", "read_exr", "write_exr", "scenes", "to_toml", "__version__",
 ]
@@ -114,6 +115,29 @@ def sweep(scene: Optional[Scene] = None,
           fov_fraction: float = 0.1, psnr: Optional[str] = None, psnr_spp: int = 64,
           threads: Optional[int] = None,
           progress: Optional[Callable[[int, int, str], Any]] = None) -> list[dict[str, Any]]: ...
+def evaluate(scene: Optional[Scene] = None, metrics: Sequence[str] | str = ("psnr_db",),
+             targets: Optional[Sequence[Any]] = None, encoding: Optional[str] = None,
+             depth_mm: Any = None, object_px: int = 32, binning: int = 2, spp: int = 8,
+             replicates: int = 2, white_peak: Optional[float] = None,
+             draw: Sequence[str] = (), draws: int = 64, require: Sequence[str] = (),
+             seed: int = 1, threads: Optional[int] = None,
+             progress: Optional[Callable[[int, int, str], Any]] = None) -> dict[str, float]: ...
+class Optimization:
+    history: list[dict[str, Any]]
+    summary: dict[str, Any]
+    best: Optional[int]
+    pareto: list[int]
+    best_scene: Optional[Scene]
+    out: Optional[str]
+    def __init__(self, history: list[dict[str, Any]], summary: dict[str, Any],
+                 best_scene: Optional[Scene], out: Optional[str]) -> None: ...
+    def params(self) -> np.ndarray: ...
+    def metric(self, name: str) -> np.ndarray: ...
+def optimize(study: str | os.PathLike[str] | Mapping[str, Any], budget: int = 40, seed: int = 1,
+             out: Optional[str | os.PathLike[str]] = None, resume: bool = False,
+             skip_final: bool = False, threads: Optional[int] = None,
+             progress: Optional[Callable[[int, int, str], Any]] = None,
+             base_dir: str | os.PathLike[str] = ".") -> Optimization: ...
 def build_dataset(recipe: str | os.PathLike[str], out: str | os.PathLike[str],
                   shard: Optional[str | tuple[int, int]] = None, resume: bool = False,
                   threads: Optional[int] = None,

@@ -231,3 +231,52 @@ fn frontal_spp_is_checked_and_recorded() {
     assert_eq!(side["frontal"]["spp"], 3);
     assert_eq!(side["spp"], 1);
 }
+
+/// A report that cannot be written (standard output on `/dev/full`) exits 1 with one line on
+/// stderr; a closed pipe is the reader's choice and stays exit 0. Before the check, `info`,
+/// `grating`, `evaluate --json` and `--help` lost their report and exited 0.
+#[test]
+fn a_report_that_cannot_be_written_exits_1() {
+    let full = match std::fs::OpenOptions::new().write(true).open("/dev/full") {
+        Ok(f) => f,
+        Err(_) => return, // no /dev/full on this system: nothing to check
+    };
+    let cases: [&[&str]; 4] = [
+        &["info"],
+        &["grating"],
+        &["evaluate", "--metrics", "fov_capture_vertical_deg", "--json"],
+        &["--help"],
+    ];
+    for args in cases {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
+            .args(args)
+            .stdout(full.try_clone().unwrap())
+            .output()
+            .expect("run stscam");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with("error: cannot write the") && l.contains("standard output")),
+            "{args:?}: {err}"
+        );
+    }
+    // A pipe closed by its reader: the process ends quietly (SIGPIPE, as other command-line
+    // tools do; or exit 0 where the signal is ignored), no error line.
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stscam"))
+        .arg("info")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run stscam");
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    use std::os::unix::process::ExitStatusExt;
+    assert!(
+        o.status.code() == Some(0) || o.status.signal() == Some(13),
+        "{:?}: {}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("cannot write"));
+}

@@ -254,6 +254,73 @@ def test_sweep_equals_cli_json(scene, tmp_path):
     assert stscam.sweep(stscam.Scene.from_dict(d), vary=vary) != want
 
 
+def test_evaluate_equals_cli_json(tmp_path):
+    # Geometry and reconstruction metrics of the paper design at a small fidelity: the dict is
+    # the CLI's JSON object (NaN where the CLI writes null), bit for bit.
+    sets = {"sensor.crop_px": [96, 96]}
+    args = ["--metrics", "fov_capture_vertical_deg,replicas_5pct,psnr_db", "--targets",
+            "letter:A,siemens:12", "--object-px", 16, "--spp", 2, "--replicates", 2]
+    want = json.loads(cli("evaluate", *args, "--json", *set_args(sets)).stdout)
+    got = stscam.evaluate(stscam.Scene(overrides=sets),
+                          metrics=["fov_capture_vertical_deg", "replicas_5pct", "psnr_db"],
+                          targets=["letter:A", "siemens:12"], object_px=16, spp=2)
+    assert set(got) == set(want) and "psnr_db_error" in got
+    assert all(got[k] == want[k] for k in want)
+    # Another seed changes the PSNR: the equality above can fail.
+    other = stscam.evaluate(stscam.Scene(overrides=sets), metrics="psnr_db",
+                            targets=["letter:A", "siemens:12"], object_px=16, spp=2, seed=2)
+    assert other["psnr_db"] != got["psnr_db"]
+    # A target array equals the same image as an EXR file (linear values).
+    img = np.random.default_rng(5).random((16, 16)).astype(np.float32)
+    stscam.write_exr(tmp_path / "t.exr", {"Y": img})
+    by_file = stscam.evaluate(stscam.Scene(overrides=sets), metrics="psnr_db",
+                              targets=[tmp_path / "t.exr"], object_px=16, spp=2)
+    by_array = stscam.evaluate(stscam.Scene(overrides=sets), metrics="psnr_db",
+                               targets=[img], encoding="linear", object_px=16, spp=2)
+    assert by_file == by_array
+    with pytest.raises(ValueError, match="--metrics"):
+        stscam.evaluate(metrics="no_such_metric")
+    with pytest.raises(ValueError, match="encoding"):
+        stscam.evaluate(metrics="psnr_db", targets=[img])
+
+
+STUDY = {
+    "set": ["sensor.crop_px=[1280,1024]", "plate.thickness_mm=2"],
+    "parameter": [{"key": "top_hoe.height_mm", "min": 4.0, "max": 16.0},
+                  {"key": "camera.distance_mm", "min": 20.0, "max": 60.0}],
+    "objective": [{"metric": "fov_capture_vertical_deg", "goal": "maximize"}],
+    "constraint": [{"key": "top_hoe.height_mm", "max": 10.0}],
+    "optimizer": {"initial": 4, "batch": 2},
+}
+
+
+def test_optimize_equals_cli(tmp_path):
+    study = tmp_path / "s.toml"
+    study.write_text(stscam.to_toml(STUDY))
+    cli("optimize", study, "--budget", 6, "--seed", 2, "--out", tmp_path / "cli", "--skip-final")
+    seen = []
+    r = stscam.optimize(STUDY, budget=6, seed=2, skip_final=True, out=tmp_path / "py",
+                        progress=lambda d, t, u: seen.append((d, t, u)))
+    strip = lambda p: [",".join(l.split(",")[:-1]) for l in open(p).read().splitlines()]
+    assert strip(tmp_path / "py" / "history.csv") == strip(tmp_path / "cli" / "history.csv")
+    assert len(r.history) == 6 and r.params().shape == (6, 2)
+    assert list(r.history[0]["params"]) == ["top_hoe.height_mm", "camera.distance_mm"]
+    assert r.best is not None and r.best_scene is not None
+    h = r.history[r.best]
+    assert h["feasible"] and h["params"]["top_hoe.height_mm"] <= 10.0
+    best = r.metric("fov_capture_vertical_deg")[r.best]
+    assert best == max(x["metrics"]["fov_capture_vertical_deg"] for x in r.history if x["feasible"])
+    # The best scene evaluates to the recorded metric.
+    again = stscam.evaluate(r.best_scene, metrics="fov_capture_vertical_deg")
+    assert again["fov_capture_vertical_deg"] == best
+    assert seen and seen[-1] == (6, 6, "evaluations")
+    # Without out= nothing is kept; a bad study raises ValueError naming the key.
+    assert stscam.optimize(STUDY, budget=2, skip_final=True).out is None
+    bad = dict(STUDY, parameter=[{"key": "top_hoe.height_mm", "min": 16.0, "max": 4.0}])
+    with pytest.raises(ValueError, match="parameter"):
+        stscam.optimize(bad, budget=2)
+
+
 def test_build_dataset_from_arrays(tmp_path):
     # Objects given as arrays replace the recipe's sources: sample i's object is objects[i],
     # and (noiseless recipe) its capture is H f + offset of its scene.

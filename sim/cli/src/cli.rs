@@ -126,8 +126,13 @@ where
             return 2;
         }
         Err(e) => {
-            // --help and --version.
-            let _ = e.print();
+            // --help and --version: a text that cannot be written fails (a closed pipe does not).
+            if let Err(w) = e.print()
+                && w.kind() != std::io::ErrorKind::BrokenPipe
+            {
+                eprintln!("error: cannot write the help to standard output: {w}");
+                return 1;
+            }
             return 0;
         }
     };
@@ -158,7 +163,13 @@ where
         Command::Grating(o) => jobs::grating::run(o, con).map(drop),
     };
     match result {
-        Ok(()) => 0,
+        Ok(()) => match jobs::stdout_failure() {
+            Some(m) => {
+                eprintln!("error: {m}");
+                1
+            }
+            None => 0,
+        },
         Err(e) => {
             eprintln!("error: {}", e.message);
             e.code

@@ -1,8 +1,12 @@
 //! `stscam evaluate`: one design's metrics (the primitive `optimize` calls).
 
-use std::path::PathBuf;
+use std::path::Path;
 
-use stscam_design::evaluate::{Exposure, Fidelity, Request, Requirement, Target, evaluate};
+use crate::scene::SceneSource;
+
+use stscam_design::evaluate::{
+    Evaluation, Exposure, Fidelity, Request, Requirement, Target, evaluate,
+};
 use stscam_design::metric::Metric;
 
 use super::*;
@@ -66,17 +70,11 @@ fn items(s: &str) -> impl Iterator<Item = &str> {
     s.split(',').map(str::trim).filter(|t| !t.is_empty())
 }
 
-/// The request of the options (checked).
-fn request(o: &EvaluateOptions, gamma: f64) -> Result<Request, Failure> {
+/// The request of the options (checked); relative target files resolve against `dir`.
+fn request(o: &EvaluateOptions, dir: &Path, gamma: f64) -> Result<Request, Failure> {
     let metrics =
         Metric::parse_list(&o.metrics).map_err(|e| bad_input(format!("--metrics: {e}")))?;
-    let dir = o
-        .scene
-        .scene
-        .as_deref()
-        .and_then(|p| p.parent())
-        .map(PathBuf::from)
-        .unwrap_or_default();
+    let dir = dir.to_path_buf();
     let targets = match &o.targets {
         Some(t) => items(t)
             .map(|t| {
@@ -126,20 +124,62 @@ fn request(o: &EvaluateOptions, gamma: f64) -> Result<Request, Failure> {
     Ok(req)
 }
 
+/// The evaluation the options ask for, of the design `source` (with the options' `--set`
+/// overrides; its display gamma `gamma` reads PNG targets), with `images` (targets held in
+/// memory, as Python passes them) after the `--targets` list's, or alone when the options
+/// name none: (the checked request, the evaluation). Runs in the caller's thread pool.
+pub fn evaluation(
+    o: &EvaluateOptions,
+    source: SceneSource<'_>,
+    gamma: f64,
+    images: Vec<Target>,
+) -> Result<(Request, Evaluation), JobError> {
+    let dir = match source {
+        SceneSource::File(p) => p
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_default(),
+        SceneSource::Text(_, _, d) => d.to_path_buf(),
+    };
+    let mut req = request(o, &dir, gamma)?;
+    if !images.is_empty() {
+        if o.targets.is_none() {
+            req.fidelity.targets.clear();
+        }
+        req.fidelity.targets.extend(images);
+        req.check().map_err(|e| bad_input(e.to_string()))?;
+    }
+    let ev = evaluate(source, &o.scene.set, &req).map_err(|e| bad_input(e.to_string()))?;
+    Ok((req, ev))
+}
+
+/// The evaluation as the JSON object `--json` prints: each metric and `<name>_error` by name
+/// (NaN, an undefined metric, is null: NaN is not JSON).
+pub fn json_object(ev: &Evaluation) -> serde_json::Map<String, serde_json::Value> {
+    ev.values
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.clone(),
+                serde_json::Number::from_f64(*v)
+                    .map_or(serde_json::Value::Null, serde_json::Value::Number),
+            )
+        })
+        .collect()
+}
+
 /// Runs the job: the metrics on stdout (text or JSON), warnings and the time on stderr.
 pub fn run(o: &EvaluateOptions, con: &Console) -> Result<(), JobError> {
     let (ls, _) = load(&o.scene)?;
-    let req = request(o, ls.scene.display.gamma)?;
     let pool = thread_pool(o.threads)?;
-    let ev = pool
-        .install(|| {
-            evaluate(
-                crate::scene::SceneSource::File(o.scene.scene.as_deref()),
-                &o.scene.set,
-                &req,
-            )
-        })
-        .map_err(|e| bad_input(e.to_string()))?;
+    let (req, ev) = pool.install(|| {
+        evaluation(
+            o,
+            SceneSource::File(o.scene.scene.as_deref()),
+            ls.scene.display.gamma,
+            Vec::new(),
+        )
+    })?;
     for w in &ev.warnings {
         con.err(format_args!(
             "warning: {}",
@@ -147,19 +187,7 @@ pub fn run(o: &EvaluateOptions, con: &Console) -> Result<(), JobError> {
         ));
     }
     if o.json {
-        // NaN is not JSON: an undefined metric is null.
-        let obj: serde_json::Map<String, serde_json::Value> = ev
-            .values
-            .iter()
-            .map(|(k, v)| {
-                (
-                    k.clone(),
-                    serde_json::Number::from_f64(*v)
-                        .map_or(serde_json::Value::Null, serde_json::Value::Number),
-                )
-            })
-            .collect();
-        con.out(format_args!("{}", to_json(&obj)?));
+        con.out(format_args!("{}", to_json(&json_object(&ev))?));
     } else {
         for m in &req.metrics {
             let name = m.to_string();

@@ -64,9 +64,13 @@ impl Console {
     pub fn out(&self, line: std::fmt::Arguments) {
         if *self == Console::Terminal {
             // A closed pipe (`stscam probe … --json | head -1`) is not an error of the job:
-            // the line is dropped instead of panicking in `println!`.
+            // the line is dropped instead of panicking in `println!`. Any other failure (a
+            // full disk, `> /dev/full`) is kept and fails the command once the job is done
+            // ([`stdout_failure`]), so a report that was lost never exits 0.
             use std::io::Write;
-            let _ = writeln!(std::io::stdout().lock(), "{line}");
+            if let Err(e) = writeln!(std::io::stdout().lock(), "{line}") {
+                note_stdout_error(&e);
+            }
         }
     }
 
@@ -76,6 +80,32 @@ impl Console {
             eprintln!("{line}");
         }
     }
+}
+
+/// The first failure to write the report to standard output (other than a closed pipe).
+static STDOUT_ERROR: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
+
+/// Keeps `e`, a failed write to standard output, unless it is a closed pipe (`| head`), which
+/// is the reader's choice, or an earlier failure is kept already.
+fn note_stdout_error(e: &std::io::Error) {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        return;
+    }
+    let mut kept = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
+    kept.get_or_insert_with(|| format!("cannot write the report to standard output: {e}"));
+}
+
+/// Flushes standard output and returns the first failure to write the report there (a
+/// closed pipe is not one), as the one-line message the CLI prints before exiting 1.
+pub fn stdout_failure() -> Option<String> {
+    use std::io::Write;
+    if let Err(e) = std::io::stdout().lock().flush() {
+        note_stdout_error(&e);
+    }
+    STDOUT_ERROR
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .clone()
 }
 
 /// A job that did not finish: the CLI's exit code (2 bad input, 1 a failed write or check)

@@ -88,9 +88,15 @@ fn files(
     Ok(f)
 }
 
-/// Runs the job.
-pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
-    let study = Study::load(&o.study).map_err(|e| bad_input(e.to_string()))?;
+/// Runs `study` as the options say (budget, seed, `--out`, resume, final re-evaluation) in
+/// the caller's thread pool and writes the run's files into `--out` (all or nothing);
+/// `on_record` is called after each evaluation with its record and the best feasible first
+/// objective so far; returns the outcome and the number of files written. The CLI and the Python package both run studies through this.
+pub fn run_study(
+    study: &Study,
+    o: &OptimizeOptions,
+    on_record: &(dyn Fn(&stscam_design::optimize::Record, Option<f64>) + Sync),
+) -> Result<(Outcome, usize), JobError> {
     if o.budget == 0 || o.budget > stscam_design::study::MAX_BUDGET {
         return Err(bad_input(format!(
             "--budget {}: must be 1..={}",
@@ -105,13 +111,25 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
             o.out.display()
         )));
     }
-    let pool = thread_pool(o.threads)?;
     let set = RunSettings {
         budget: o.budget,
         seed: o.seed,
         resume: o.resume,
         skip_final: o.skip_final,
     };
+    let outcome = optimize(study, &set, &o.out, on_record).map_err(|e| match e {
+        stscam_design::optimize::OptimizeError::Write(m) => write_failure(m),
+        e => bad_input(e.to_string()),
+    })?;
+    let f = files(study, &outcome, o.seed, o.budget)?;
+    write_files(&o.out, &f)?;
+    Ok((outcome, f.len()))
+}
+
+/// Runs the job.
+pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
+    let study = Study::load(&o.study).map_err(|e| bad_input(e.to_string()))?;
+    let pool = thread_pool(o.threads)?;
     let goal = study.objectives[0].metric.to_string();
     let t0 = std::time::Instant::now();
     let on_record = |r: &stscam_design::optimize::Record, best: Option<f64>| {
@@ -126,14 +144,7 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
             best.map_or("none yet".to_string(), |b| format!("{b:.4}"))
         ));
     };
-    let outcome = pool
-        .install(|| optimize(&study, &set, &o.out, &on_record))
-        .map_err(|e| match e {
-            stscam_design::optimize::OptimizeError::Write(m) => write_failure(m),
-            e => bad_input(e.to_string()),
-        })?;
-    let f = files(&study, &outcome, o.seed, o.budget)?;
-    write_files(&o.out, &f)?;
+    let (outcome, written) = pool.install(|| run_study(&study, o, &on_record))?;
     match (outcome.best, &outcome.least_violating) {
         (Some(b), _) => {
             let r = report::record(&outcome, b);
@@ -152,7 +163,7 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
         "wrote {} ({} evaluations, {} files) in {:.1} s ({} threads)",
         o.out.display(),
         outcome.records.len(),
-        f.len(),
+        written,
         t0.elapsed().as_secs_f64(),
         pool.current_num_threads()
     ));
