@@ -563,3 +563,37 @@ fn cli_refuses_bad_axes_and_values_with_one_line_and_writes_nothing() {
         assert!(!out.exists());
     }
 }
+
+/// `stscam sweep` prints the captured FOV beside the waveguide's, the same numbers as the
+/// JSON rows (it printed only the waveguide's, which a crop can make much larger).
+#[test]
+fn sweep_prints_the_captured_fov_beside_the_waveguides() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s");
+    let o = out.to_str().unwrap();
+    let args = [
+        "sweep",
+        "--vary",
+        "top_hoe.height_mm=8:24:2",
+        "--set",
+        "sensor.crop_px=[96,96]",
+    ];
+    let text = crate::common::stscam_ok(&[&args[..], &["--out", o]].concat());
+    let json = crate::common::stscam_ok(&[&args[..], &["--json", "--out", o]].concat());
+    let rows: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 2, "{text}");
+    for (line, row) in lines.iter().zip(rows.as_array().unwrap()) {
+        let deg = |k: &str| row[k]["full_deg"].as_f64().unwrap();
+        let captured = format!(
+            "FOV captured {:.2}° x {:.2}°, waveguide {:.2}° x {:.2}° (V x H)",
+            deg("fov_vertical_capture"),
+            deg("fov_horizontal_capture"),
+            deg("fov_vertical"),
+            deg("fov_horizontal")
+        );
+        assert!(line.contains(&captured), "{line}\nwants {captured}");
+        // The 96-pixel crop sees less than the waveguide passes: the two numbers differ.
+        assert!(deg("fov_vertical_capture") < deg("fov_vertical") - 1.0, "{line}");
+    }
+}

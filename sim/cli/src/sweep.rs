@@ -88,8 +88,10 @@ fn cmd_sweep(
                 .map(|v| format!("{}={}", v.key, v.value))
                 .collect();
             con.out(format_args!(
-                "{}: FOV {:.2}° x {:.2}° (V x H), scene field {:.1} mm ({:.2}°) vertically, replicas {} (>= 5 %) / {}, pitch {:.3} mm, efficiency {:.4} (crop mean), Bragg {:.1}-{:.1} nm{}",
+                "{}: FOV captured {:.2}° x {:.2}°, waveguide {:.2}° x {:.2}° (V x H), scene field {:.1} mm ({:.2}°) vertically, replicas {} (>= 5 %) / {}, pitch {:.3} mm, efficiency {:.4} (crop mean), Bragg {:.1}-{:.1} nm{}",
                 key.join(" "),
+                f.fov_vertical_capture.full_deg,
+                f.fov_horizontal_capture.full_deg,
                 f.fov_vertical.full_deg,
                 f.fov_horizontal.full_deg,
                 f.scene_field_vertical.extent_mm,

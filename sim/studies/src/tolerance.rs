@@ -338,7 +338,8 @@ impl StaleCalibration {
             problem: crate::recon::Problem::with_cancel(
                 &m.h,
                 sys.display.width_px,
-                sys.display.height_px,
+                // The object's planes stacked (three for a colour display).
+                sys.display.height_px * sys.display.planes(),
                 crate::cancel::current(),
             ),
             truth,

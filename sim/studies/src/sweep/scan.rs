@@ -544,8 +544,11 @@ pub fn psnr_target(sys: &System, p: &PsnrSettings) -> Result<Vec<f64>, String> {
         ));
     }
     let spec = format!("{}@{ow}", p.target);
-    let (_, _, truth) = crate::capture::intensity_of_spec(&spec, sys.scene.display.gamma)
-        .map_err(|e| format!("PSNR target {spec:?}: {e}"))?;
+    // A colour display's object is three planes (H's column blocks); the target is grey in
+    // each unless it has colour of its own.
+    let (_, _, truth) =
+        crate::capture::planes_of_spec(&spec, sys.scene.display.gamma, sys.display.planes())
+            .map_err(|e| format!("PSNR target {spec:?}: {e}"))?;
     Ok(truth)
 }
 
@@ -587,6 +590,9 @@ pub fn psnr_figures(
     );
     let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
     let (_, g) = crate::capture::measured_capture(sys, &truth, &set, &noise, &dark, 0);
+    // The object's planes stacked vertically (one for a monochrome display, three for a
+    // colour one), as the design metrics solve it.
+    let oh = oh * sys.display.planes();
     let problem = crate::recon::Problem::with_cancel(&m.h, ow, oh, crate::cancel::current());
     // τ by the discrepancy principle on the sensor noise, as the demo's table chooses it.
     let black = crate::capture::black_level_of(&dark, &noise);
