@@ -362,6 +362,23 @@ fn the_psnr_of_a_colour_display_is_computed_over_its_planes() {
     eprintln!("colour PSNR {p:.2} dB, zero estimate {zero:.2} dB");
     assert!(p.is_finite() && p > zero + 2.0, "colour PSNR {p} against {zero}");
     assert_eq!(out.draws[0].figures.psnr_db, Some(p));
+    // The sweep's PSNR (which panicked the same way) of the RGB multiplex film, whose three
+    // gratings make the primaries separable: well above the zero estimate (measured 14.4 dB
+    // against 6.6). The paper's single grating is not (its sweep PSNR, 4.3 dB, is below the
+    // zero estimate: one band cannot tell the primaries apart).
+    let rgb = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rgb-multiplex.toml");
+    let sw = stscam::sweep::run_sweep(
+        Some(&rgb),
+        &small(),
+        &[stscam::sweep::VaryAxis::parse("top_hoe.height_mm=24:24:1").unwrap()],
+        &stscam::sweep::SweepSettings {
+            psnr: set.psnr.clone(),
+            ..stscam::sweep::SweepSettings::default()
+        },
+    )
+    .unwrap();
+    let q = sw.rows[0].figures.psnr_db.unwrap();
+    assert!(q.is_finite() && q > zero + 5.0, "sweep colour PSNR {q} against {zero}");
     // The monochrome display's PSNR of the same target is another number (the planes count).
     let mono = run_tolerance(None, &small(), &set, None, false).unwrap();
     assert_ne!(mono.nominal.psnr_db, Some(p));

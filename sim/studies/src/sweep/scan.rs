@@ -567,7 +567,7 @@ pub fn psnr_problem(sys: &System, p: &PsnrSettings, progress: bool) -> crate::re
     crate::recon::Problem::with_cancel(
         &m.h,
         sys.display.width_px,
-        sys.display.height_px,
+        sys.display.height_px * sys.display.planes(),
         crate::cancel::current(),
     )
 }
