@@ -383,3 +383,76 @@ fn the_psnr_of_a_colour_display_is_computed_over_its_planes() {
     let mono = run_tolerance(None, &small(), &set, None, false).unwrap();
     assert_ne!(mono.nominal.psnr_db, Some(p));
 }
+
+/// A merge verifies what it reads back: a changed `draws.jsonl` (one value dropped: this
+/// panicked the merge) is refused by the SHA-256 that shard.json records; a record resealed
+/// with a matching hash but the wrong number of values, or another draw's index, is refused
+/// by the record check; a FIFO in place of draws.jsonl is refused at once instead of hanging.
+/// The untouched shard still merges (the checks can pass).
+#[test]
+fn a_merge_refuses_changed_resealed_and_special_shard_files() {
+    let set = settings(
+        &[
+            "hoe.shrinkage=normal(0.01,0.005)",
+            "hoe.temperature_change_k=normal(0,15)",
+        ],
+        2,
+        false,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let shard = |name: &str| {
+        let out = run_tolerance(
+            None,
+            &small(),
+            &set,
+            Some(stscam::dataset::Shard::parse("0/1").unwrap()),
+            false,
+        )
+        .unwrap();
+        let d = dir.path().join(name);
+        std::fs::create_dir(&d).unwrap();
+        for (n, bytes) in &out.files {
+            std::fs::write(d.join(n), bytes).unwrap();
+        }
+        d
+    };
+    let good = shard("good");
+    assert!(merge(std::slice::from_ref(&good)).is_ok());
+    let draws = std::fs::read_to_string(good.join("draws.jsonl")).unwrap();
+    let mut rec: serde_json::Value = serde_json::from_str(draws.lines().next().unwrap()).unwrap();
+    rec["values"].as_array_mut().unwrap().pop();
+    let changed = format!(
+        "{}\n{}\n",
+        rec,
+        draws.lines().nth(1).unwrap()
+    );
+    // Changed: the hash no longer matches.
+    let d = shard("changed");
+    std::fs::write(d.join("draws.jsonl"), &changed).unwrap();
+    let e = merge(&[d.clone()]).unwrap_err().to_string();
+    assert!(e.contains("draws.jsonl") && e.contains("SHA-256"), "{e}");
+    // Resealed: the hash is recomputed into shard.json; the record check refuses it.
+    let sha: String = {
+        use sha2::{Digest, Sha256};
+        Sha256::digest(changed.as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    };
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("shard.json")).unwrap()).unwrap();
+    m["draws_sha256"] = sha.into();
+    std::fs::write(d.join("shard.json"), m.to_string()).unwrap();
+    let e = merge(&[d]).unwrap_err().to_string();
+    assert!(e.contains("line 1") && e.contains("1 values"), "{e}");
+    // A FIFO: refused in one line, not read.
+    let f = shard("fifo");
+    std::fs::remove_file(f.join("draws.jsonl")).unwrap();
+    let st = std::process::Command::new("mkfifo")
+        .arg(f.join("draws.jsonl"))
+        .status();
+    if st.is_ok_and(|s| s.success()) {
+        let e = merge(&[f]).unwrap_err().to_string();
+        assert!(e.contains("draws.jsonl"), "{e}");
+    }
+}

@@ -489,7 +489,26 @@ struct ShardManifest {
     shard: Shard,
     draws: [usize; 2],
     nominal: Figures,
+    /// SHA-256 (hex) of the shard's `draws.jsonl` bytes: a merge refuses a file that was
+    /// changed, truncated or swapped for another shard's after the shard was written.
+    draws_sha256: String,
 }
+
+/// Hex SHA-256 of `bytes`.
+fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Most bytes of a shard's `shard.json` a merge reads.
+const MAX_MANIFEST_BYTES: u64 = 1 << 20;
+
+/// Most bytes one draw record of `draws.jsonl` may take on average (a record is a few hundred
+/// bytes: the drawn values and the figures at each field angle).
+const MAX_RECORD_BYTES: u64 = 64 << 10;
 
 /// Runs draws `shard`'s part (all without a shard) of the tolerance analysis of the scene
 /// `scene` with `overrides` (module notes).
@@ -587,9 +606,15 @@ fn tolerance_output(
                 shard: sh,
                 draws: [range.start, range.end],
                 nominal: parse_line(&nominal_line)?,
+                draws_sha256: String::new(),
+            };
+            let draws_bytes = jsonl(&lines);
+            let manifest = ShardManifest {
+                draws_sha256: sha256_hex(&draws_bytes),
+                ..manifest
             };
             let files = vec![
-                ("draws.jsonl".to_string(), jsonl(&lines)),
+                ("draws.jsonl".to_string(), draws_bytes),
                 ("shard.json".to_string(), pretty(&manifest)?.into_bytes()),
             ];
             Ok(ToleranceOutput {
@@ -638,24 +663,64 @@ fn jsonl(lines: &[String]) -> Vec<u8> {
 pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), ToleranceError> {
     let mut parts: Vec<(ShardManifest, Vec<String>)> = Vec::new();
     for dir in shards {
-        let read = |name: &str| {
+        // Regular files of bounded size only: a FIFO, a device or a link to /dev/zero is
+        // refused in one line instead of hanging or filling the memory.
+        let read = |name: &str, max_bytes: u64| {
             let p = dir.join(name);
-            std::fs::read_to_string(&p).map_err(|e| input(format!("{}: {e}", p.display())))
+            let bytes = crate::io::input::read_input(&p, max_bytes)
+                .map_err(|e| input(e.to_string()))?;
+            String::from_utf8(bytes)
+                .map_err(|_| input(format!("{}: not UTF-8 text", p.display())))
         };
-        let m: ShardManifest = serde_json::from_str(&read("shard.json")?).map_err(|e| {
-            input(format!(
-                "{}: not a tolerance shard: {e}",
-                dir.join("shard.json").display()
-            ))
-        })?;
-        let lines: Vec<String> = read("draws.jsonl")?.lines().map(str::to_string).collect();
-        if lines.len() != m.draws[1] - m.draws[0] {
+        let manifest_path = dir.join("shard.json");
+        let m: ShardManifest = serde_json::from_str(&read("shard.json", MAX_MANIFEST_BYTES)?)
+            .map_err(|e| {
+                input(format!(
+                    "{}: not a tolerance shard: {e}",
+                    manifest_path.display()
+                ))
+            })?;
+        let [start, end] = m.draws;
+        if start > end || end > MAX_SAMPLES {
+            return Err(input(format!(
+                "{}: draws {start}..{end} is not a range of at most {MAX_SAMPLES} draws",
+                manifest_path.display()
+            )));
+        }
+        let count = (end - start) as u64;
+        let draws_path = dir.join("draws.jsonl");
+        let text = read("draws.jsonl", (count + 1).saturating_mul(MAX_RECORD_BYTES))?;
+        if sha256_hex(text.as_bytes()) != m.draws_sha256 {
+            return Err(input(format!(
+                "{}: its SHA-256 is not the one shard.json records (the file was changed after the shard was written)",
+                draws_path.display()
+            )));
+        }
+        let lines: Vec<String> = text.lines().map(str::to_string).collect();
+        if lines.len() != end - start {
             return Err(input(format!(
                 "{}: holds {} draws, shard.json says {}",
-                dir.join("draws.jsonl").display(),
+                draws_path.display(),
                 lines.len(),
-                m.draws[1] - m.draws[0]
+                end - start
             )));
+        }
+        // Each record is the draw it should be, with one value per drawn key.
+        let keys = m.settings.draws.len();
+        for (k, line) in lines.iter().enumerate() {
+            let r: DrawRecord = parse_line(line).map_err(|e| {
+                input(format!("{} line {}: {e}", draws_path.display(), k + 1))
+            })?;
+            if r.draw != (start + k) as u64 || r.values.len() != keys {
+                return Err(input(format!(
+                    "{} line {}: draw {} with {} values, expected draw {} with {keys} (one per --draw key)",
+                    draws_path.display(),
+                    k + 1,
+                    r.draw,
+                    r.values.len(),
+                    start + k
+                )));
+            }
         }
         parts.push((m, lines));
     }
