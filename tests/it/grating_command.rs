@@ -72,6 +72,11 @@ fn grating_bad_input_is_one_line_exit_2() {
         vec!["--grating", "532,61.2,0.01", "--grating", "500,61.2,0.01"],
         vec!["--harmonics", "0"],
         vec!["--set", "hoe.film_thickness_um=-1"],
+        // Outside the scene keys' 200..=2000 nm (these printed NaN and sum eta = 1.956).
+        vec!["--lambda-nm", "1e-300:1e-300:1"],
+        vec!["--lambda-nm", "150:560:3"],
+        vec!["--grating", "1e300,60,0.01"],
+        vec!["--grating", "2001,60,0.01"],
     ] {
         let mut a = vec!["grating"];
         a.extend(extra.iter().copied());
@@ -80,4 +85,7 @@ fn grating_bad_input_is_one_line_exit_2() {
         assert_eq!(o.status.code(), Some(2), "{a:?}: {err}");
         assert_eq!(err.trim_end().lines().count(), 1, "{a:?}: {err}");
     }
+    // The ends of the range are accepted (the check can pass).
+    let o = stscam(&["grating", "--lambda-nm", "200:2000:3", "--grating", "2000,60,0.01"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
 }

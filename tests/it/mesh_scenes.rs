@@ -1075,3 +1075,44 @@ fn fifo_as_mesh_or_texture_is_refused_quickly() {
         assert!(!out.exists(), "{name}: wrote {:?}", files_in(&out));
     }
 }
+
+/// `render` names every file it wrote: a 3-D scene's frontal view, depth and mask besides the
+/// capture (it named the capture only); a display scene names the capture alone.
+#[test]
+fn render_names_every_file_it_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(MANIFEST).join("scenes/eye-contact.toml");
+    let out = dir.path().join("3d");
+    let mut args = vec![
+        "render",
+        scene.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(&CROP48);
+    let o = crate::common::stscam(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("/capture.{exr,png,json}, frontal.{exr,png}, depth.exr, mask.png:"),
+        "{err}"
+    );
+    for f in ["frontal.exr", "frontal.png", "depth.exr", "mask.png"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let flat = dir.path().join("flat");
+    let o = crate::common::stscam(&[
+        "render",
+        "--spp",
+        "1",
+        "--set",
+        "sensor.crop_px=[32,32]",
+        "--out",
+        flat.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("/capture.{exr,png,json}:") && !err.contains("frontal"), "{err}");
+    assert!(!flat.join("frontal.exr").exists());
+}

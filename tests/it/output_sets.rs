@@ -144,12 +144,25 @@ fn sigkill_leaves_a_complete_set_after_recovery() {
         c.kill().unwrap();
         let _ = c.wait();
         let v = visible(&out);
-        let set = which_set_visible(&v, &refs);
+        // On a loaded machine the kill can land inside the commit's renames: the folder then
+        // shows a mix (the commit window docs/limits.md states) and carries the commit marker.
+        let mid_commit = std::fs::read_dir(&out)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .any(|e| e.path().join(".commit").exists());
+        let set = if mid_commit {
+            None
+        } else {
+            Some(which_set_visible(&v, &refs))
+        };
         stscam::io::atomic::recover_folder(&out).unwrap();
-        // A kill after the commit marker (possible on a loaded machine) is rolled forward to
-        // the killed run's set; otherwise the visible set stays.
+        // A kill after the commit marker is rolled forward to the killed run's set; otherwise
+        // the visible set stays.
         let after = which_set(&out, &refs);
-        assert!(after == set || after == 1, "killed after {after_ms} ms");
+        assert!(
+            Some(after) == set || after == 1,
+            "killed after {after_ms} ms: {set:?} then {after}"
+        );
     }
     // (b) Killed during the renames (slowed to 300 ms each): the marker is found, and the
     // recovery completes the killed run's set.

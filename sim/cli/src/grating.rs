@@ -128,9 +128,12 @@ pub fn parse_lambdas(spec: &str) -> Result<Vec<f64>, Failure> {
     let [a, b, n] = parts[..] else {
         return Err(err("expected START:STOP:N, e.g. 500:560:61"));
     };
-    let num = |s: &str| s.parse::<f64>().ok().filter(|v| v.is_finite() && *v > 0.0);
+    let (lo, hi) = (crate::scene::MIN_WAVELENGTH_NM, crate::scene::MAX_WAVELENGTH_NM);
+    let num = |s: &str| s.parse::<f64>().ok().filter(|v| (lo..=hi).contains(v));
     let (Some(a), Some(b)) = (num(a), num(b)) else {
-        return Err(err("START and STOP must be positive numbers (nm)"));
+        return Err(err(&format!(
+            "START and STOP must be wavelengths in {lo}..={hi} nm (the scene keys' range)"
+        )));
     };
     let n: usize = n
         .parse()
@@ -171,7 +174,11 @@ fn parse_grating(spec: &str, mean_index: f64) -> Result<GratingSpec, Failure> {
         .collect();
     match v[..] {
         [Some(l), Some(a), Some(n1)]
-            if l > 0.0 && a > 0.0 && a < 90.0 && (0.0..mean_index).contains(&n1) =>
+            if (crate::scene::MIN_WAVELENGTH_NM..=crate::scene::MAX_WAVELENGTH_NM)
+                .contains(&l)
+                && a > 0.0
+                && a < 90.0
+                && (0.0..mean_index).contains(&n1) =>
         {
             Ok(GratingSpec {
                 recording_wavelength_nm: l,
@@ -181,7 +188,9 @@ fn parse_grating(spec: &str, mean_index: f64) -> Result<GratingSpec, Failure> {
             })
         }
         _ => Err(bad_input(format!(
-            "--grating {spec}: expected NM,DEG,N1 with NM > 0, DEG in (0, 90), N1 in [0, {mean_index})"
+            "--grating {spec}: expected NM,DEG,N1 with NM in {}..={} (the scene keys' range), DEG in (0, 90), N1 in [0, {mean_index})",
+            crate::scene::MIN_WAVELENGTH_NM,
+            crate::scene::MAX_WAVELENGTH_NM
         ))),
     }
 }

@@ -230,8 +230,13 @@ fn cmd_render(
         None => format!("{spp} spp"),
     };
     con.err(format_args!(
-        "wrote {}/capture.{{exr,png,json}}: {}x{} px, {}, {:.3} s render, {} ({} threads)",
+        "wrote {}/{}: {}x{} px, {}, {:.3} s render, {} ({} threads)",
         out.display(),
+        if frontal.is_some() {
+            "capture.{exr,png,json}, frontal.{exr,png}, depth.exr, mask.png"
+        } else {
+            "capture.{exr,png,json}"
+        },
         cap.width,
         cap.height,
         spp_text,

@@ -32,7 +32,10 @@ pub use self::scene::{
     PlateDesc, PolarizationSpec, SINGLE_GRATING_FABRICATION_KEYS, SINGLE_GRATING_KEYS,
     SamplingDesc, Scene, SensorDesc, TopHoeDesc,
 };
-pub use self::validate::{GLASS_NAMES, PRIMARIES_NAMES, RESPONSE_NAMES, SPECTRUM_NAMES, validate};
+pub use self::validate::{
+    GLASS_NAMES, MAX_WAVELENGTH_NM, MIN_WAVELENGTH_NM, PRIMARIES_NAMES, RESPONSE_NAMES,
+    SPECTRUM_NAMES, validate,
+};
 
 /// The paper's setup, compiled into the binary.
 pub const PAPER_SCENE_TOML: &str = include_str!("../../../scenes/paper-2022.toml");

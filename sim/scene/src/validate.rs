@@ -244,6 +244,13 @@ fn validate_display(ls: &LoadedScene) -> Result<(), SceneError> {
     Ok(())
 }
 
+/// Shortest wavelength a scene key (sampling band, recording wavelength) or a command's
+/// wavelength argument may name, nm.
+pub const MIN_WAVELENGTH_NM: f64 = 200.0;
+
+/// Longest wavelength a scene key or a command's wavelength argument may name, nm.
+pub const MAX_WAVELENGTH_NM: f64 = 2000.0;
+
 /// `[sampling]`: the wavelength band, the sampling fractions and the contact limit (`max_depth` is checked last, after `[noise]`).
 fn validate_sampling(ls: &LoadedScene) -> Result<(), SceneError> {
     let s = &ls.scene;
@@ -251,15 +258,15 @@ fn validate_sampling(ls: &LoadedScene) -> Result<(), SceneError> {
     in_range(
         ls,
         sm.lambda_min_nm,
-        200.0,
-        2000.0,
+        MIN_WAVELENGTH_NM,
+        MAX_WAVELENGTH_NM,
         "sampling.lambda_min_nm",
     )?;
     in_range(
         ls,
         sm.lambda_max_nm,
-        200.0,
-        2000.0,
+        MIN_WAVELENGTH_NM,
+        MAX_WAVELENGTH_NM,
         "sampling.lambda_max_nm",
     )?;
     check(
@@ -350,8 +357,8 @@ fn validate_hoe(ls: &LoadedScene) -> Result<(), SceneError> {
         in_range(
             ls,
             g.recording_wavelength_nm,
-            200.0,
-            2000.0,
+            MIN_WAVELENGTH_NM,
+            MAX_WAVELENGTH_NM,
             &key("recording_wavelength_nm"),
         )?;
         let ref_key = key("reference_angle_deg");
