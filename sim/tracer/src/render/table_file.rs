@@ -176,11 +176,35 @@ fn writable_dir(dir: &Path) -> Result<(), TableError> {
         )));
     }
     std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, e))?;
-    let probe = dir.join(format!(".camera-table-probe-{}", std::process::id()));
-    std::fs::File::create(&probe).map_err(|e| IoError::io(dir, e))?;
-    std::fs::remove_file(&probe).map_err(|e| IoError::io(&probe, e))?;
-    Ok(())
+    // The probe is created new (O_CREAT | O_EXCL): a name that exists, a link planted there
+    // included, is never opened, so nothing outside the folder is truncated; another name is
+    // tried instead (a folder shared by SLURM array tasks may hold other jobs' probes).
+    for attempt in 0..PROBE_ATTEMPTS {
+        let probe = dir.join(format!(
+            ".camera-table-probe-{}-{attempt}",
+            std::process::id()
+        ));
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&probe)
+        {
+            Ok(_) => {
+                std::fs::remove_file(&probe).map_err(|e| IoError::io(&probe, e))?;
+                return Ok(());
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(IoError::io(dir, e).into()),
+        }
+    }
+    Err(TableError::Unsupported(format!(
+        "{}: {PROBE_ATTEMPTS} probe names are taken (.camera-table-probe-*): remove them",
+        dir.display()
+    )))
 }
+
+/// Names the writability probe of [`writable_dir`] tries before giving up.
+const PROBE_ATTEMPTS: u32 = 16;
 
 /// The file's bytes of `t`.
 pub fn to_bytes(t: &CameraTable) -> Vec<u8> {
@@ -570,6 +594,35 @@ impl CachedTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Links planted at the writability probe's names, pointing at a file outside the folder:
+    /// the probe never opens them (the target kept its bytes; it was truncated to 0 bytes when
+    /// the probe was created with `File::create`), takes a free name, and with every name
+    /// taken refuses in one line. The links stay where they were planted.
+    #[cfg(unix)]
+    #[test]
+    fn the_probe_never_follows_a_planted_link() {
+        let tmp = tempfile::tempdir().unwrap();
+        let victim = tmp.path().join("victim");
+        std::fs::write(&victim, b"keep me").unwrap();
+        let dir = tmp.path().join("tables");
+        std::fs::create_dir(&dir).unwrap();
+        let plant = |k: u32| {
+            let link = dir.join(format!(".camera-table-probe-{}-{k}", std::process::id()));
+            std::os::unix::fs::symlink(&victim, &link).unwrap();
+            link
+        };
+        let first: Vec<_> = (0..3).map(plant).collect();
+        writable_dir(&dir).unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"keep me");
+        assert!(first.iter().all(|l| l.symlink_metadata().is_ok()));
+        for k in 3..PROBE_ATTEMPTS {
+            plant(k);
+        }
+        let e = writable_dir(&dir).unwrap_err().to_string();
+        assert!(e.contains("probe names are taken"), "{e}");
+        assert_eq!(std::fs::read(&victim).unwrap(), b"keep me");
+    }
 
     /// A display table whose header claims more entries than the file holds, sealed with a
     /// valid check word (a hostile file, not a damaged one), is refused with an error and
