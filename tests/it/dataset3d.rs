@@ -608,6 +608,16 @@ fn meshes_with_a_camera_table_keep_shards_and_refuse_bad_keys() {
         (text.replace("spp = 16", "spp = 0"), "camera_table.spp"),
         (text.replace("reps = 8", "reps = 0"), "camera_table.reps"),
         (text.replace("reps = 8", "repz = 8"), "repz"),
+        // A cache folder that is a file or a device: refused before anything is written (the
+        // run marker and scene_000/scene.json were written first).
+        (
+            text.replace("reps = 8", "reps = 8\ndir = \"r.toml\""),
+            "camera_table.dir",
+        ),
+        (
+            text.replace("reps = 8", "reps = 8\ndir = \"/dev/null\""),
+            "camera_table.dir",
+        ),
     ]
     .iter()
     .enumerate()

@@ -118,6 +118,13 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     let ids = opts
         .shard
         .map_or(0..recipe.samples, |s| s.range(recipe.samples));
+    // A camera-table folder that cannot hold a table is refused before anything is written
+    // (it was found only after the run marker and scene_000/scene.json were).
+    if let Some(d) = recipe.camera_table.as_ref().and_then(|t| t.dir.as_ref()) {
+        let dir = plan.recipe_path.parent().unwrap_or(Path::new(".")).join(d);
+        crate::render::table_file::writable_dir(&dir)
+            .map_err(|e| recipe_err(&plan.recipe_path, "camera_table.dir", e.to_string()))?;
+    }
     // Held until the run ends (dropped on return, also on an error).
     let _lock = prepare_out(plan, opts)?;
     let run = Generation {

@@ -167,8 +167,9 @@ fn seal(mut b: Vec<u8>) -> Vec<u8> {
 
 /// Makes the cache directory `dir` (and its parents) and checks that a file can be created in
 /// it, before minutes are spent drawing a table that could not be kept: a path that is not a
-/// directory is bad input, an unwritable one an I/O error.
-fn writable_dir(dir: &Path) -> Result<(), TableError> {
+/// directory is bad input, an unwritable one an I/O error. A job that writes files of its
+/// own (a dataset) calls it before it writes any.
+pub fn writable_dir(dir: &Path) -> Result<(), TableError> {
     if dir.as_os_str().is_empty() || (dir.exists() && !dir.is_dir()) {
         return Err(TableError::Unsupported(format!(
             "{}: not a directory",
