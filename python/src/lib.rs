@@ -1433,6 +1433,13 @@ fn shipped_scenes() -> Vec<(&'static str, &'static str)> {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("VERSION", stscam::VERSION)?;
+    // The limits the Python layer applies before it converts arrays (one job's memory, a
+    // dataset's samples), so an oversized call is refused before it allocates.
+    m.add(
+        "MAX_JOB_BYTES",
+        u64::try_from(stscam::limits::MAX_JOB_BYTES).unwrap_or(u64::MAX),
+    )?;
+    m.add("MAX_SAMPLES", stscam::dataset::recipe::MAX_SAMPLES)?;
     m.add_function(wrap_pyfunction!(scene_json, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(matrix, m)?)?;

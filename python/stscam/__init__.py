@@ -76,6 +76,33 @@ def _progress(progress: Optional[Callable[[int, int, str], Any]]) -> Optional[Ca
     return progress
 
 
+def _check_arrays(items: Any, what: str, extra_bytes_each: int = 0,
+                  max_count: Optional[int] = None) -> int:
+    """Refuses a batch of arrays before any is converted: more than ``max_count`` of them, or
+    more than one job's memory (stscam's limit) in their float32 values plus
+    ``extra_bytes_each`` per item (e.g. each item's output). Returns the count."""
+    try:
+        n = len(items)
+    except TypeError:
+        raise ValueError(f"{what}: expected an array or a sequence of arrays, got "
+                         f"{type(items).__name__}") from None
+    if max_count is not None and n > max_count:
+        raise ValueError(f"{what}: {n} arrays, at most {max_count}")
+    limit = int(_native.MAX_JOB_BYTES)
+    total = 0
+    if isinstance(items, np.ndarray) and items.ndim >= 1:
+        total = n * (int(np.prod(items.shape[1:])) * 4 + extra_bytes_each)
+    else:
+        for t in items:
+            total += int(np.prod(np.shape(t))) * 4 + extra_bytes_each
+            if total > limit:
+                break
+    if total > limit:
+        raise ValueError(f"{what}: {n} arrays need more than {limit >> 30} GiB (the memory "
+                         f"limit of one job); pass fewer or smaller ones")
+    return n
+
+
 def _threads(threads: Any) -> Optional[int]:
     return None if threads is None else _uint(threads, "--threads <THREADS>", _U64)
 
@@ -434,6 +461,10 @@ def render_batch(scene: Optional[Scene], targets: Any, encoding: Optional[str] =
     pilot and counts."""
     s = _scene(scene)
     _check_noise(noise)
+    # Each target's capture (float32, up to three channels) counts against the job's memory
+    # too: refused here, before the targets are converted.
+    crop = json.loads(s._json)["sensor"]["crop_px"]
+    _check_arrays(targets, "targets", extra_bytes_each=int(crop[0]) * int(crop[1]) * 3 * 4)
     args = [_image_arg(t, encoding, f"targets[{i}]") for i, t in enumerate(targets)]
     if not args:
         raise ValueError("targets: no targets")
@@ -814,6 +845,7 @@ def build_dataset(recipe: str | os.PathLike, out: str | os.PathLike,
         shard = f"{shard[0]}/{shard[1]}"
     arrays = None
     if objects is not None:
+        _check_arrays(objects, "objects", max_count=int(_native.MAX_SAMPLES))
         parts = [_image_arg(o, encoding, f"objects[{i}]") for i, o in enumerate(objects)]
         if not parts:
             raise ValueError("objects: no objects")

@@ -323,6 +323,24 @@ def test_optimize_equals_cli(tmp_path):
         stscam.optimize(bad, budget=2)
 
 
+def test_oversized_batches_are_refused_before_conversion():
+    # 3e6 object views (no memory of their own) and 1e5 targets whose captures would need
+    # hundreds of GB: ValueError within a second, before any array is converted (they took
+    # 3.5 GB, and past 5 GB with a SIGABRT, before the refusal).
+    views = np.broadcast_to(np.zeros((1, 32, 32), np.float32), (3_000_000, 32, 32))
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match="objects: 3000000 arrays, at most"):
+        stscam.build_dataset(ROOT / "validation" / "python" / "noiseless.toml", "/nonexistent",
+                             objects=views, encoding="linear")
+    many = np.broadcast_to(np.zeros((1, 64, 64), np.float32), (100_000, 64, 64))
+    with pytest.raises(ValueError, match="targets: 100000 arrays need more than"):
+        stscam.render_batch(stscam.Scene(), many, encoding="linear")
+    # A sequence of arrays is counted item by item the same way.
+    with pytest.raises(ValueError, match="targets: 100000 arrays"):
+        stscam.render_batch(stscam.Scene(), [many[0]] * 100_000, encoding="linear")
+    assert time.monotonic() - t0 < 5.0
+
+
 def test_build_dataset_from_arrays(tmp_path):
     # Objects given as arrays replace the recipe's sources: sample i's object is objects[i],
     # and (noiseless recipe) its capture is H f + offset of its scene.
