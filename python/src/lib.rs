@@ -133,17 +133,17 @@ type SceneArg = (
 );
 
 /// Decoded and checked target values of an [`ImageArg`] (the CLI's checks on an image file:
-/// size within the built-in targets' range, finite values).
-fn image_values(img: &ImageArg) -> Result<Vec<f32>, String> {
+/// size within the built-in targets' range, finite values); `what` names it in messages.
+fn image_values(img: &ImageArg, what: &str) -> Result<Vec<f32>, String> {
     let (w, h, c, b, _) = img;
     if !(1..=16384).contains(w) || !(1..=16384).contains(h) || !(*c == 1 || *c == 3) {
         return Err(format!(
-            "display.image: an array target must be 1..=16384 pixels each way with 1 or 3 channels, got {h}x{w}x{c} (h x w x channels)"
+            "{what}: an array target must be 1..=16384 pixels each way with 1 or 3 channels, got {h}x{w}x{c} (h x w x channels)"
         ));
     }
     if b.len() != w * h * c * 4 {
         return Err(format!(
-            "display.image: {} bytes do not hold {h}x{w}x{c} float32 values",
+            "{what}: {} bytes do not hold {h}x{w}x{c} float32 values",
             b.len()
         ));
     }
@@ -154,7 +154,7 @@ fn image_values(img: &ImageArg) -> Result<Vec<f32>, String> {
     if let Some(i) = v.iter().position(|x| !x.is_finite()) {
         let px = i / c;
         return Err(format!(
-            "display.image: pixel ({}, {}) is not a finite number",
+            "{what}: pixel ({}, {}) is not a finite number",
             px % w,
             px / w
         ));
@@ -220,7 +220,7 @@ fn load(scene: &SceneArg) -> Result<System, String> {
         .map_err(|e| e.to_string())?;
     let mut sys = System::build(&ls).map_err(|e| e.to_string())?;
     if let Some(img) = &scene.2 {
-        let v = image_values(img)?;
+        let v = image_values(img, "display.image")?;
         show_image(&mut sys, img, &v);
     }
     Ok(sys)
@@ -1296,16 +1296,15 @@ fn image_targets(
         .iter()
         .enumerate()
         .map(|(i, (name, img))| {
-            let v = image_values(img)
-                .map_err(|e| value_error(e.replacen("display.image", &format!("targets[{i}]"), 1)))?;
-            let (w, h, c, _, linear) = img;
-            let planes = if *c == 3 { 3 } else { 1 };
+            let v = image_values(img, &format!("targets[{i}]")).map_err(value_error)?;
+            // `image_values` checked that the channels are 1 or 3: one object plane each.
+            let (w, h, c, _, linear) = *img;
             Ok(stscam::design::evaluate::Target::Image {
                 name: name.clone(),
-                width: *w,
-                height: *h,
-                planes,
-                values: stscam::display::Display::planes_of(&v, *c, *linear, gamma, planes),
+                width: w,
+                height: h,
+                planes: c,
+                values: stscam::display::Display::planes_of(&v, c, linear, gamma, c),
             })
         })
         .collect()
@@ -1381,8 +1380,8 @@ fn evaluate(
 type StudyText = (String, String, String);
 
 /// Optimises a design study (as `stscam optimize STUDY --out OUT`): the files are written
-/// into `out` as the CLI writes them; returns the number of evaluations. Progress counts
-/// evaluations.
+/// into `out` as the CLI writes them; returns the parameters' names (each one's first key, as
+/// `history.csv` heads its column). Progress counts evaluations.
 #[pyfunction]
 #[pyo3(signature = (study, text, budget, seed, out, resume, skip_final, threads, progress=None))]
 #[allow(clippy::too_many_arguments)]
@@ -1397,12 +1396,14 @@ fn optimize(
     skip_final: bool,
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
-) -> PyResult<usize> {
+) -> PyResult<Vec<String>> {
     use stscam::design::study::Study;
     use stscam::jobs::optimize::{OptimizeOptions, run_study};
     let (s, path) = match (&study, &text) {
         (Some(p), None) => (Study::load(p), p.clone()),
-        (None, Some((t, name, dir))) => (Study::parse(t, name, Path::new(dir)), PathBuf::from(name)),
+        (None, Some((t, name, dir))) => {
+            (Study::parse(t, name, Path::new(dir)), PathBuf::from(name))
+        }
         _ => return Err(value_error("optimize: give a study file or a study dict")),
     };
     let s = s.map_err(value_error)?;
@@ -1415,12 +1416,12 @@ fn optimize(
         skip_final,
         threads,
     };
-    let outcome = run_job_with(py, threads, progress.as_ref(), || {
+    run_job_with(py, threads, progress.as_ref(), || {
         let count = stscam::progress::Progress::new(false, budget as u64, "evaluations");
         run_study(&s, &o, &|_, _| count.inc(1))
     })?
     .map_err(value_error)?;
-    Ok(outcome.0.records.len())
+    Ok(s.parameters.iter().map(|p| p.keys[0].clone()).collect())
 }
 
 /// The shipped scenes: [(name, TOML text)].

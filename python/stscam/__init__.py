@@ -797,22 +797,16 @@ def optimize(study: str | os.PathLike | Mapping[str, Any], budget: int = 40, see
     tmp = tempfile.TemporaryDirectory(prefix="stscam-optimize-") if out is None else None
     try:
         folder = tmp.name if tmp is not None else os.fspath(out)
-        _native.optimize(path, text, _uint(budget, "--budget <BUDGET>", _U64),
-                         _uint(seed, "--seed <SEED>", _U64), folder, bool(resume),
-                         bool(skip_final), _threads(threads), _progress(progress))
+        names = _native.optimize(path, text, _uint(budget, "--budget <BUDGET>", _U64),
+                                 _uint(seed, "--seed <SEED>", _U64), folder, bool(resume),
+                                 bool(skip_final), _threads(threads), _progress(progress))
         with open(os.path.join(folder, "summary.json"), encoding="utf-8") as f:
             summary = json.load(f)
-        names: list[str] = []
-        with open(os.path.join(folder, "history.csv"), encoding="utf-8") as f:
-            header = f.readline().strip().split(",")
         history = []
         with open(os.path.join(folder, "history.jsonl"), encoding="utf-8") as f:
             for line in f:
                 r = json.loads(line)
                 r.pop("bits", None)
-                if not names:
-                    # history.csv's columns after index, step and fidelity are the parameters.
-                    names = header[3:3 + len(r["params"])]
                 r["params"] = dict(zip(names, r["params"]))
                 r["metrics"] = {k: (float("nan") if v is None else v)
                                 for k, v in r["metrics"].items()}

@@ -244,7 +244,12 @@ fn a_report_that_cannot_be_written_exits_1() {
     let cases: [&[&str]; 4] = [
         &["info"],
         &["grating"],
-        &["evaluate", "--metrics", "fov_capture_vertical_deg", "--json"],
+        &[
+            "evaluate",
+            "--metrics",
+            "fov_capture_vertical_deg",
+            "--json",
+        ],
         &["--help"],
     ];
     for args in cases {

@@ -86,6 +86,17 @@ fn grating_bad_input_is_one_line_exit_2() {
         assert_eq!(err.trim_end().lines().count(), 1, "{a:?}: {err}");
     }
     // The ends of the range are accepted (the check can pass).
-    let o = stscam(&["grating", "--lambda-nm", "200:2000:3", "--grating", "2000,60,0.01"]);
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = stscam(&[
+        "grating",
+        "--lambda-nm",
+        "200:2000:3",
+        "--grating",
+        "2000,60,0.01",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }

@@ -1113,6 +1113,9 @@ fn render_names_every_file_it_wrote() {
         flat.to_str().unwrap(),
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("/capture.{exr,png,json}:") && !err.contains("frontal"), "{err}");
+    assert!(
+        err.contains("/capture.{exr,png,json}:") && !err.contains("frontal"),
+        "{err}"
+    );
     assert!(!flat.join("frontal.exr").exists());
 }

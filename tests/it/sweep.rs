@@ -594,6 +594,9 @@ fn sweep_prints_the_captured_fov_beside_the_waveguides() {
         );
         assert!(line.contains(&captured), "{line}\nwants {captured}");
         // The 96-pixel crop sees less than the waveguide passes: the two numbers differ.
-        assert!(deg("fov_vertical_capture") < deg("fov_vertical") - 1.0, "{line}");
+        assert!(
+            deg("fov_vertical_capture") < deg("fov_vertical") - 1.0,
+            "{line}"
+        );
     }
 }

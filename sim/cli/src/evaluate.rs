@@ -74,12 +74,9 @@ fn items(s: &str) -> impl Iterator<Item = &str> {
 fn request(o: &EvaluateOptions, dir: &Path, gamma: f64) -> Result<Request, Failure> {
     let metrics =
         Metric::parse_list(&o.metrics).map_err(|e| bad_input(format!("--metrics: {e}")))?;
-    let dir = dir.to_path_buf();
     let targets = match &o.targets {
         Some(t) => items(t)
-            .map(|t| {
-                Target::parse(t, &dir, gamma).map_err(|e| bad_input(format!("--targets: {e}")))
-            })
+            .map(|t| Target::parse(t, dir, gamma).map_err(|e| bad_input(format!("--targets: {e}"))))
             .collect::<Result<Vec<_>, _>>()?,
         None => stscam_design::evaluate::default_targets(),
     };

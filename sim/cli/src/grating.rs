@@ -128,7 +128,10 @@ pub fn parse_lambdas(spec: &str) -> Result<Vec<f64>, Failure> {
     let [a, b, n] = parts[..] else {
         return Err(err("expected START:STOP:N, e.g. 500:560:61"));
     };
-    let (lo, hi) = (crate::scene::MIN_WAVELENGTH_NM, crate::scene::MAX_WAVELENGTH_NM);
+    let (lo, hi) = (
+        crate::scene::MIN_WAVELENGTH_NM,
+        crate::scene::MAX_WAVELENGTH_NM,
+    );
     let num = |s: &str| s.parse::<f64>().ok().filter(|v| (lo..=hi).contains(v));
     let (Some(a), Some(b)) = (num(a), num(b)) else {
         return Err(err(&format!(
@@ -174,8 +177,7 @@ fn parse_grating(spec: &str, mean_index: f64) -> Result<GratingSpec, Failure> {
         .collect();
     match v[..] {
         [Some(l), Some(a), Some(n1)]
-            if (crate::scene::MIN_WAVELENGTH_NM..=crate::scene::MAX_WAVELENGTH_NM)
-                .contains(&l)
+            if (crate::scene::MIN_WAVELENGTH_NM..=crate::scene::MAX_WAVELENGTH_NM).contains(&l)
                 && a > 0.0
                 && a < 90.0
                 && (0.0..mean_index).contains(&n1) =>

@@ -91,7 +91,8 @@ fn files(
 /// Runs `study` as the options say (budget, seed, `--out`, resume, final re-evaluation) in
 /// the caller's thread pool and writes the run's files into `--out` (all or nothing);
 /// `on_record` is called after each evaluation with its record and the best feasible first
-/// objective so far; returns the outcome and the number of files written. The CLI and the Python package both run studies through this.
+/// objective so far; returns the outcome and the number of files written. The CLI and the
+/// Python package both run studies through this.
 pub fn run_study(
     study: &Study,
     o: &OptimizeOptions,

@@ -111,6 +111,14 @@ fn depth_stack(
     out
 }
 
+/// The folder of a recipe's `[camera_table] dir` (relative to the recipe's folder).
+fn table_dir(plan: &Plan, dir: impl AsRef<Path>) -> std::path::PathBuf {
+    plan.recipe_path
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join(dir)
+}
+
 /// Generates a dataset (or one shard of it) into `opts.out`: the scenes (H, scene.json), the
 /// exposure, the samples, then the metadata and card ([`Generation`]'s steps).
 pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetError> {
@@ -121,8 +129,7 @@ pub fn generate(plan: &Plan, opts: &RunOptions) -> Result<RunSummary, DatasetErr
     // A camera-table folder that cannot hold a table is refused before anything is written
     // (it was found only after the run marker and scene_000/scene.json were).
     if let Some(d) = recipe.camera_table.as_ref().and_then(|t| t.dir.as_ref()) {
-        let dir = plan.recipe_path.parent().unwrap_or(Path::new(".")).join(d);
-        crate::render::table_file::writable_dir(&dir)
+        crate::render::table_file::writable_dir(&table_dir(plan, d))
             .map_err(|e| recipe_err(&plan.recipe_path, "camera_table.dir", e.to_string()))?;
     }
     // Held until the run ends (dropped on return, also on an error).
@@ -458,13 +465,7 @@ impl Generation<'_> {
             None => crate::render::camera_table::build(sys, &ts, false)
                 .map_err(|e| err("camera_table", e))?,
             Some(d) => {
-                let dir = self
-                    .plan
-                    .recipe_path
-                    .parent()
-                    .unwrap_or(Path::new("."))
-                    .join(d);
-                crate::render::table_file::cached(sys, &ts, &dir, false)
+                crate::render::table_file::cached(sys, &ts, &table_dir(self.plan, d), false)
                     .map_err(|e| err("camera_table.dir", e))?
                     .table
             }

@@ -61,6 +61,6 @@ pub use self::folder::RUN_MARKER;
 pub use self::generate::{RunOptions, RunSummary, generate};
 pub use self::merge::merge;
 pub use self::plan::{
-    MESH_FILES, ObjectArrays, Plan, PlannedScene, SampleSpec, plan, plan_with_objects,
+    MESH_FILES, ObjectArrays, Plan, PlannedScene, SampleSpec, plan, plan_with_objects, sha256_hex,
 };
 pub use self::shard::{MAX_SHARDS, Shard};

@@ -147,7 +147,8 @@ pub(crate) fn source_key(s: &SampleSpec) -> String {
     format!("objects.sources[{}]", s.object.source)
 }
 
-pub(crate) fn sha256_hex(bytes: &[u8]) -> String {
+/// Hex SHA-256 of `bytes` (the checksums of a dataset's card, and of tolerance shards).
+pub fn sha256_hex(bytes: &[u8]) -> String {
     let d = Sha256::digest(bytes);
     d.iter().map(|b| format!("{b:02x}")).collect()
 }

@@ -49,6 +49,18 @@ pub fn planes_of_spec(
     ))
 }
 
+/// The reconstruction problem of `h` (an H of `sys`) over `sys`'s object: its planes stacked
+/// vertically (one for a monochrome display, three for a colour one: H's column blocks), as the
+/// design metrics and the colour demo solve it; cancelled with the thread's job.
+pub fn object_problem(sys: &System, h: &crate::sparse::CsrMatrix) -> crate::recon::Problem {
+    crate::recon::Problem::with_cancel(
+        h,
+        sys.display.width_px,
+        sys.display.height_px * sys.display.planes(),
+        crate::cancel::current(),
+    )
+}
+
 /// The sensor noise model of `sys` with the exposure set from the all-white capture H·1 + o of
 /// `m` (docs/physics.md §7.3: "set the exposure from v0"), and a noisy dark frame (the capture of an
 /// all-black display, `m`'s offset) measured with it from the noise stream of `seed`.

@@ -335,13 +335,7 @@ impl StaleCalibration {
         );
         let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
         Ok(StaleCalibration {
-            problem: crate::recon::Problem::with_cancel(
-                &m.h,
-                sys.display.width_px,
-                // The object's planes stacked (three for a colour display).
-                sys.display.height_px * sys.display.planes(),
-                crate::cancel::current(),
-            ),
+            problem: crate::capture::object_problem(sys, &m.h),
             truth,
             noise,
             dark,
@@ -494,15 +488,6 @@ struct ShardManifest {
     draws_sha256: String,
 }
 
-/// Hex SHA-256 of `bytes`.
-fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
 /// Most bytes of a shard's `shard.json` a merge reads.
 const MAX_MANIFEST_BYTES: u64 = 1 << 20;
 
@@ -599,6 +584,7 @@ fn tolerance_output(
     let nominal_line = json_line(&nominal_figures)?;
     match shard {
         Some(sh) => {
+            let draws_bytes = jsonl(&lines);
             let manifest = ShardManifest {
                 stscam_version: env!("CARGO_PKG_VERSION").to_string(),
                 origin: origin.clone(),
@@ -606,12 +592,7 @@ fn tolerance_output(
                 shard: sh,
                 draws: [range.start, range.end],
                 nominal: parse_line(&nominal_line)?,
-                draws_sha256: String::new(),
-            };
-            let draws_bytes = jsonl(&lines);
-            let manifest = ShardManifest {
-                draws_sha256: sha256_hex(&draws_bytes),
-                ..manifest
+                draws_sha256: crate::dataset::sha256_hex(&draws_bytes),
             };
             let files = vec![
                 ("draws.jsonl".to_string(), draws_bytes),
@@ -667,10 +648,9 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
         // refused in one line instead of hanging or filling the memory.
         let read = |name: &str, max_bytes: u64| {
             let p = dir.join(name);
-            let bytes = crate::io::input::read_input(&p, max_bytes)
-                .map_err(|e| input(e.to_string()))?;
-            String::from_utf8(bytes)
-                .map_err(|_| input(format!("{}: not UTF-8 text", p.display())))
+            let bytes =
+                crate::io::input::read_input(&p, max_bytes).map_err(|e| input(e.to_string()))?;
+            String::from_utf8(bytes).map_err(|_| input(format!("{}: not UTF-8 text", p.display())))
         };
         let manifest_path = dir.join("shard.json");
         let m: ShardManifest = serde_json::from_str(&read("shard.json", MAX_MANIFEST_BYTES)?)
@@ -690,7 +670,7 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
         let count = (end - start) as u64;
         let draws_path = dir.join("draws.jsonl");
         let text = read("draws.jsonl", (count + 1).saturating_mul(MAX_RECORD_BYTES))?;
-        if sha256_hex(text.as_bytes()) != m.draws_sha256 {
+        if crate::dataset::sha256_hex(text.as_bytes()) != m.draws_sha256 {
             return Err(input(format!(
                 "{}: its SHA-256 is not the one shard.json records (the file was changed after the shard was written)",
                 draws_path.display()
@@ -708,9 +688,8 @@ pub fn merge(shards: &[PathBuf]) -> Result<(Vec<(String, Vec<u8>)>, Summary), To
         // Each record is the draw it should be, with one value per drawn key.
         let keys = m.settings.draws.len();
         for (k, line) in lines.iter().enumerate() {
-            let r: DrawRecord = parse_line(line).map_err(|e| {
-                input(format!("{} line {}: {e}", draws_path.display(), k + 1))
-            })?;
+            let r: DrawRecord = parse_line(line)
+                .map_err(|e| input(format!("{} line {}: {e}", draws_path.display(), k + 1)))?;
             if r.draw != (start + k) as u64 || r.values.len() != keys {
                 return Err(input(format!(
                     "{} line {}: draw {} with {} values, expected draw {} with {keys} (one per --draw key)",

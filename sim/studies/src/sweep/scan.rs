@@ -564,12 +564,7 @@ pub fn psnr_problem(sys: &System, p: &PsnrSettings, progress: bool) -> crate::re
         sys,
         &crate::render::RenderSettings::lattice(p.spp, p.seed, progress),
     );
-    crate::recon::Problem::with_cancel(
-        &m.h,
-        sys.display.width_px,
-        sys.display.height_px * sys.display.planes(),
-        crate::cancel::current(),
-    )
+    crate::capture::object_problem(sys, &m.h)
 }
 
 /// The PSNR of [`psnr_figure`] and, with `nominal` (the problem of another scene's H, e.g. the
@@ -582,7 +577,6 @@ pub fn psnr_figures(
     progress: bool,
 ) -> Result<(f64, Option<f64>), String> {
     let truth = psnr_target(sys, p)?;
-    let (ow, oh) = (sys.display.width_px, sys.display.height_px);
     let set = psnr_demo_settings(p, progress);
     let m = crate::matrix::compute_matrix(
         sys,
@@ -590,10 +584,7 @@ pub fn psnr_figures(
     );
     let (noise, dark) = crate::capture::exposure_and_dark(sys, &m, p.seed);
     let (_, g) = crate::capture::measured_capture(sys, &truth, &set, &noise, &dark, 0);
-    // The object's planes stacked vertically (one for a monochrome display, three for a
-    // colour one), as the design metrics solve it.
-    let oh = oh * sys.display.planes();
-    let problem = crate::recon::Problem::with_cancel(&m.h, ow, oh, crate::cancel::current());
+    let problem = crate::capture::object_problem(sys, &m.h);
     // τ by the discrepancy principle on the sensor noise, as the demo's table chooses it.
     let black = crate::capture::black_level_of(&dark, &noise);
     let solve = |pr: &crate::recon::Problem| {
@@ -605,7 +596,7 @@ pub fn psnr_figures(
         crate::recon::metrics::psnr(&f, &truth)
     };
     let stale = nominal
-        .filter(|n| n.width == ow && n.height == oh && n.ht.cols == g.len())
+        .filter(|n| n.width == problem.width && n.height == problem.height && n.ht.cols == g.len())
         .map(solve);
     Ok((solve(&problem), stale))
 }
