@@ -318,7 +318,11 @@ fn render<'py>(
     }
     let values = batch
         .iter()
-        .map(image_values)
+        .enumerate()
+        .map(|(i, img)| match batch.len() {
+            1 => image_values(img, "target"),
+            _ => image_values(img, &format!("targets[{i}]")),
+        })
         .collect::<Result<Vec<_>, _>>()
         .map_err(value_error)?;
     let (cap, frontal, render_s, more) = run_job_with(py, threads, progress.as_ref(), || {
