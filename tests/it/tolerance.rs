@@ -239,6 +239,81 @@ fn any_shard_split_and_thread_count_give_the_same_bytes() {
     assert!(e.contains("need shards 0..2 once each"), "{e}");
 }
 
+/// `--require` on `evaluate` metrics: each requirement's pass fraction is the fraction of the
+/// draws whose recorded metric meets it (counted here from `draws.jsonl`-equivalent records),
+/// the yield the fraction meeting both, and the captured FOV is summarised. A threshold set at
+/// the median splits the draws, so a yield computed on the wrong metric would differ.
+#[test]
+fn requirements_on_evaluate_metrics_count_the_draws_that_meet_them() {
+    use stscam::tolerance::Requirement;
+    let draws = ["hoe.index_modulation_shortfall=uniform(0,0.4)"];
+    // Without a requirement on one, no draw computes the evaluate metrics (0.35 s each).
+    let plain = run_tolerance(None, &small(), &settings(&draws, 2, false), None, false).unwrap();
+    assert!(plain.draws.iter().all(|d| d.figures.metrics.is_empty()));
+    let mut set = settings(&draws, 12, false);
+    set.thresholds.require = vec![Requirement::parse("efficiency_mean>=0").unwrap()];
+    let first = run_tolerance(None, &small(), &set, None, false).unwrap();
+    let mut eff: Vec<f64> = first
+        .draws
+        .iter()
+        .map(|d| d.figures.metrics["efficiency_mean"])
+        .collect();
+    eff.sort_by(f64::total_cmp);
+    let median = 0.5 * (eff[5] + eff[6]);
+    let fov = first.nominal.metrics["fov_capture_vertical_deg"];
+    assert!(fov > 1.0 && fov < 60.0, "{fov}");
+    set.thresholds = Thresholds {
+        require: vec![
+            Requirement::parse(&format!("efficiency_mean>={median}")).unwrap(),
+            Requirement::parse(&format!("fov_capture_vertical_deg<={}", fov - 0.5)).unwrap(),
+        ],
+        ..Thresholds::default()
+    };
+    let out = run_tolerance(None, &small(), &set, None, false).unwrap();
+    let s = out.summary.unwrap();
+    let names: Vec<&str> = s.figures.iter().map(|f| f.0.as_str()).collect();
+    assert!(names.contains(&"efficiency_mean") && names.contains(&"fov_capture_vertical_deg"));
+    let y = &s.yield_;
+    assert_eq!(y.per_threshold[0].0, format!("efficiency_mean>={median}"));
+    assert_eq!(y.per_threshold[0].1, 0.5);
+    // Shortfall does not move the captured FOV: no draw is 0.5 degrees below nominal.
+    assert_eq!(y.per_threshold[1].1, 0.0);
+    assert_eq!(y.passed, 0);
+    // Only the efficiency requirement: half the draws.
+    set.thresholds.require.pop();
+    let out = run_tolerance(None, &small(), &set, None, false).unwrap();
+    assert_eq!(out.summary.unwrap().yield_.passed, 6);
+}
+
+/// `psnr_gain_db` separates a pure gain from a spectral change: a lower index modulation
+/// mostly dims the capture, so its draws spread `psnr_db` several times more than
+/// `psnr_gain_db`, and the gain-fitted PSNR is never below the plain one (a = 1 is a candidate
+/// of the least-squares gain).
+#[test]
+fn the_gain_fitted_psnr_discounts_a_pure_brightness_loss() {
+    let draws = ["hoe.index_modulation_shortfall=uniform(0,0.4)"];
+    let out = run_tolerance(None, &small(), &settings(&draws, 8, true), None, false).unwrap();
+    let sd = |v: Vec<f64>| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+    };
+    let plain: Vec<f64> = out
+        .draws
+        .iter()
+        .map(|d| d.figures.psnr_db.unwrap())
+        .collect();
+    let gain: Vec<f64> = out
+        .draws
+        .iter()
+        .map(|d| d.figures.psnr_gain_db.unwrap())
+        .collect();
+    for (p, g) in plain.iter().zip(&gain) {
+        assert!(g >= p, "{g} < {p}");
+    }
+    let (sp, sg) = (sd(plain), sd(gain));
+    assert!(sp > 0.5 && sg < 0.2 * sp, "sd psnr {sp}, sd psnr_gain {sg}");
+}
+
 /// Bad input: one line naming the flag or key, exit code 2, nothing written.
 #[test]
 fn bad_input_is_one_line_naming_the_flag() {
@@ -288,6 +363,39 @@ fn bad_input_is_one_line_naming_the_flag() {
                 "20",
             ],
             "--min-psnr-db: needs --psnr",
+        ),
+        (
+            vec![
+                "--draw",
+                "hoe.shrinkage=normal(0,0.01)",
+                "--samples",
+                "2",
+                "--require",
+                "fov_capture_vertikal_deg>=30",
+            ],
+            "--require fov_capture_vertikal_deg>=30: unknown figure; expected one of",
+        ),
+        (
+            vec![
+                "--draw",
+                "hoe.shrinkage=normal(0,0.01)",
+                "--samples",
+                "2",
+                "--require",
+                "psnr_gain_db>=20",
+            ],
+            "--require psnr_gain_db>=20: needs --psnr",
+        ),
+        (
+            vec![
+                "--draw",
+                "hoe.shrinkage=normal(0,0.01)",
+                "--samples",
+                "2",
+                "--require",
+                "efficiency_mean=0.1",
+            ],
+            "expected NAME>=VALUE or NAME<=VALUE",
         ),
     ] {
         let mut a = vec!["tolerance"];

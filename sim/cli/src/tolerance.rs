@@ -59,6 +59,11 @@ pub struct ToleranceOptions {
     /// Yield: the PSNR with the nominal H at least this, dB (needs --psnr).
     #[arg(long)]
     pub min_psnr_db: Option<f64>,
+    /// Yield: a requirement on any scalar figure, `NAME>=VALUE` or `NAME<=VALUE` (repeatable):
+    /// a figure of the summary or an `evaluate` geometry or colour metric, e.g.
+    /// `fov_capture_vertical_deg>=30`, `efficiency_mean>=0.01`, `psnr_gain_db>=25` (--psnr).
+    #[arg(long, value_name = "NAME>=V")]
+    pub require: Vec<String>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -111,7 +116,9 @@ fn report(con: &Console, s: &stscam_studies::tolerance::Summary) {
 }
 
 fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
-    use stscam_studies::tolerance::{Thresholds, ToleranceSettings, merge, run_tolerance};
+    use stscam_studies::tolerance::{
+        Requirement, Thresholds, ToleranceSettings, merge, run_tolerance,
+    };
     if let Some(ToleranceCommand::Merge { shards, out }) = &o.merge {
         check_out_dir(out)?;
         let (files, summary) = merge(shards).map_err(fail)?;
@@ -178,6 +185,12 @@ fn cmd_tolerance(o: &ToleranceOptions, con: &Console) -> Result<(), Failure> {
             min_efficiency: o.min_efficiency,
             max_band_shift_nm: o.max_band_shift_nm,
             min_psnr_db: o.min_psnr_db,
+            require: o
+                .require
+                .iter()
+                .map(|r| Requirement::parse(r))
+                .collect::<Result<_, _>>()
+                .map_err(fail)?,
         },
     };
     let t0 = Instant::now();

@@ -44,8 +44,7 @@ use crate::scene::{LoadedScene, SceneSource};
 use crate::system::System;
 use crate::tolerance::DrawSpec;
 
-/// Field rows sampled for the colour band coverage.
-pub const BAND_ROWS: usize = 64;
+pub use crate::sweep::BAND_ROWS;
 /// Most tolerance draws of one evaluation.
 pub const MAX_DRAWS: usize = 100_000;
 /// Most replicates of the reconstruction metrics.
@@ -451,46 +450,12 @@ pub fn evaluate(
     })
 }
 
-/// The geometry and colour metrics of `sys`.
+/// The geometry and colour metrics of `sys` (`sweep::geometry_metrics`, by [`Base`]).
 pub fn geometry(sys: &System) -> BTreeMap<Base, f64> {
-    let f = crate::sweep::design_figures(sys, &crate::sweep::SweepSettings::default());
-    let mut m = BTreeMap::new();
-    m.insert(Base::FovCaptureVerticalDeg, f.fov_vertical_capture.full_deg);
-    m.insert(
-        Base::FovCaptureHorizontalDeg,
-        f.fov_horizontal_capture.full_deg,
-    );
-    m.insert(Base::FovWaveguideVerticalDeg, f.fov_vertical.full_deg);
-    m.insert(Base::FovWaveguideHorizontalDeg, f.fov_horizontal.full_deg);
-    m.insert(Base::SceneFieldVerticalMm, f.scene_field_vertical.extent_mm);
-    m.insert(Base::SceneFieldVerticalDeg, f.scene_field_vertical.full_deg);
-    m.insert(Base::Replicas5pct, f.replicas_above_5pct as f64);
-    m.insert(Base::ReplicasAll, f.replicas_total as f64);
-    m.insert(Base::ReplicaPitchMm, f.replica_pitch_mm);
-    m.insert(Base::EfficiencyPeak, f.efficiency_peak);
-    m.insert(Base::EfficiencyMean, f.efficiency_crop_mean);
-    let colour = sys.display.planes() == 3;
-    let bands = if colour {
-        crate::colour::field_bands(sys, BAND_ROWS)
-    } else {
-        Vec::new()
-    };
-    for (p, b) in [
-        Base::BandCoverageR,
-        Base::BandCoverageG,
-        Base::BandCoverageB,
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let v = if bands.is_empty() {
-            f64::NAN
-        } else {
-            bands.iter().filter(|r| r.has_band(p)).count() as f64 / bands.len() as f64
-        };
-        m.insert(b, v);
-    }
-    m
+    crate::sweep::geometry_metrics(sys)
+        .into_iter()
+        .filter_map(|(name, v)| Some((Base::from_name(name)?, v)))
+        .collect()
 }
 
 /// The overrides that put a scene (`loaded`, built as `sys`) at the fidelity (module notes),

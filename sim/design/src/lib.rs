@@ -22,5 +22,5 @@ use stscam_io::plot;
 use stscam_recon as recon;
 use stscam_scene as scene;
 use stscam_studies::{capture, demo, sweep, tolerance};
-use stscam_tracer::{analysis, colour, matrix, render, system};
+use stscam_tracer::{analysis, matrix, render, system};
 use stscam_world::display;

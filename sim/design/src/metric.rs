@@ -99,6 +99,11 @@ impl Base {
         }
     }
 
+    /// The base metric of this name.
+    pub fn from_name(name: &str) -> Option<Base> {
+        Base::ALL.into_iter().find(|b| b.name() == name)
+    }
+
     /// What the metric needs computed.
     pub fn kind(self) -> Kind {
         match self {
@@ -218,6 +223,22 @@ mod tests {
             }
         }
         assert_eq!(seen.len(), Base::ALL.len());
+    }
+
+    #[test]
+    fn the_geometry_metrics_below_are_exactly_the_geometry_and_colour_bases() {
+        // `sweep::geometry_metrics` names its values; each name must be a base of that kind
+        // and every such base must be there (a renamed metric fails here).
+        let below: Vec<Base> = crate::sweep::GEOMETRY_METRICS
+            .iter()
+            .map(|n| Base::from_name(n).unwrap_or_else(|| panic!("{n} is not a metric")))
+            .collect();
+        let here: Vec<Base> = Base::ALL
+            .into_iter()
+            .filter(|b| matches!(b.kind(), Kind::Geometry | Kind::Colour))
+            .collect();
+        assert_eq!(below, here);
+        assert_eq!(Base::from_name("psnr"), None);
     }
 
     #[test]

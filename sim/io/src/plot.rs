@@ -559,6 +559,106 @@ impl LinePlot {
     }
 }
 
+/// One bar of a [`BarChart`].
+#[derive(Clone, Debug)]
+pub struct Bar {
+    /// Label left of the bar.
+    pub label: String,
+    /// Length (data units, ≥ 0 drawn rightwards, < 0 leftwards).
+    pub value: f64,
+    /// Text written after the bar's end (e.g. the value and a sign).
+    pub note: String,
+}
+
+/// A horizontal bar chart: one labelled bar per item, top to bottom in the given order, each
+/// with its note at its end; the height grows with the number of bars so labels never
+/// overlap. PNG only (the tolerance rankings).
+#[derive(Clone, Debug)]
+pub struct BarChart {
+    /// Title.
+    pub title: String,
+    /// Axis label under the bars (with units).
+    pub x_label: String,
+    /// Bars.
+    pub bars: Vec<Bar>,
+}
+
+/// Bar chart layout: label column, room for the notes, row height (px).
+const BAR_LABEL: f64 = 230.0;
+const BAR_NOTE: f64 = 130.0;
+const BAR_ROW: f64 = 26.0;
+
+impl BarChart {
+    /// The chart's width and height, pixels.
+    pub fn size(&self) -> (usize, usize) {
+        let rows = self.bars.len().max(1) as f64;
+        (W, (TOP + 10.0 + rows * BAR_ROW + 45.0) as usize)
+    }
+
+    /// The x pixel of value `v`, and the axis (lo, hi) in data units.
+    fn scale(&self) -> (f64, f64) {
+        let finite = self.bars.iter().map(|b| b.value).filter(|v| v.is_finite());
+        let lo = finite.clone().fold(0.0, f64::min);
+        let hi = finite.fold(0.0, f64::max);
+        if hi - lo > 0.0 { (lo, hi) } else { (0.0, 1.0) }
+    }
+
+    /// The chart as PNG bytes.
+    pub fn to_png(&self) -> Result<Vec<u8>, String> {
+        let (w, h) = self.size();
+        let mut c = Canvas::new(w, h);
+        let (x0, x1) = (BAR_LABEL, w as f64 - BAR_NOTE);
+        let y0 = TOP + 10.0;
+        let y1 = y0 + self.bars.len().max(1) as f64 * BAR_ROW;
+        let (lo, hi) = self.scale();
+        let px = |v: f64| x0 + (v - lo) / (hi - lo) * (x1 - x0);
+        let axis = Axis { lo, hi, log: false };
+        for v in axis.ticks() {
+            let x = px(v);
+            c.line((x, y0), (x, y1), (221, 221, 221), 1.0);
+            c.text(&fmt_tick(v), x, y1 + 8.0, 1, Align::Centre, (0, 0, 0));
+        }
+        let fit = ((w as f64 - 60.0) / CHAR_PX) as usize;
+        for (k, line) in wrap(&self.title, fit / 2).iter().take(2).enumerate() {
+            c.text(
+                line,
+                w as f64 / 2.0,
+                4.0 + 16.0 * k as f64,
+                2,
+                Align::Centre,
+                (0, 0, 0),
+            );
+        }
+        c.text(
+            &self.x_label,
+            (x0 + x1) / 2.0,
+            y1 + 24.0,
+            1,
+            Align::Centre,
+            (0, 0, 0),
+        );
+        let label_chars = ((BAR_LABEL - 14.0) / CHAR_PX) as usize;
+        let note_chars = ((BAR_NOTE - 8.0) / CHAR_PX) as usize;
+        for (i, b) in self.bars.iter().enumerate() {
+            let top = y0 + i as f64 * BAR_ROW;
+            let (a, z) = (px(0.0), px(if b.value.is_finite() { b.value } else { 0.0 }));
+            let col = COLOURS[i % COLOURS.len()];
+            for y in (top + 5.0) as i64..(top + BAR_ROW - 5.0) as i64 {
+                for x in a.min(z).round() as i64..z.max(a).round() as i64 {
+                    c.blend(x, y, col, 1.0);
+                }
+            }
+            let mid = top + BAR_ROW / 2.0 - 4.0;
+            let label: String = b.label.chars().take(label_chars).collect();
+            c.text(&label, x0 - 8.0, mid, 1, Align::Right, (0, 0, 0));
+            let note: String = b.note.chars().take(note_chars).collect();
+            c.text(&note, z.max(a) + 6.0, mid, 1, Align::Left, (0, 0, 0));
+        }
+        c.line((px(0.0), y0), (px(0.0), y1), (0, 0, 0), 1.0);
+        c.encode()
+    }
+}
+
 enum Align {
     Left,
     Centre,
@@ -721,6 +821,46 @@ impl Canvas {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bar_lengths_follow_the_values_and_rows_grow_with_the_bars() {
+        let chart = |values: &[f64]| BarChart {
+            title: "what costs most".into(),
+            x_label: "share".into(),
+            bars: values
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| Bar {
+                    label: format!("key {i}"),
+                    value: v,
+                    note: format!("{v:.2}"),
+                })
+                .collect(),
+        };
+        let c = chart(&[0.8, 0.2, 0.0]);
+        let png = c.to_png().unwrap();
+        let dec = png::Decoder::new(std::io::Cursor::new(png));
+        let mut r = dec.read_info().unwrap();
+        let mut buf = vec![0; r.output_buffer_size().unwrap()];
+        let info = r.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width as usize, info.height as usize), c.size());
+        // Bar i's length: its colour's pixels along its middle row.
+        let w = info.width as usize;
+        let length = |i: usize| {
+            let y = (TOP + 10.0 + (i as f64 + 0.5) * BAR_ROW) as usize;
+            let col = COLOURS[i];
+            (0..w)
+                .filter(|&x| buf[3 * (y * w + x)..3 * (y * w + x) + 3] == [col.0, col.1, col.2])
+                .count() as f64
+        };
+        let full = (W as f64 - BAR_NOTE - BAR_LABEL) as f64;
+        assert!((length(0) - full).abs() <= 2.0, "{}", length(0));
+        assert!((length(1) - 0.25 * full).abs() <= 2.0, "{}", length(1));
+        assert_eq!(length(2), 0.0);
+        // A wrong value (0.4 instead of 0.2) would fail the check above by 4x its tolerance.
+        assert!((0.5 * full - 0.25 * full).abs() > 8.0);
+        assert!(chart(&[1.0; 12]).size().1 > chart(&[1.0; 3]).size().1 + 8 * BAR_ROW as usize);
+    }
 
     #[test]
     fn log_axes_and_outputs() {

@@ -31,16 +31,30 @@
 //!   noise, reconstructed by ADMM-TV with the nominal H; PSNR against the target. Every draw
 //!   uses the same render seed and noise stream (common random numbers), so draws differ by
 //!   their design only and a nominal draw gives the nominal PSNR exactly.
+//! - `psnr_gain_db` (with `--psnr`): the PSNR of that reconstruction f̂ times its best single
+//!   gain a = ⟨f̂, t⟩/⟨f̂, f̂⟩ (least squares against the target t). A draw that only dims or
+//!   brightens the capture (a pure gain: the reconstruction scales with it, up to the
+//!   regulariser and the noise) loses PSNR but little `psnr_gain_db`; a draw that moves the
+//!   colour bands or the replicas loses both. The gain is the one a flat-field recalibration of
+//!   the exposure would restore (the oracle value here, not estimated from a white frame).
+//! - `metrics` (when a requirement names one of them): the geometry and colour metrics of
+//!   `stscam evaluate` (`sweep::geometry_metrics`: the captured and waveguide throughput FOVs,
+//!   scene field, replicas, efficiency, colour band coverage), each under its `evaluate` name;
+//!   NaN ones (a mono display's band coverage) left out of the JSON. They cost about 0.35 s of
+//!   CPU per draw (field-response quadratures over two field scans and the crop), against
+//!   about 2 ms for the figures above, so they are computed only when asked for.
 //!
 //! # Summary
 //! Scalar figures: the FOVs, `efficiency_min` (smallest peak η over the gratings),
 //! `throughput_on_axis`, `band_shift_on_axis_nm` (grating 0's on-axis Bragg wavelength minus
 //! the nominal), `band_shift_max_nm` (largest |shift| over gratings and fields),
-//! `replica_weight_max` (the strongest on-axis replica) and `psnr_db`. For each: nominal, mean,
-//! sd, min, 5 %, median, 95 %, max. **Yield**: the fraction of draws meeting every threshold
-//! given (`min_fov_deg` on the vertical FOV, `min_efficiency` on `efficiency_min`,
-//! `max_band_shift_nm` on `band_shift_max_nm`, `min_psnr_db`), with each threshold's own pass
-//! fraction. **Sensitivity**: per scalar figure and drawn key, Spearman's rank correlation ρ
+//! `replica_weight_max` (the strongest on-axis replica), each `evaluate` metric a requirement
+//! names (e.g. the captured FOV `fov_capture_vertical_deg`), and `psnr_db` and `psnr_gain_db`. For each: nominal, mean, sd, min, 5 %,
+//! median, 95 %, max. **Yield**: the fraction of draws meeting every threshold given
+//! (`min_fov_deg` on the waveguide's vertical FOV, `min_efficiency` on `efficiency_min`,
+//! `max_band_shift_nm` on `band_shift_max_nm`, `min_psnr_db`, and each `--require NAME>=V` or
+//! `NAME<=V` on the scalar NAME, e.g. `fov_capture_vertical_deg>=30`; a NaN value fails it),
+//! with each threshold's own pass fraction. **Sensitivity**: per scalar figure and drawn key, Spearman's rank correlation ρ
 //! over the draws (average ranks for ties), and the share ρ²/Σρ² — the part of the figure's
 //! rank variance each tolerance explains to first order when the keys are drawn independently
 //! (a monotone, additive reading: interactions are not separated); the keys sorted by it.
@@ -51,6 +65,7 @@
 //! once, and writes what one unsharded run writes, byte for byte: both compute the summary from
 //! the draws' JSON lines as written.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
@@ -58,7 +73,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::analysis;
 use crate::dataset::Shard;
-use crate::plot::{LinePlot, Series};
+use crate::plot::{Bar, BarChart, LinePlot, Series};
 use crate::scene::{SceneError, load_scene};
 use crate::sweep::{PsnrSettings, ResponseGrid, SpectralWeight};
 use crate::system::{System, build_camera, build_waveguide};
@@ -195,6 +210,70 @@ pub struct Thresholds {
     pub max_band_shift_nm: Option<f64>,
     /// Smallest acceptable PSNR, dB.
     pub min_psnr_db: Option<f64>,
+    /// Requirements on any scalar figure by name (`--require NAME>=V`), the geometry and
+    /// colour metrics of `stscam evaluate` among them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub require: Vec<Requirement>,
+}
+
+/// A requirement on one scalar figure of a draw (`--require NAME>=VALUE` or `NAME<=VALUE`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Requirement {
+    /// The figure's name: a scalar of the summary or a name of
+    /// [`GEOMETRY_METRICS`](crate::sweep::GEOMETRY_METRICS).
+    pub figure: String,
+    /// Smallest acceptable value.
+    pub min: Option<f64>,
+    /// Largest acceptable value.
+    pub max: Option<f64>,
+}
+
+impl Requirement {
+    /// Parses `NAME>=VALUE` or `NAME<=VALUE` (the name checked by the run, which knows
+    /// whether the PSNR is drawn).
+    pub fn parse(spec: &str) -> Result<Requirement, ToleranceError> {
+        let err = || {
+            input(format!(
+                "--require {spec:?}: expected NAME>=VALUE or NAME<=VALUE"
+            ))
+        };
+        let (name, value, at_least) = if let Some((a, b)) = spec.split_once(">=") {
+            (a, b, true)
+        } else if let Some((a, b)) = spec.split_once("<=") {
+            (a, b, false)
+        } else {
+            return Err(err());
+        };
+        let v: f64 = value
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(err)?;
+        let figure = name.trim().to_string();
+        if figure.is_empty() {
+            return Err(err());
+        }
+        Ok(Requirement {
+            figure,
+            min: at_least.then_some(v),
+            max: (!at_least).then_some(v),
+        })
+    }
+
+    /// `NAME>=VALUE` or `NAME<=VALUE`.
+    pub fn text(&self) -> String {
+        match (self.min, self.max) {
+            (Some(v), _) => format!("{}>={v}", self.figure),
+            (_, Some(v)) => format!("{}<={v}", self.figure),
+            _ => self.figure.clone(),
+        }
+    }
+
+    /// Whether `v` meets it (NaN never does).
+    pub fn met_by(&self, v: f64) -> bool {
+        !v.is_nan() && self.min.is_none_or(|m| v >= m) && self.max.is_none_or(|m| v <= m)
+    }
 }
 
 /// What a run computes (recorded in `shard.json` and `summary.json`).
@@ -238,6 +317,13 @@ pub struct Figures {
     /// Stale-calibration PSNR, dB.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub psnr_db: Option<f64>,
+    /// The same reconstruction after the best single gain (module notes), dB.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_gain_db: Option<f64>,
+    /// The geometry and colour metrics of `stscam evaluate` (`sweep::geometry_metrics`),
+    /// the finite ones.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub metrics: BTreeMap<String, f64>,
 }
 
 /// One draw: its index, the drawn values (in `--draw` order) and its figures.
@@ -251,7 +337,7 @@ pub struct DrawRecord {
     pub figures: Figures,
 }
 
-/// The figures of `sys` (module notes); `psnr` is filled by the caller.
+/// The figures of `sys` (module notes); the PSNRs are filled by the caller.
 pub fn figures(sys: &System, weight: &SpectralWeight, field_deg: &[f64]) -> Figures {
     let wg = &sys.waveguide;
     let pol = sys.display.polarization_weights;
@@ -297,7 +383,25 @@ pub fn figures(sys: &System, weight: &SpectralWeight, field_deg: &[f64]) -> Figu
         replica_weights,
         band_centre_nm,
         psnr_db: None,
+        psnr_gain_db: None,
+        metrics: BTreeMap::new(),
     }
+}
+
+/// The finite geometry and colour metrics of `sys` (`sweep::geometry_metrics`) by name.
+fn metrics_of(sys: &System) -> BTreeMap<String, f64> {
+    crate::sweep::geometry_metrics(sys)
+        .into_iter()
+        .filter(|(_, v)| v.is_finite())
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+}
+
+/// Whether a requirement names an `evaluate` metric, so that every draw computes them.
+fn needs_metrics(t: &Thresholds) -> bool {
+    t.require
+        .iter()
+        .any(|r| crate::sweep::GEOMETRY_METRICS.contains(&r.figure.as_str()))
 }
 
 /// The nominal system and what every draw shares.
@@ -308,6 +412,8 @@ struct Context<'a> {
     nominal: System,
     weight: SpectralWeight,
     psnr: Option<StaleCalibration>,
+    /// Whether each draw computes the `evaluate` metrics (a requirement names one).
+    metrics: bool,
 }
 
 /// The nominal H and the capture protocol of the stale-calibration PSNR.
@@ -343,8 +449,9 @@ impl StaleCalibration {
         })
     }
 
-    /// PSNR of the target captured through `sys` and reconstructed with the nominal H.
-    fn psnr(&self, sys: &System) -> f64 {
+    /// PSNR of the target captured through `sys` and reconstructed with the nominal H, and
+    /// the PSNR of that reconstruction times its best single gain (module notes).
+    fn psnr(&self, sys: &System) -> (f64, f64) {
         let (_, g) = crate::capture::measured_capture(
             sys,
             &self.truth,
@@ -355,7 +462,11 @@ impl StaleCalibration {
         );
         let pr = &self.problem;
         let f = crate::recon::admm::admm_tv(pr, &pr.back_project(&g), &self.demo.admm).f;
-        crate::recon::metrics::psnr(&f, &self.truth)
+        let gained: Vec<f64> = f.iter().map(|v| v * best_gain(&f, &self.truth)).collect();
+        (
+            crate::recon::metrics::psnr(&f, &self.truth),
+            crate::recon::metrics::psnr(&gained, &self.truth),
+        )
     }
 }
 
@@ -432,8 +543,25 @@ impl Context<'_> {
 
     fn evaluate(&self, sys: &System, field_deg: &[f64]) -> Figures {
         let mut f = figures(sys, &self.weight, field_deg);
-        f.psnr_db = self.psnr.as_ref().map(|p| p.psnr(sys));
+        if self.metrics {
+            f.metrics = metrics_of(sys);
+        }
+        if let Some((p, g)) = self.psnr.as_ref().map(|p| p.psnr(sys)) {
+            f.psnr_db = Some(p);
+            f.psnr_gain_db = Some(g);
+        }
         f
+    }
+}
+
+/// The least-squares gain a = ⟨f, t⟩/⟨f, f⟩ that brings `f` closest to `t` (1 for f = 0).
+pub fn best_gain(f: &[f64], t: &[f64]) -> f64 {
+    let ff: f64 = f.iter().map(|v| v * v).sum();
+    let ft: f64 = f.iter().zip(t).map(|(a, b)| a * b).sum();
+    if ff > 0.0 && ft.is_finite() {
+        ft / ff
+    } else {
+        1.0
     }
 }
 
@@ -523,6 +651,7 @@ pub fn run_tolerance(
         nominal,
         weight,
         psnr,
+        metrics: needs_metrics(&set.thresholds),
     };
     let range = shard.map_or(0..set.samples, |s| s.range(set.samples));
     let values: Vec<Vec<f64>> = range
@@ -567,6 +696,27 @@ fn checked_specs(set: &ToleranceSettings) -> Result<Vec<DrawSpec>, ToleranceErro
     }
     if set.psnr.as_ref().is_some_and(|p| p.spp == 0) {
         return Err(input("--psnr-spp: must be at least 1"));
+    }
+    let known = scalar_names(set.psnr.is_some());
+    for r in &set.thresholds.require {
+        if !known.contains(&r.figure.as_str()) {
+            let psnr = r.figure.starts_with("psnr") && set.psnr.is_none();
+            return Err(input(format!(
+                "--require {}: {}",
+                r.text(),
+                if psnr {
+                    "needs --psnr".to_string()
+                } else {
+                    format!("unknown figure; expected one of {}", known.join(", "))
+                }
+            )));
+        }
+        if !r.min.or(r.max).is_some_and(f64::is_finite) {
+            return Err(input(format!(
+                "--require {}: needs a finite bound",
+                r.text()
+            )));
+        }
     }
     Ok(specs)
 }
@@ -804,8 +954,30 @@ pub struct Summary {
     pub definitions: Vec<(String, String)>,
 }
 
-/// The scalar figures of a draw against the nominal (module notes), by name.
-fn scalars(f: &Figures, nominal: &Figures, with_psnr: bool) -> Vec<(&'static str, f64)> {
+/// The fixed scalar figures, before the captured FOVs and the required metrics.
+const FIXED_SCALARS: [&str; 7] = [
+    "fov_vertical_deg",
+    "fov_horizontal_deg",
+    "efficiency_min",
+    "throughput_on_axis",
+    "band_shift_on_axis_nm",
+    "band_shift_max_nm",
+    "replica_weight_max",
+];
+
+/// Every name a requirement may use.
+fn scalar_names(with_psnr: bool) -> Vec<&'static str> {
+    let mut v: Vec<&'static str> = FIXED_SCALARS.to_vec();
+    v.extend(crate::sweep::GEOMETRY_METRICS);
+    if with_psnr {
+        v.extend(["psnr_db", "psnr_gain_db"]);
+    }
+    v
+}
+
+/// The scalar figures of a draw against the nominal (module notes), by name: the fixed
+/// ones, the `evaluate` metrics a requirement names, the PSNRs.
+fn scalars(f: &Figures, nominal: &Figures, set: &ToleranceSettings) -> Vec<(&'static str, f64)> {
     let shift_on_axis = match (f.bragg_on_axis_nm.first(), nominal.bragg_on_axis_nm.first()) {
         (Some(Some(a)), Some(Some(b))) => a - b,
         _ => f64::NAN,
@@ -843,8 +1015,16 @@ fn scalars(f: &Figures, nominal: &Figures, with_psnr: bool) -> Vec<(&'static str
                 .map_or(0.0, |w| w.iter().copied().fold(0.0, f64::max)),
         ),
     ];
-    if with_psnr {
+    debug_assert!(out.iter().map(|x| x.0).eq(FIXED_SCALARS));
+    for name in crate::sweep::GEOMETRY_METRICS {
+        let required = set.thresholds.require.iter().any(|r| r.figure == name);
+        if required {
+            out.push((name, f.metrics.get(name).copied().unwrap_or(f64::NAN)));
+        }
+    }
+    if set.psnr.is_some() {
         out.push(("psnr_db", f.psnr_db.unwrap_or(f64::NAN)));
+        out.push(("psnr_gain_db", f.psnr_gain_db.unwrap_or(f64::NAN)));
     }
     out
 }
@@ -946,11 +1126,10 @@ fn finish(
         .iter()
         .map(|d| DrawSpec::parse(d).map(|s| s.key))
         .collect::<Result<_, _>>()?;
-    let with_psnr = set.psnr.is_some();
-    let nominal_scalars = scalars(&nominal, &nominal, with_psnr);
+    let nominal_scalars = scalars(&nominal, &nominal, set);
     let per_draw: Vec<Vec<(&str, f64)>> = draws
         .iter()
-        .map(|d| scalars(&d.figures, &nominal, with_psnr))
+        .map(|d| scalars(&d.figures, &nominal, set))
         .collect();
     let column = |i: usize| column_of(&per_draw, i);
     let figures: Vec<(String, Stats)> = nominal_scalars
@@ -978,7 +1157,7 @@ fn finish(
         ("draws.jsonl".to_string(), jsonl(lines)),
         ("summary.json".to_string(), pretty(&summary)?.into_bytes()),
     ];
-    tolerance_plots(&mut files, &summary, &keys, &per_draw)?;
+    tolerance_plots(&mut files, &summary, &per_draw)?;
     Ok((files, summary))
 }
 
@@ -1051,6 +1230,10 @@ fn yield_of(t: &Thresholds, per_draw: &[Vec<(&str, f64)>]) -> Yield {
         });
         Some((flag.to_string(), f))
     })
+    .chain(t.require.iter().map(|r| {
+        let f: Box<dyn Fn(usize) -> bool> = Box::new(move |d| r.met_by(value(d, &r.figure)));
+        (r.text(), f)
+    }))
     .collect();
     let total = per_draw.len();
     let passed = (0..total)
@@ -1078,7 +1261,6 @@ fn yield_of(t: &Thresholds, per_draw: &[Vec<(&str, f64)>]) -> Yield {
 fn tolerance_plots(
     files: &mut Vec<(String, Vec<u8>)>,
     summary: &Summary,
-    keys: &[String],
     per_draw: &[Vec<(&str, f64)>],
 ) -> Result<(), ToleranceError> {
     for (i, (name, st)) in summary.figures.iter().enumerate() {
@@ -1086,7 +1268,7 @@ fn tolerance_plots(
             .to_png()
             .map_err(|e| input(format!("plot {name}: {e}")))?;
         files.push((format!("hist_{name}.png"), png));
-        let png = ranking_plot(name, &summary.ranking[i].1, keys)
+        let png = ranking_plot(name, &summary.ranking[i].1)
             .to_png()
             .map_err(|e| input(format!("plot {name}: {e}")))?;
         files.push((format!("ranking_{name}.png"), png));
@@ -1125,8 +1307,16 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
         "target captured through the drawn design (render at psnr spp, seed + 1, sensor noise; the same render seed and noise for every draw), reconstructed by ADMM-TV with the nominal design's H at psnr spp and seed; PSNR against the target",
     ),
     (
+        "psnr_gain_db",
+        "PSNR of the same reconstruction times its best single gain a = <f, t>/<f, f> (least squares against the target): a pure brightness change costs psnr_db but little psnr_gain_db",
+    ),
+    (
+        "metrics",
+        "the geometry and colour metrics of `stscam evaluate` (captured and waveguide throughput FOVs, scene field, replicas, efficiency, band coverage) under their evaluate names; non-finite ones left out",
+    ),
+    (
         "yield",
-        "fraction of draws meeting every threshold given: fov_vertical_deg >= min_fov_deg, efficiency_min >= min_efficiency, band_shift_max_nm <= max_band_shift_nm, psnr_db >= min_psnr_db; std_error = sqrt(f (1-f)/n)",
+        "fraction of draws meeting every threshold given: fov_vertical_deg >= min_fov_deg, efficiency_min >= min_efficiency, band_shift_max_nm <= max_band_shift_nm, psnr_db >= min_psnr_db, and each require (NAME>=V or NAME<=V on that scalar; NaN fails); std_error = sqrt(f (1-f)/n)",
     ),
     (
         "ranking",
@@ -1170,9 +1360,13 @@ fn csv(keys: &[String], nominal: &Figures, draws: &[DrawRecord]) -> Vec<u8> {
     for j in 0..ng {
         head.extend((0..nf).map(|k| format!("band_centre_nm_g{j}_f{k}")));
     }
+    let metrics = draws.iter().any(|d| !d.figures.metrics.is_empty());
+    if metrics {
+        head.extend(crate::sweep::GEOMETRY_METRICS.map(String::from));
+    }
     let psnr = draws.iter().any(|d| d.figures.psnr_db.is_some());
     if psnr {
-        head.push("psnr_db".into());
+        head.extend(["psnr_db".into(), "psnr_gain_db".into()]);
     }
     let mut out = head.join(",") + "\n";
     for d in draws {
@@ -1207,8 +1401,15 @@ fn csv(keys: &[String], nominal: &Figures, draws: &[DrawRecord]) -> Vec<u8> {
                     .map_or(String::new(), num)
             }));
         }
+        if metrics {
+            row.extend(
+                crate::sweep::GEOMETRY_METRICS
+                    .map(|m| f.metrics.get(m).map_or(String::new(), |&v| num(v))),
+            );
+        }
         if psnr {
             row.push(f.psnr_db.map_or(String::new(), num));
+            row.push(f.psnr_gain_db.map_or(String::new(), num));
         }
         out.push_str(&row.join(","));
         out.push('\n');
@@ -1263,36 +1464,43 @@ fn histogram(name: &str, values: &[f64], nominal: f64) -> LinePlot {
 
 /// The ranking of one figure: per key (x = its position in the `--draw` list, from 1) a bar
 /// of height ρ² share, named in the legend.
-fn ranking_plot(name: &str, ranking: &[Sensitivity], keys: &[String]) -> LinePlot {
-    let series = keys
-        .iter()
-        .enumerate()
-        .map(|(i, k)| {
-            let share = ranking
-                .iter()
-                .find(|s| &s.key == k)
-                .map_or(0.0, |s| s.share);
-            let x = (i + 1) as f64;
-            Series {
-                name: k.trim_start_matches("hoe.").to_string(),
-                points: vec![(x, 0.0), (x, share)],
-            }
-        })
-        .collect();
-    LinePlot {
+fn ranking_plot(name: &str, ranking: &[Sensitivity]) -> BarChart {
+    BarChart {
         title: format!("what costs most: {name}"),
-        x_label: "drawn key (--draw order)".into(),
-        y_label: "share of rank variance (rho^2 / sum)".into(),
-        log_x: false,
-        log_y: false,
-        series,
-        h_line: None,
+        x_label: "share of rank variance (rho^2 / sum over the drawn keys)".into(),
+        bars: ranking
+            .iter()
+            .map(|s| Bar {
+                label: s.key.trim_start_matches("hoe.").to_string(),
+                value: s.share,
+                note: format!("{:.2} (rho {:+.2})", s.share, s.rho),
+            })
+            .collect(),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_best_gain_undoes_a_scale_and_never_does_worse_than_one() {
+        let t = [0.2, 0.9, 0.5, 0.0];
+        let f: Vec<f64> = t.iter().map(|v| 0.4 * v).collect();
+        assert!((best_gain(&f, &t) - 2.5).abs() < 1e-12);
+        let noisy = [0.1, 1.0, 0.45, 0.05];
+        let a = best_gain(&noisy, &t);
+        let sse = |a: f64| -> f64 { noisy.iter().zip(&t).map(|(x, y)| (a * x - y).powi(2)).sum() };
+        assert!(sse(a) <= sse(1.0) && sse(a) <= sse(a + 1e-3) && sse(a) <= sse(a - 1e-3));
+        assert_eq!(best_gain(&[0.0; 4], &t), 1.0);
+        let r = Requirement::parse("efficiency_mean <= 0.5").unwrap();
+        assert_eq!(
+            (r.figure.as_str(), r.max, r.text()),
+            ("efficiency_mean", Some(0.5), "efficiency_mean<=0.5".into())
+        );
+        assert!(r.met_by(0.5) && !r.met_by(0.6) && !r.met_by(f64::NAN));
+        assert!(Requirement::parse("a>=nan").is_err() && Requirement::parse(">=1").is_err());
+    }
 
     #[test]
     fn draw_specs_parse_and_fail_with_the_flag() {

@@ -82,9 +82,11 @@
 //! docs/design.md (sweeps of vHOE size against FOV).
 
 mod figures;
+mod metrics;
 mod scan;
 
 pub use figures::DEFINITIONS;
+pub use metrics::{BAND_ROWS, GEOMETRY_METRICS, geometry_metrics};
 pub use scan::{
     SpectralWeight, design_figures, field_response, field_response_of, psnr_demo_settings,
     psnr_figure, psnr_figures, psnr_problem, psnr_target, run_sweep, run_sweep_from, scan_response,
