@@ -467,6 +467,9 @@ pub fn optimize(
             .iter()
             .filter(|(i, _)| !records.iter().any(|r| r.index == *i))
             .collect();
+        // Finished records in completion order, for the progress line only (the run's records
+        // are collected in index order below).
+        let live = std::sync::Mutex::new(records.clone());
         let new: Vec<Result<Record, OptimizeError>> = todo
             .par_iter()
             .map(|(index, u)| {
@@ -491,13 +494,16 @@ pub fn optimize(
                 writeln!(f, "{}", r.to_line())
                     .and_then(|()| f.sync_data())
                     .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+                // One progress line as each evaluation finishes (under the checkpoint's lock,
+                // so lines never interleave).
+                let mut done = live.lock().unwrap_or_else(|p| p.into_inner());
+                done.push(r.clone());
+                on_record(&r, best_of(&done).map(|b| b * sign));
                 Ok(r)
             })
             .collect();
         for r in new {
-            let r = r?;
-            records.push(r.clone());
-            on_record(&r, best_of(&records).map(|b| b * sign));
+            records.push(r?);
         }
         records.sort_by_key(|r| r.index);
         step += 1;

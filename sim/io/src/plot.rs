@@ -267,11 +267,13 @@ impl LinePlot {
     pub fn to_svg(&self) -> String {
         let (ax, ay) = self.axes();
         let mut s = String::new();
+        // Taller than the plot when the legend needs it: a legend is never cut.
+        let h = H.max((TOP + 10.0 + 20.0 * self.series.len() as f64) as usize);
         let _ = write!(
             s,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="13">"#
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{h}" viewBox="0 0 {W} {h}" font-family="sans-serif" font-size="13">"#
         );
-        let _ = write!(s, r#"<rect width="{W}" height="{H}" fill="white"/>"#);
+        let _ = write!(s, r#"<rect width="{W}" height="{h}" fill="white"/>"#);
         self.svg_title(&mut s);
         Self::svg_grid(&mut s, &ax, &ay);
         self.svg_frame(&mut s, &ax, &ay);
@@ -453,8 +455,23 @@ impl LinePlot {
     }
     /// The plot as an 8-bit RGB PNG (labels drawn in the 5×7 font, upper case).
     pub fn to_png(&self) -> Result<Vec<u8>, String> {
+        self.canvas().encode()
+    }
+
+    /// The PNG's height: the plot's, or more when the legend needs it (never cut).
+    fn png_height(&self) -> usize {
+        let legend: f64 = self
+            .series
+            .iter()
+            .map(|s| 9.0 + 11.0 * wrap(&s.name, LEGEND_CHARS).len() as f64)
+            .sum();
+        H.max((TOP + 10.0 + legend) as usize)
+    }
+
+    /// The plot drawn (the PNG's pixels).
+    fn canvas(&self) -> Canvas {
         let (ax, ay) = self.axes();
-        let mut c = Canvas::new(W, H);
+        let mut c = Canvas::new(W, self.png_height());
         let (x0, x1, y0, y1) = (LEFT, W as f64 - RIGHT, TOP, H as f64 - BOTTOM);
         let grey = (221, 221, 221);
         for v in ax.ticks() {
@@ -555,8 +572,65 @@ impl LinePlot {
             }
             ly += 9.0 + 11.0 * lines.len() as f64;
         }
-        c.encode()
+        c
     }
+}
+
+/// Small multiples: `panels` side by side, `cols` to a row, under one title; each panel is a
+/// whole [`LinePlot`] (its own axes and legend). For sweeps over three or more keys, where one
+/// plot would hold too many curves to tell apart.
+pub fn grid_png(title: &str, panels: &[LinePlot], cols: usize) -> Result<Vec<u8>, String> {
+    let cols = cols.clamp(1, panels.len().max(1));
+    let canvases: Vec<Canvas> = panels.iter().map(LinePlot::canvas).collect();
+    let ph = canvases.iter().map(|c| c.h).max().unwrap_or(H);
+    let rows = panels.len().div_ceil(cols).max(1);
+    let head = 34;
+    let mut c = Canvas::new(cols * W, head + rows * ph);
+    c.text(
+        title,
+        (cols * W) as f64 / 2.0,
+        8.0,
+        2,
+        Align::Centre,
+        (0, 0, 0),
+    );
+    for (k, p) in canvases.iter().enumerate() {
+        let (x0, y0) = ((k % cols) * W, head + (k / cols) * ph);
+        for y in 0..p.h {
+            let dst = (y0 + y) * c.w + x0;
+            c.px[dst..dst + p.w].copy_from_slice(&p.px[y * p.w..(y + 1) * p.w]);
+        }
+    }
+    c.encode()
+}
+
+/// The SVG of [`grid_png`]: each panel's own SVG nested at its place.
+pub fn grid_svg(title: &str, panels: &[LinePlot], cols: usize) -> String {
+    let cols = cols.clamp(1, panels.len().max(1));
+    let svgs: Vec<String> = panels.iter().map(LinePlot::to_svg).collect();
+    let ph = panels
+        .iter()
+        .map(|p| H.max((TOP + 10.0 + 20.0 * p.series.len() as f64) as usize))
+        .max()
+        .unwrap_or(H);
+    let rows = panels.len().div_ceil(cols).max(1);
+    let (w, h) = (cols * W, 34 + rows * ph);
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="13"><rect width="{w}" height="{h}" fill="white"/><text x="{}" y="24" text-anchor="middle" font-size="18">{}</text>"#,
+        w as f64 / 2.0,
+        esc(title)
+    );
+    for (k, p) in svgs.iter().enumerate() {
+        let (x0, y0) = ((k % cols) * W, 34 + (k / cols) * ph);
+        s.push_str(
+            &p.trim_end()
+                .replacen("<svg ", &format!(r#"<svg x="{x0}" y="{y0}" "#), 1),
+        );
+    }
+    s.push_str("</svg>\n");
+    s
 }
 
 /// One bar of a [`BarChart`].
@@ -821,6 +895,46 @@ impl Canvas {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A legend longer than the plot makes the image taller instead of running off it: the
+    /// last entry's text is inside the PNG and the SVG.
+    #[test]
+    fn a_long_legend_grows_the_image_instead_of_being_cut() {
+        let plot = |n: usize| LinePlot {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            log_x: false,
+            log_y: false,
+            series: (0..n)
+                .map(|i| Series {
+                    name: format!("curve {i} with a name long enough to wrap onto two lines"),
+                    points: vec![(0.0, i as f64), (1.0, i as f64)],
+                })
+                .collect(),
+            h_line: None,
+        };
+        assert_eq!(plot(3).png_height(), H);
+        let p = plot(30);
+        let last = TOP + 10.0 + 29.0 * (9.0 + 22.0) + 22.0;
+        assert!(p.png_height() as f64 >= last, "{} < {last}", p.png_height());
+        let dec = png::Decoder::new(std::io::Cursor::new(p.to_png().unwrap()));
+        assert_eq!(
+            dec.read_info().unwrap().info().height as usize,
+            p.png_height()
+        );
+        let svg = p.to_svg();
+        let h: f64 = svg
+            .split("height=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(h >= TOP + 10.0 + 20.0 * 29.0 + 4.0, "{h}");
+    }
 
     #[test]
     fn bar_lengths_follow_the_values_and_rows_grow_with_the_bars() {

@@ -327,43 +327,75 @@ fn quantities(with_psnr: bool) -> Vec<Quantity> {
     q
 }
 
-/// The plot of one quantity against the first axis: one series per curve and combination of
-/// the other axes' values.
-fn quantity_plot(axes: &[VaryAxis], rows: &[SweepRow], q: &Quantity) -> LinePlot {
+/// Most curves one panel holds: beyond it the colours and dashes would repeat.
+const MAX_CURVES: usize = 12;
+/// Most panels of one quantity's small multiples (the rest are in `sweep.csv`).
+pub const MAX_PANELS: usize = 36;
+
+/// The panels of one quantity against the first axis (docs/sweeps.md, "Plots"): with the
+/// second axis as curves (one per value and part) when that stays within [`MAX_CURVES`], and
+/// one panel per combination of the remaining axes; a sweep over one or two axes is one panel.
+/// Returns the panels (at most [`MAX_PANELS`]) and how many there would be.
+fn quantity_panels(axes: &[VaryAxis], rows: &[SweepRow], q: &Quantity) -> (Vec<LinePlot>, usize) {
     let n_first = axes[0].steps;
     let combos = rows.len() / n_first.max(1);
-    let mut series = Vec::new();
-    for j in 0..combos {
-        let others: Vec<String> = rows[j].varied[1..]
+    let parts = q.parts.len();
+    // The second axis as curves, or every other axis as panels.
+    let curves_axis = axes.len() >= 2 && parts * axes[1].steps <= MAX_CURVES;
+    let per_panel = if curves_axis { axes[1].steps } else { 1 };
+    let n_panels = combos / per_panel.max(1);
+    let panel_axes = if curves_axis { 2 } else { 1 };
+    let label = |j: usize, from: usize, to: usize| -> Vec<String> {
+        rows[j].varied[from..to]
             .iter()
             .map(|v| format!("{}={}", v.key, v.value))
-            .collect();
-        for (name, get) in &q.parts {
-            let mut label: Vec<String> = Vec::new();
-            if q.parts.len() > 1 || others.is_empty() {
-                label.push((*name).to_string());
+            .collect()
+    };
+    let panels = (0..n_panels.min(MAX_PANELS))
+        .map(|k| {
+            let mut series = Vec::new();
+            for c in 0..per_panel {
+                // Combination index of the other axes (second axis slowest among them).
+                let j = c * n_panels + k;
+                let curve = if curves_axis {
+                    label(j, 1, 2)
+                } else {
+                    Vec::new()
+                };
+                for (name, get) in &q.parts {
+                    let mut l: Vec<String> = Vec::new();
+                    if parts > 1 || curve.is_empty() {
+                        l.push((*name).to_string());
+                    }
+                    l.extend(curve.iter().cloned());
+                    series.push(Series {
+                        name: l.join(", "),
+                        points: (0..n_first)
+                            .map(|i| {
+                                let r = &rows[i * combos + j];
+                                (r.varied[0].value, get(&r.figures))
+                            })
+                            .collect(),
+                    });
+                }
             }
-            label.extend(others.iter().cloned());
-            series.push(Series {
-                name: label.join(", "),
-                points: (0..n_first)
-                    .map(|i| {
-                        let r = &rows[i * combos + j];
-                        (r.varied[0].value, get(&r.figures))
-                    })
-                    .collect(),
-            });
-        }
-    }
-    LinePlot {
-        title: q.title.to_string(),
-        x_label: axis_label(&axes[0].key),
-        y_label: q.y_label.to_string(),
-        log_x: false,
-        log_y: false,
-        series,
-        h_line: None,
-    }
+            let rest = label(k, panel_axes, axes.len());
+            LinePlot {
+                title: if rest.is_empty() {
+                    q.title.to_string()
+                } else {
+                    rest.join(", ")
+                },
+                x_label: axis_label(&axes[0].key),
+                y_label: q.y_label.to_string(),
+                log_x: false,
+                log_y: false,
+                series,
+                h_line: None,
+            }
+        })
+        .collect();
+    (panels, n_panels)
 }
 
 pub(super) fn encode_outputs(
@@ -403,15 +435,30 @@ pub(super) fn encode_outputs(
         serde_json::to_vec_pretty(&json).map_err(|e| SweepError::Output(e.to_string()))?,
     ));
     for q in quantities(with_psnr) {
-        let mut plot = quantity_plot(axes, rows, &q);
+        let (mut panels, n) = quantity_panels(axes, rows, &q);
+        let mut title = q.title.to_string();
         if q.stem.starts_with("fov") {
-            let _ = write!(plot.title, " (T >= {} of peak)", set.fov_fraction);
+            let _ = write!(title, " (T >= {} of peak)", set.fov_fraction);
         }
-        files.push((
-            format!("{}.png", q.stem),
-            plot.to_png().map_err(SweepError::Output)?,
-        ));
-        files.push((format!("{}.svg", q.stem), plot.to_svg().into_bytes()));
+        let (png, svg) = if let [plot] = panels.as_mut_slice() {
+            plot.title = title;
+            (plot.to_png(), plot.to_svg())
+        } else {
+            if n > panels.len() {
+                let _ = write!(
+                    title,
+                    " (first {} of {n} panels; all in sweep.csv)",
+                    panels.len()
+                );
+            }
+            let cols = (panels.len() as f64).sqrt().ceil() as usize;
+            (
+                crate::plot::grid_png(&title, &panels, cols),
+                crate::plot::grid_svg(&title, &panels, cols),
+            )
+        };
+        files.push((format!("{}.png", q.stem), png.map_err(SweepError::Output)?));
+        files.push((format!("{}.svg", q.stem), svg.into_bytes()));
     }
     Ok(files)
 }
@@ -437,5 +484,73 @@ mod tests {
             "hoe.amplitude_absorption_per_mm (1/mm)"
         );
         assert_eq!(axis_label("hoe.index_modulation"), "hoe.index_modulation");
+    }
+
+    /// A 4 x 3 x 2 grid: the second axis becomes curves, the third panels, and each curve
+    /// holds the values of its own grid points (a row index mixed up fails the point check).
+    #[test]
+    fn three_axes_make_small_multiples_with_the_right_points() {
+        let sys =
+            crate::system::System::build(&crate::scene::load_scene(None, &[]).unwrap()).unwrap();
+        let base = super::super::design_figures(&sys, &SweepSettings::default());
+        let axes: Vec<VaryAxis> = [("a", 4), ("b", 3), ("c", 2)]
+            .iter()
+            .map(|&(k, n)| VaryAxis {
+                key: k.into(),
+                start: 0.0,
+                stop: (n - 1) as f64,
+                steps: n,
+            })
+            .collect();
+        let mut rows = Vec::new();
+        for a in 0..4 {
+            for b in 0..3 {
+                for c in 0..2 {
+                    let mut f = base.clone();
+                    // The value encodes the grid point.
+                    f.efficiency_peak = (100 * a + 10 * b + c) as f64;
+                    rows.push(SweepRow {
+                        varied: [("a", a), ("b", b), ("c", c)]
+                            .iter()
+                            .map(|&(k, v)| super::super::VariedValue {
+                                key: k.into(),
+                                value: v as f64,
+                            })
+                            .collect(),
+                        figures: f,
+                    });
+                }
+            }
+        }
+        let q = quantities(false)
+            .into_iter()
+            .find(|q| q.stem == "efficiency")
+            .unwrap();
+        let (panels, n) = quantity_panels(&axes, &rows, &q);
+        assert_eq!((panels.len(), n), (2, 2));
+        for (c, p) in panels.iter().enumerate() {
+            assert_eq!(p.title, format!("c={c}"));
+            assert_eq!(p.series.len(), 3 * 3);
+            for (i, s) in p.series.iter().enumerate() {
+                let b = i / 3;
+                if i % 3 == 0 {
+                    assert_eq!(s.name, format!("peak, b={b}"));
+                    let want: Vec<(f64, f64)> = (0..4)
+                        .map(|a| (a as f64, (100 * a + 10 * b + c) as f64))
+                        .collect();
+                    assert_eq!(s.points, want);
+                }
+            }
+        }
+        // Too many curves for the second axis (3 parts x 5 values > 12): every other axis
+        // makes panels, one curve per part.
+        let mut wide = axes.clone();
+        wide[1].steps = 5;
+        let rows5: Vec<SweepRow> = (0..4 * 5 * 2)
+            .map(|i| rows[i % rows.len()].clone())
+            .collect();
+        let (panels, n) = quantity_panels(&wide, &rows5, &q);
+        assert_eq!((n, panels[0].series.len()), (10, 3));
+        assert_eq!(panels[0].title, "b=0, c=0");
     }
 }
