@@ -1213,6 +1213,8 @@ fn sensor_noise<'py>(
         )));
     }
     let sys = load_job(py, &scene)?;
+    stscam::noise::SensorNoise::check_white_peak(&sys.scene.noise, white_peak)
+        .map_err(value_error)?;
     let noise = stscam::noise::SensorNoise::new(&sys.scene.noise, white_peak);
     let out = run_job(py, None, || {
         stscam::noise::measure_capture(&noise, &clean, seed)

@@ -100,3 +100,56 @@ fn grating_bad_input_is_one_line_exit_2() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// `--field-deg` means what it means in every other command (the viewing direction,
+/// docs/cli.md): the Kogelnik +1 order of `grating --field-deg 0,10` peaks at the Bragg
+/// wavelength the tracer gives the chief ray at vertical field +10° (`analysis::field_direction`,
+/// the band centre of `tolerance --field-deg 10`), within the 0.05 nm grid. The opposite sign,
+/// the convention `grating` had before, peaks about 40 nm away and fails.
+#[test]
+fn grating_field_angles_are_the_tracers_field_angles() {
+    use stscam::analysis::field_direction;
+    let sys =
+        stscam::system::System::build(&stscam::scene::load_scene(None, &[]).unwrap()).unwrap();
+    let peak = |field: &str| {
+        let r = stscam_json(&[
+            "grating",
+            "--model",
+            "kogelnik",
+            "--field-deg",
+            field,
+            "--lambda-nm",
+            "450:620:3401",
+            "--json",
+        ]);
+        let eta = order(&r, "reflected", 1)["eta_te"]
+            .as_array()
+            .unwrap()
+            .clone();
+        let lambdas = r["lambda_nm"].as_array().unwrap().clone();
+        let best = (0..eta.len())
+            .max_by(|&a, &b| {
+                eta[a]
+                    .as_f64()
+                    .unwrap()
+                    .total_cmp(&eta[b].as_f64().unwrap())
+            })
+            .unwrap();
+        lambdas[best].as_f64().unwrap()
+    };
+    let bragg = |deg: f64| {
+        sys.waveguide.gratings.as_slice()[0]
+            .bragg_wavelength_nm(-field_direction(deg, true).truncate())
+            .unwrap()
+    };
+    let (want, got) = (bragg(10.0), peak("0,10"));
+    assert!(
+        (got - want).abs() <= 0.06,
+        "grating {got} nm, tracer {want} nm"
+    );
+    assert!(
+        (bragg(-10.0) - got).abs() > 10.0,
+        "the signs must be told apart"
+    );
+    assert!((peak("0,-10") - bragg(-10.0)).abs() <= 0.06);
+}

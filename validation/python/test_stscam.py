@@ -756,6 +756,11 @@ def test_render_with_sensor_noise_is_sensor_noise_of_the_clean_render(scene):
     noisy = stscam.render(scene, spp=SPP, seed=3, noise="sensor", white_peak=0.05).image
     assert same_bits(noisy, stscam.sensor_noise(scene, clean, seed=3, white_peak=0.05))
     assert not same_bits(noisy, clean)
+    # A white peak whose full scale does not fit float32 is refused, not stored as infinity.
+    for bad in (1e300, 1e-300, 0.0, float("nan")):
+        with pytest.raises(ValueError, match="white peak|white_peak"):
+            stscam.sensor_noise(scene, clean, seed=3, white_peak=bad)
+    assert np.isfinite(stscam.sensor_noise(scene, clean * 1e30, seed=3, white_peak=1e36)).all()
 
 
 # --- Framing warnings and conventions ---

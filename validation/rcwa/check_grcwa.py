@@ -47,9 +47,10 @@ DESIGNS = [
      "460:620:3"),
     ("index modulation 0.05", ["--set", "hoe.index_modulation=0.05"], "532:540:2"),
     ("5 um film", ["--set", "hoe.film_thickness_um=5"], "525:532:2"),
-    ("10 deg conical incidence", ["--field-deg", "10,0"], "526:530:2"),
+    # --field-deg is the viewing direction (docs/cli.md): light travelling along +10 deg in x.
+    ("10 deg conical incidence", ["--field-deg", "-10,0"], "526:530:2"),
     ("TM near Brewster (incident and diffracted waves ~perpendicular, contact stack)",
-     ["--field-deg", "0,21.9", "--stack", "contact"], "436:438:2"),
+     ["--field-deg", "0,-21.9", "--stack", "contact"], "436:438:2"),
 ]
 HARMONICS = 4
 SLICES = 12

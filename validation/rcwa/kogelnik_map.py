@@ -20,7 +20,9 @@ import subprocess
 def run(exe, model, stack, x, y, band):
     out = subprocess.run(
         [exe, "grating", "--model", model, "--stack", stack, "--json", "--lambda-nm", band,
-         f"--field-deg={x},{y}"], check=True, capture_output=True, text=True).stdout
+         # The map's (x, y) are the light's travel direction (tan x, tan y, 1); --field-deg is
+         # the viewing direction, the opposite (docs/cli.md).
+         f"--field-deg={-x},{-y}"], check=True, capture_output=True, text=True).stdout
     rep = json.loads(out)
     return {(o["side"], o["order"]): o for o in rep["orders"]}, rep["lambda_nm"]
 

@@ -189,6 +189,28 @@ impl SensorNoise {
         }
     }
 
+    /// Checks that `white_peak` gives an exposure whose values fit float32, as captures are
+    /// stored: the full scale in capture units (white_peak / exposure_fraction) at most 10³⁷
+    /// and one DN in capture units at least 10⁻³⁰ (below, every value would round to 0 or a
+    /// denormal; above, a saturated pixel would be stored as infinity). The message names the
+    /// value and the range.
+    pub fn check_white_peak(desc: &NoiseDesc, white_peak: f64) -> Result<(), String> {
+        let n = SensorNoise::new(desc, white_peak);
+        let full_scale_units = n.full_scale_dn / n.dn_per_unit();
+        let dn_units = 1.0 / n.dn_per_unit();
+        if white_peak.is_finite()
+            && white_peak > 0.0
+            && full_scale_units <= 1e37
+            && dn_units >= 1e-30
+        {
+            Ok(())
+        } else {
+            Err(format!(
+                "white peak {white_peak}: must be a positive number that puts the sensor's full scale (white peak / exposure_fraction) at most 1e37 and one DN at least 1e-30 capture units, so that captures fit float32"
+            ))
+        }
+    }
+
     /// One capture unit in DN.
     pub fn dn_per_unit(&self) -> f64 {
         self.electrons_per_unit / self.electrons_per_dn
@@ -317,6 +339,22 @@ pub fn measure_capture(noise: &SensorNoise, clean: &[f64], seed: u64) -> Vec<f32
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// White peaks that would store infinities or zeros are refused; ordinary ones pass, and
+    /// at the edge of the range a saturated pixel is still a finite float32.
+    #[test]
+    fn white_peaks_outside_float32_are_refused() {
+        let d = desc();
+        for bad in [1e300, 1e-300, 0.0, -1.0, f64::NAN, f64::INFINITY, 1e38] {
+            assert!(SensorNoise::check_white_peak(&d, bad).is_err(), "{bad}");
+        }
+        for good in [1e-3, 1.0, 2.5e4, 1e36] {
+            assert!(SensorNoise::check_white_peak(&d, good).is_ok(), "{good}");
+            let n = SensorNoise::new(&d, good);
+            let v = n.measure(1e300, &mut NoiseRng::new(&[1]));
+            assert!((v as f32).is_finite() && v > 0.0, "{good}: {v}");
+        }
+    }
 
     fn normal_cdf(x: f64) -> f64 {
         // Abramowitz & Stegun 7.1.26 for erf, |error| < 1.5e-7.

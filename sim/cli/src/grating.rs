@@ -33,7 +33,8 @@ pub struct GratingOptions {
         default_value = "500:560:61"
     )]
     pub lambda_nm: String,
-    /// Field angles X,Y in degrees: the light travels in air along (tan X, tan Y, 1)/‖·‖.
+    /// Field angles X,Y in degrees, as every command's: the camera looks along
+    /// (tan X, tan Y, −1)/‖·‖, so the light from the user travels along (−tan X, −tan Y, 1)/‖·‖.
     #[arg(
         long = "field-deg",
         value_name = "X,Y",

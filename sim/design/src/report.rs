@@ -236,7 +236,8 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
                 title: format!("{name0} against {}", p.name()),
                 x_label: p.keys[0].clone(),
                 y_label: name0.clone(),
-                log_x: false,
+                // A parameter searched in log space is plotted on a log axis.
+                log_x: matches!(p.domain, crate::study::Domain::Range { log: true, .. }),
                 log_y: false,
                 series: vec![
                     scatter(

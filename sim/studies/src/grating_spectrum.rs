@@ -107,11 +107,14 @@ pub fn stack_media(s: &Scene, kind: StackKind, lambda_nm: f64) -> Stack {
     }
 }
 
-/// Tangential direction cosines u of a user-side field direction (tan X, tan Y, 1)/‖·‖.
+/// Tangential direction cosines u of the light of field angles `field_deg` (X, Y), the
+/// viewing convention of every command (`analysis::field_direction`, docs/cli.md): the camera
+/// looks along (tan X, tan Y, −1)/‖·‖, so the light from the user side travels along
+/// (−tan X, −tan Y, 1)/‖·‖.
 pub fn field_u(field_deg: [f64; 2]) -> DVec2 {
     let d = DVec3::new(
-        field_deg[0].to_radians().tan(),
-        field_deg[1].to_radians().tan(),
+        -field_deg[0].to_radians().tan(),
+        -field_deg[1].to_radians().tan(),
         1.0,
     )
     .normalize();
