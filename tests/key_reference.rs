@@ -406,3 +406,81 @@ fn the_command_check_sees_every_command_and_can_fail() {
     let section = cli_section(doc, "render").unwrap();
     assert!(section.contains("--set") && !section.contains("--spectral"));
 }
+
+/// The dataset recipe reference (`docs/datasets.md`, "Recipe keys") against the code: every
+/// field serde accepts in every recipe table (top level, `[scene]`, `[split]`, `[objects]`,
+/// each generator of `[[objects.sources]]`, `[[vary]]`, `[depth]`, `[camera_table]`) is in a
+/// table row of that section. The fields come from serde's own "unknown field" message for a
+/// made-up field put into each table, so a new recipe key without a row fails here; a key
+/// name that is not in the section (checked with a made-up name) fails too.
+#[test]
+fn every_recipe_key_is_in_the_datasets_reference() {
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/datasets.md"))
+        .expect("docs/datasets.md is readable");
+    let section = doc
+        .split("## Recipe keys")
+        .nth(1)
+        .and_then(|s| s.split("\n## ").next())
+        .expect("docs/datasets.md has a Recipe keys section");
+    let rows: BTreeSet<String> = section
+        .lines()
+        .filter(|l| l.starts_with("| `"))
+        .flat_map(|l| {
+            // The first cell may name several keys: `train`, `val`, `test`.
+            let cell = l.split('|').nth(1).unwrap_or("");
+            cell.split('`')
+                .skip(1)
+                .step_by(2)
+                .map(str::to_string)
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let base = "name = \"t\"\nseed = 1\nsamples = 10\nmode = \"render\"\n\
+                [split]\ntrain = 0.8\nval = 0.1\ntest = 0.1\n";
+    let objects =
+        |source: &str| format!("[objects]\nsize_px = 64\n[[objects.sources]]\n{source}\n");
+    let probe = format!("{PROBE} = 0");
+    let cases: Vec<(&str, String)> = vec![
+        ("top level", format!("{probe}\n{base}{}", objects("generator = \"shapes\""))),
+        ("[scene]", format!("{base}[scene]\n{probe}\n{}", objects("generator = \"shapes\""))),
+        ("[split]", format!("{base}{probe}\n{}", objects("generator = \"shapes\""))),
+        (
+            "[objects]",
+            format!("{base}[objects]\n{probe}\nsize_px = 64\n[[objects.sources]]\ngenerator = \"shapes\"\n"),
+        ),
+        ("[[vary]]", format!("{base}{}[[vary]]\n{probe}\n", objects("generator = \"shapes\""))),
+        ("[depth]", format!("{base}{}[depth]\n{probe}\n", objects("generator = \"shapes\""))),
+        (
+            "[camera_table]",
+            format!("{base}{}[camera_table]\n{probe}\n", objects("generator = \"shapes\"")),
+        ),
+    ]
+    .into_iter()
+    .chain(
+        ["glyphs", "shapes", "siemens", "bars", "smooth", "images", "meshes"]
+            .into_iter()
+            .map(|g| ("[[objects.sources]]", format!("{base}{}", objects(&format!("generator = \"{g}\"\n{probe}"))))),
+    )
+    .collect();
+    let mut missing = Vec::new();
+    for (table, text) in &cases {
+        let (_, msg) = stscam::dataset::recipe::parse_recipe(text)
+            .err()
+            .unwrap_or_else(|| panic!("{table}: a made-up key was accepted"));
+        let fields = parse_unknown_field(&msg)
+            .unwrap_or_else(|| panic!("{table}: not an unknown-field message: {msg}"));
+        for f in fields {
+            // A table is documented by its own heading (`[scene]`, `[[vary]]`).
+            let heading = [format!("`[{f}]`"), format!("`[[{f}]]`")];
+            if !rows.contains(&f) && !heading.iter().any(|h| section.contains(h.as_str())) {
+                missing.push(format!("{table} {f}"));
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "recipe keys without a row in docs/datasets.md: {missing:?}"
+    );
+    // The check can fail: a made-up name is not in the section.
+    assert!(!rows.contains(PROBE));
+}
