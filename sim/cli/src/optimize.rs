@@ -133,10 +133,14 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
     let pool = thread_pool(o.threads)?;
     let goal = study.objectives[0].metric.to_string();
     let t0 = std::time::Instant::now();
+    // Evaluations of a step finish in any order: the line counts what this run finished and
+    // names the evaluation.
+    let finished = std::sync::atomic::AtomicUsize::new(0);
     let on_record = |r: &stscam_design::optimize::Record, best: Option<f64>| {
         let v = r.metrics.get(&goal).copied().unwrap_or(f64::NAN);
+        let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
         con.err(format_args!(
-            "[{}/{}] step {}: {goal} {v:.4}{} ({:.1} s); best feasible {}",
+            "[{k} done] evaluation {} of {} (step {}): {goal} {v:.4}{} ({:.1} s); best feasible {}",
             r.index + 1,
             o.budget,
             r.step,
