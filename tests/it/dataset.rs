@@ -486,3 +486,53 @@ fn bad_recipes_are_refused_with_one_line_and_nothing_written() {
     let out = stscam(&["dataset", r.to_str().unwrap(), "--shard", "3/3"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// `[[vary]] cycle = true` gives sample i the value i mod len (two cycled keys run through
+/// their combinations, the last fastest), so each value gets its share; without it the values
+/// are drawn at random (here not evenly). `cycle` on a `range` is refused naming the key.
+#[test]
+fn cycled_vary_values_take_turns() {
+    let dir = tempfile::tempdir().unwrap();
+    let vary = |cycle: bool| {
+        format!(
+            "\n[[vary]]\nkey = \"display.distance_mm\"\nvalues = [450.0, 550.0, 650.0]\ncycle = {cycle}\n\
+             [[vary]]\nkey = \"plate.thickness_mm\"\nvalues = [2.0, 3.0]\ncycle = {cycle}\n"
+        )
+    };
+    let path = write(
+        dir.path(),
+        "cycle.toml",
+        &recipe("cycle", 12, "matrix", "none", &vary(true)),
+    );
+    let plan = stscam::dataset::plan(&path).unwrap();
+    for i in 0..12 {
+        let p = plan.sample(i).params;
+        assert_eq!(
+            p["display.distance_mm"],
+            [450.0, 550.0, 650.0][(i / 2) % 3],
+            "sample {i}"
+        );
+        assert_eq!(p["plate.thickness_mm"], [2.0, 3.0][i % 2], "sample {i}");
+    }
+    write(
+        dir.path(),
+        "cycle.toml",
+        &recipe("cycle", 12, "matrix", "none", &vary(false)),
+    );
+    let plan = stscam::dataset::plan(&path).unwrap();
+    let at_450 = (0..12)
+        .filter(|&i| plan.sample(i).params["display.distance_mm"] == 450.0)
+        .count();
+    assert_ne!(
+        at_450, 4,
+        "random draws happen to be even: pick another seed for the check"
+    );
+    let bad = "\n[[vary]]\nkey = \"display.distance_mm\"\nrange = [450.0, 650.0]\ncycle = true\n";
+    write(
+        dir.path(),
+        "cycle.toml",
+        &recipe("cycle", 12, "render", "none", bad),
+    );
+    let e = stscam::dataset::plan(&path).unwrap_err().to_string();
+    assert!(e.contains("vary[0].cycle"), "{e}");
+}

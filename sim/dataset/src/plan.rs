@@ -490,9 +490,22 @@ impl Plan {
         let mut rng = NoiseRng::new(&[seed, VARY_TAG]);
         let mut scene = 0;
         let mut params = BTreeMap::new();
+        // Cycled keys: sample id's combination, in mixed radix with the last key fastest.
+        let mut stride: usize = self
+            .recipe
+            .vary
+            .iter()
+            .filter(|v| v.cycle)
+            .map(|v| v.values.as_ref().map_or(1, Vec::len))
+            .product();
         for v in &self.recipe.vary {
             if let Some(vals) = &v.values {
-                let k = ((rng.uniform() * vals.len() as f64) as usize).min(vals.len() - 1);
+                let k = if v.cycle {
+                    stride /= vals.len();
+                    (id / stride.max(1)) % vals.len()
+                } else {
+                    ((rng.uniform() * vals.len() as f64) as usize).min(vals.len() - 1)
+                };
                 scene = scene * vals.len() + k;
                 params.insert(v.key.clone(), vals[k]);
             } else if let Some([lo, hi]) = v.range {

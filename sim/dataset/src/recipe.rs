@@ -473,6 +473,11 @@ pub struct Vary {
     /// Continuous uniform range [lo, hi] (render mode only: no H is written).
     #[serde(default)]
     pub range: Option<[f64; 2]>,
+    /// With `values`: take them in turn instead of at random (sample i gets value
+    /// i mod len; several cycled keys run through their combinations, the last one fastest),
+    /// so every value gets its share of the samples.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub cycle: bool,
 }
 
 /// A dataset recipe.
@@ -870,6 +875,12 @@ fn check_vary(r: &Recipe) -> Result<(), (String, String)> {
                     "give exactly one of `values` or `range`".into(),
                 );
             }
+        }
+        if v.cycle && v.values.is_none() {
+            return err(
+                &key("cycle"),
+                "cycles through `values`; a continuous `range` has none".into(),
+            );
         }
     }
     let scenes = r.vary.iter().try_fold(1usize, |n, v| {
