@@ -248,27 +248,15 @@ pub struct Requirement {
 }
 
 impl Requirement {
-    /// Parses `METRIC>=V` or `METRIC<=V` (the CLI's `--require`).
+    /// Parses `METRIC>=V` or `METRIC<=V` (the CLI's `--require`; the syntax of
+    /// `tolerance --require`, the name here a metric of this crate).
     pub fn parse(spec: &str) -> Result<Requirement, String> {
-        let err = || format!("--require {spec:?}: expected METRIC>=VALUE or METRIC<=VALUE");
-        let (name, value, min) = if let Some((a, b)) = spec.split_once(">=") {
-            (a, b, true)
-        } else if let Some((a, b)) = spec.split_once("<=") {
-            (a, b, false)
-        } else {
-            return Err(err());
-        };
-        let m = Metric::parse(name).map_err(|e| format!("--require {spec:?}: {e}"))?;
-        let v: f64 = value
-            .trim()
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite())
-            .ok_or_else(err)?;
+        let t = crate::tolerance::Requirement::parse(spec).map_err(|e| e.to_string())?;
+        let m = Metric::parse(&t.figure).map_err(|e| format!("--require {spec:?}: {e}"))?;
         let r = Requirement {
             metric: m.base,
-            min: min.then_some(v),
-            max: (!min).then_some(v),
+            min: t.min,
+            max: t.max,
         };
         r.check().map_err(|e| format!("--require {spec:?}: {e}"))?;
         if m.q05 {
