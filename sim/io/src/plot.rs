@@ -268,7 +268,7 @@ impl LinePlot {
         let (ax, ay) = self.axes();
         let mut s = String::new();
         // Taller than the plot when the legend needs it: a legend is never cut.
-        let h = H.max((TOP + 10.0 + 20.0 * self.series.len() as f64) as usize);
+        let h = self.svg_height();
         let _ = write!(
             s,
             r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{h}" viewBox="0 0 {W} {h}" font-family="sans-serif" font-size="13">"#
@@ -458,6 +458,11 @@ impl LinePlot {
         self.canvas().encode()
     }
 
+    /// The SVG's height: the plot's, or more when the legend (20 px an entry) needs it.
+    fn svg_height(&self) -> usize {
+        H.max((TOP + 10.0 + 20.0 * self.series.len() as f64) as usize)
+    }
+
     /// The PNG's height: the plot's, or more when the legend needs it (never cut).
     fn png_height(&self) -> usize {
         let legend: f64 = self
@@ -502,30 +507,7 @@ impl LinePlot {
         ] {
             c.line((a, b), (cc, d), (0, 0, 0), 1.0);
         }
-        // Title: double size when it fits the width, else single size, wrapped if need be;
-        // always above the y label (y = 26) and the plot (y = TOP).
-        let fit = ((W as f64 - 60.0) / CHAR_PX) as usize;
-        if self.title.chars().count() * 2 <= fit {
-            c.text(
-                &self.title,
-                W as f64 / 2.0,
-                4.0,
-                2,
-                Align::Centre,
-                (0, 0, 0),
-            );
-        } else {
-            for (k, line) in wrap(&self.title, fit).iter().take(2).enumerate() {
-                c.text(
-                    line,
-                    W as f64 / 2.0,
-                    4.0 + 10.0 * k as f64,
-                    1,
-                    Align::Centre,
-                    (0, 0, 0),
-                );
-            }
-        }
+        c.title(&self.title);
         c.text(
             &self.x_label,
             (x0 + x1) / 2.0,
@@ -608,11 +590,7 @@ pub fn grid_png(title: &str, panels: &[LinePlot], cols: usize) -> Result<Vec<u8>
 pub fn grid_svg(title: &str, panels: &[LinePlot], cols: usize) -> String {
     let cols = cols.clamp(1, panels.len().max(1));
     let svgs: Vec<String> = panels.iter().map(LinePlot::to_svg).collect();
-    let ph = panels
-        .iter()
-        .map(|p| H.max((TOP + 10.0 + 20.0 * p.series.len() as f64) as usize))
-        .max()
-        .unwrap_or(H);
+    let ph = panels.iter().map(LinePlot::svg_height).max().unwrap_or(H);
     let rows = panels.len().div_ceil(cols).max(1);
     let (w, h) = (cols * W, 34 + rows * ph);
     let mut s = String::new();
@@ -692,17 +670,7 @@ impl BarChart {
             c.line((x, y0), (x, y1), (221, 221, 221), 1.0);
             c.text(&fmt_tick(v), x, y1 + 8.0, 1, Align::Centre, (0, 0, 0));
         }
-        let fit = ((w as f64 - 60.0) / CHAR_PX) as usize;
-        for (k, line) in wrap(&self.title, fit / 2).iter().take(2).enumerate() {
-            c.text(
-                line,
-                w as f64 / 2.0,
-                4.0 + 16.0 * k as f64,
-                2,
-                Align::Centre,
-                (0, 0, 0),
-            );
-        }
+        c.title(&self.title);
         c.text(
             &self.x_label,
             (x0 + x1) / 2.0,
@@ -851,6 +819,21 @@ impl Canvas {
             for x in (c.0 - r - 1.0).floor() as i64..=(c.0 + r + 1.0).ceil() as i64 {
                 let d = ((x as f64 + 0.5 - c.0).powi(2) + (y as f64 + 0.5 - c.1).powi(2)).sqrt();
                 self.blend(x, y, col, (r + 0.5 - d).clamp(0.0, 1.0));
+            }
+        }
+    }
+
+    /// A plot's title centred at the top: double size when it fits the width, else single
+    /// size, wrapped onto at most two lines; always above the y label (y = 26) and the plot
+    /// (y = TOP).
+    fn title(&mut self, title: &str) {
+        let fit = ((self.w as f64 - 60.0) / CHAR_PX) as usize;
+        let x = self.w as f64 / 2.0;
+        if title.chars().count() * 2 <= fit {
+            self.text(title, x, 4.0, 2, Align::Centre, (0, 0, 0));
+        } else {
+            for (k, line) in wrap(title, fit).iter().take(2).enumerate() {
+                self.text(line, x, 4.0 + 10.0 * k as f64, 1, Align::Centre, (0, 0, 0));
             }
         }
     }

@@ -49,12 +49,13 @@
 //! `throughput_on_axis`, `band_shift_on_axis_nm` (grating 0's on-axis Bragg wavelength minus
 //! the nominal), `band_shift_max_nm` (largest |shift| over gratings and fields),
 //! `replica_weight_max` (the strongest on-axis replica), each `evaluate` metric a requirement
-//! names (e.g. the captured FOV `fov_capture_vertical_deg`), and `psnr_db` and `psnr_gain_db`. For each: nominal, mean, sd, min, 5 %,
-//! median, 95 %, max. **Yield**: the fraction of draws meeting every threshold given
-//! (`min_fov_deg` on the waveguide's vertical FOV, `min_efficiency` on `efficiency_min`,
-//! `max_band_shift_nm` on `band_shift_max_nm`, `min_psnr_db`, and each `--require NAME>=V` or
-//! `NAME<=V` on the scalar NAME, e.g. `fov_capture_vertical_deg>=30`; a NaN value fails it),
-//! with each threshold's own pass fraction. **Sensitivity**: per scalar figure and drawn key, Spearman's rank correlation ρ
+//! names (e.g. the captured FOV `fov_capture_vertical_deg`), and `psnr_db` and `psnr_gain_db`.
+//! For each: nominal, mean, sd, min, 5 %, median, 95 %, max. **Yield**: the fraction of draws
+//! meeting every threshold given (`min_fov_deg` on the waveguide's vertical FOV,
+//! `min_efficiency` on `efficiency_min`, `max_band_shift_nm` on `band_shift_max_nm`,
+//! `min_psnr_db`, and each `--require NAME>=V` or `NAME<=V` on the scalar NAME, e.g.
+//! `fov_capture_vertical_deg>=30`; a NaN value fails it), with each threshold's own pass
+//! fraction. **Sensitivity**: per scalar figure and drawn key, Spearman's rank correlation ρ
 //! over the draws (average ranks for ties), and the share ρ²/Σρ² — the part of the figure's
 //! rank variance each tolerance explains to first order when the keys are drawn independently
 //! (a monotone, additive reading: interactions are not separated); the keys sorted by it.
@@ -462,7 +463,8 @@ impl StaleCalibration {
         );
         let pr = &self.problem;
         let f = crate::recon::admm::admm_tv(pr, &pr.back_project(&g), &self.demo.admm).f;
-        let gained: Vec<f64> = f.iter().map(|v| v * best_gain(&f, &self.truth)).collect();
+        let a = best_gain(&f, &self.truth);
+        let gained: Vec<f64> = f.iter().map(|v| v * a).collect();
         (
             crate::recon::metrics::psnr(&f, &self.truth),
             crate::recon::metrics::psnr(&gained, &self.truth),
@@ -995,27 +997,22 @@ fn scalars(f: &Figures, nominal: &Figures, set: &ToleranceSettings) -> Vec<(&'st
             }
         }
     }
-    let mut out = vec![
-        ("fov_vertical_deg", f.fov_vertical_deg),
-        ("fov_horizontal_deg", f.fov_horizontal_deg),
-        (
-            "efficiency_min",
-            f.peak_efficiency
-                .iter()
-                .copied()
-                .fold(f64::INFINITY, f64::min),
-        ),
-        ("throughput_on_axis", f.throughput_on_axis),
-        ("band_shift_on_axis_nm", shift_on_axis),
-        ("band_shift_max_nm", shift_max),
-        (
-            "replica_weight_max",
-            f.replica_weights
-                .first()
-                .map_or(0.0, |w| w.iter().copied().fold(0.0, f64::max)),
-        ),
+    // In the order of FIXED_SCALARS.
+    let fixed = [
+        f.fov_vertical_deg,
+        f.fov_horizontal_deg,
+        f.peak_efficiency
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min),
+        f.throughput_on_axis,
+        shift_on_axis,
+        shift_max,
+        f.replica_weights
+            .first()
+            .map_or(0.0, |w| w.iter().copied().fold(0.0, f64::max)),
     ];
-    debug_assert!(out.iter().map(|x| x.0).eq(FIXED_SCALARS));
+    let mut out: Vec<(&'static str, f64)> = FIXED_SCALARS.into_iter().zip(fixed).collect();
     for name in crate::sweep::GEOMETRY_METRICS {
         let required = set.thresholds.require.iter().any(|r| r.figure == name);
         if required {
