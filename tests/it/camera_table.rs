@@ -140,6 +140,42 @@ fn table_file_round_trip_and_cache() {
     // A truncated file is refused before anything is allocated for it.
     std::fs::write(&first.path, &bytes[..bytes.len() - 3]).unwrap();
     assert!(read(&first.path, &sys, &ts).is_err());
+    // A file resealed with a valid check word around a NaN, an infinite or a huge value (or a
+    // wavelength out of range) is refused by its values and the cache rebuilds; resealed
+    // unchanged it is read (the reseal is right, so the check can fail).
+    let rebuilt = cached(&sys, &ts, dir.path(), false).unwrap();
+    assert_eq!(rebuilt.origin, TableOrigin::Rebuilt);
+    let good = std::fs::read(&rebuilt.path).unwrap();
+    let words = good.len() / 8;
+    let word = |b: &[u8], i: usize| u64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap());
+    let n_reps = word(&good, 1 + 8) as usize;
+    let pixels = words - 13 - 9 * n_reps;
+    let first_rep = 1 + 10 + pixels + 1;
+    let reseal = |b: &mut Vec<u8>| {
+        let body = b.len() - 8;
+        let d = <sha2::Sha256 as sha2::Digest>::digest(&b[..body]);
+        b[body..].copy_from_slice(&d[..8]);
+    };
+    let mut same = good.clone();
+    reseal(&mut same);
+    assert!(same == good, "the reseal is not the file's own check word");
+    for (slot, v) in [
+        (6, f64::NAN),
+        (7, f64::INFINITY),
+        (6, 1e38),
+        (5, 1e9),
+        (0, f64::NAN),
+    ] {
+        let mut b = good.clone();
+        let i = first_rep + 9 * (n_reps / 2) + slot;
+        b[8 * i..8 * i + 8].copy_from_slice(&v.to_bits().to_le_bytes());
+        reseal(&mut b);
+        std::fs::write(&rebuilt.path, &b).unwrap();
+        let e = read(&rebuilt.path, &sys, &ts).err().expect("refused");
+        assert!(e.to_string().contains("out of range"), "{e}");
+        let again = cached(&sys, &ts, dir.path(), false).unwrap();
+        assert_eq!(again.origin, TableOrigin::Rebuilt, "slot {slot} = {v}");
+    }
     // The key follows the design, not the scene's user side.
     let thicker = crop_system("scenes/eye-contact.toml", 16, &["plate.thickness_mm=3.2"]);
     assert_ne!(design_key(&thicker), design_key(&sys));

@@ -515,8 +515,10 @@ impl DirStore {
 }
 
 impl stscam_base::store::BlobStore for DirStore {
+    /// The blob's bytes if it is a regular file within the binary-input limit (a FIFO, a
+    /// device or a link to one is not read: no blob), read as every input is.
     fn load(&self, name: &str) -> Option<Vec<u8>> {
-        fs::read(self.dir.join(name)).ok()
+        crate::input::read_input(&self.dir.join(name), crate::input::MAX_BINARY_BYTES).ok()
     }
 
     fn save(&self, name: &str, bytes: &[u8]) -> Result<PathBuf, String> {
@@ -533,6 +535,24 @@ impl stscam_base::store::BlobStore for DirStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A blob that is a FIFO or a link to /dev/zero is not read (no hang, no growth).
+    #[test]
+    #[cfg(unix)]
+    fn dir_store_reads_only_regular_files() {
+        use stscam_base::store::BlobStore;
+        let dir = tempfile::tempdir().unwrap();
+        let store = DirStore::new(dir.path());
+        store.save("a.bin", b"abc").unwrap();
+        assert_eq!(store.load("a.bin").as_deref(), Some(&b"abc"[..]));
+        std::os::unix::fs::symlink("/dev/zero", dir.path().join("z.bin")).unwrap();
+        assert!(store.load("z.bin").is_none());
+        let fifo = dir.path().join("f.bin");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            assert!(store.load("f.bin").is_none());
+        }
+    }
 
     #[test]
     fn writes_and_replaces_without_leftovers() {

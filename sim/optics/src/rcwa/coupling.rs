@@ -398,7 +398,7 @@ impl RcwaCouplings {
         if let Some(store) = cache {
             let path = store.location(&name);
             if let Some(bytes) = store.load(&name)
-                && let Some((err, data)) = decode_values(&bytes, &key, len)
+                && let Some((err, data)) = decode_values(&bytes, &key, len, true)
             {
                 c.data = data
                     .chunks(grid.nodes() * PER_NODE)

@@ -14,7 +14,9 @@
 //! Cache: one file per design, named by the SHA-256 of every input the values depend on (film,
 //! gratings, media per wavelength node, grid, truncation, slicing, format version), written
 //! under a temporary name and renamed into place (atomic; concurrent builders of the same
-//! design each write a complete file and the last rename wins, with identical content).
+//! design each write a complete file and the last rename wins, with identical content). A file
+//! read back is verified before use ([`decode_values`]: key, length, check word, every value
+//! finite and within [−1, 1]); a file that fails is built again and replaced.
 //!
 //! How the tracer should call it: build once per render with [`RcwaTable::load_or_build`]
 //! (the media per λ from the stack at the vHOE: glass | film | air at a bottom contact), then
@@ -262,7 +264,7 @@ impl RcwaTable {
         settings: &Settings,
     ) -> Option<RcwaTable> {
         let nodes = spec.lambda_nm.n * spec.u_x.n * spec.u_y.n;
-        let (max_error, data) = decode_values(bytes, key, nodes * Self::per_node(spec))?;
+        let (max_error, data) = decode_values(bytes, key, nodes * Self::per_node(spec), false)?;
         Some(RcwaTable {
             spec: *spec,
             film: film.clone(),
@@ -369,35 +371,59 @@ impl RcwaTable {
     }
 }
 
-/// A cache file's bytes: the key, the measured interpolation error, the value count and the
-/// values (little-endian f64).
+/// A cache file's bytes: the key, the measured interpolation error, the value count, the
+/// values (little-endian f64) and a check word, the SHA-256 of everything before it.
 pub(super) fn encode_values(key: &str, max_error: f64, data: &[f64]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(80 + 8 * data.len());
+    let mut out = Vec::with_capacity(112 + 8 * data.len());
     out.extend_from_slice(key.as_bytes());
     out.extend_from_slice(&max_error.to_le_bytes());
     out.extend_from_slice(&(data.len() as u64).to_le_bytes());
     for v in data {
         out.extend_from_slice(&v.to_le_bytes());
     }
+    let check = Sha256::digest(&out);
+    out.extend_from_slice(&check);
     out
 }
 
+/// Largest |value| a cache file may hold: every value is an efficiency, a difference of two
+/// efficiencies or an attenuation factor, all within [−1, 1] (with room for the solver's
+/// rounding).
+pub(super) const MAX_CACHED_ABS: f64 = 1.0 + 1e-6;
+
 /// The (interpolation error, values) of a cache file written by [`encode_values`] under `key`
-/// with `len` values; `None` for any other file (another key, a truncated or foreign file).
-pub(super) fn decode_values(bytes: &[u8], key: &str, len: usize) -> Option<(f64, Vec<f64>)> {
-    let rest = bytes.strip_prefix(key.as_bytes())?;
+/// with `len` values; `None` for any other file: another key (another design or settings), a
+/// truncated or foreign file, a check word that does not match (a flipped bit), or a value
+/// that is not finite (NaN allowed only with `allow_nan`: "no value" in the coupling tables)
+/// or beyond [`MAX_CACHED_ABS`]; the caller then builds the table again. The check word
+/// protects against corruption and mix-ups, not against a writer who reseals a file (docs/limits.md).
+pub(super) fn decode_values(
+    bytes: &[u8],
+    key: &str,
+    len: usize,
+    allow_nan: bool,
+) -> Option<(f64, Vec<f64>)> {
+    let (payload, check) = bytes.split_at_checked(bytes.len().checked_sub(32)?)?;
+    if Sha256::digest(payload).as_slice() != check {
+        return None;
+    }
+    let rest = payload.strip_prefix(key.as_bytes())?;
     let f = |b: &[u8]| -> Option<[u8; 8]> { b.get(..8)?.try_into().ok() };
     let max_error = f64::from_le_bytes(f(rest)?);
     let stored = u64::from_le_bytes(f(rest.get(8..)?)?);
     let body = rest.get(16..)?;
-    if stored != len as u64 || body.len() != 8 * len {
+    if stored != len as u64
+        || body.len() != 8 * len
+        || !(max_error.is_nan() || (0.0..=2.0).contains(&max_error))
+    {
         return None;
     }
-    let data = body
+    let data: Vec<f64> = body
         .chunks_exact(8)
         .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
         .collect();
-    Some((max_error, data))
+    let ok = |v: &f64| v.abs() <= MAX_CACHED_ABS || (allow_nan && v.is_nan());
+    data.iter().all(ok).then_some((max_error, data))
 }
 
 /// A uniform number in [0, 1) from (seed, i, k) (splitmix64).
@@ -425,6 +451,37 @@ mod tests {
             thickness_nm: d_um * 1e3,
             gratings: vec![Grating::of(&g)],
         }
+    }
+
+    /// A cache file read back is verified: the file as written decodes; a flipped bit, another
+    /// key, a cut file, and a file resealed with a valid check word around NaN, infinite or
+    /// out-of-range values do not (the caller builds again).
+    #[test]
+    fn cache_files_are_verified() {
+        let key = "k".repeat(64);
+        let data = [0.25, -0.5, 1.0, 0.0];
+        let good = encode_values(&key, 1e-4, &data);
+        assert_eq!(
+            decode_values(&good, &key, 4, false),
+            Some((1e-4, data.to_vec()))
+        );
+        for i in [0, 70, 80, good.len() - 1] {
+            let mut b = good.clone();
+            b[i] ^= 0x10;
+            assert!(decode_values(&b, &key, 4, false).is_none(), "bit {i}");
+        }
+        assert!(decode_values(&good, &"j".repeat(64), 4, false).is_none());
+        assert!(decode_values(&good[..good.len() - 8], &key, 4, false).is_none());
+        assert!(decode_values(&good, &key, 5, false).is_none());
+        for bad in [f64::NAN, f64::INFINITY, 1e38, -1.5] {
+            let b = encode_values(&key, 1e-4, &[0.25, bad]);
+            assert!(decode_values(&b, &key, 2, false).is_none(), "{bad}");
+        }
+        // NaN is "no value" in the coupling tables.
+        let b = encode_values(&key, 1e-4, &[0.25, f64::NAN]);
+        assert!(decode_values(&b, &key, 2, true).is_some());
+        let b = encode_values(&key, -1.0, &data);
+        assert!(decode_values(&b, &key, 4, false).is_none());
     }
 
     #[test]

@@ -135,7 +135,9 @@ fn read_checked<T: Send>(
         "the camera-side table",
         u128::from(len) * 2,
     )?;
-    let b = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    // Read as every input is: a regular file (a FIFO or a device is refused from its
+    // metadata, without opening it) of the size just checked.
+    let b = crate::io::input::read_input(path, len)?;
     if b.len() < 16 || b.len() % 8 != 0 || &b[..8] != magic {
         return Err(
             IoError::format(path, "not a camera-side table of this kind (magic or size)").into(),
@@ -308,7 +310,26 @@ fn read_keyed(
                     replica: word(o + 8),
                 }
             })
-            .collect();
+            .collect::<Vec<Rep>>();
+        // Values are checked before use (a resealed file could hold anything): finite, exit
+        // points within the coordinate limit, unit directions, wavelengths in the scene keys'
+        // range, coefficients finite and below 10¹² (a capture must fit float32).
+        let rep_ok = |r: &Rep| {
+            r.exit_mm
+                .iter()
+                .all(|v| v.abs() <= crate::limits::MAX_COORD_MM)
+                && r.dir.iter().all(|v| v.is_finite())
+                && ((r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2]) - 1.0).abs()
+                    <= 1e-6
+                && (crate::scene::MIN_WAVELENGTH_NM..=crate::scene::MAX_WAVELENGTH_NM)
+                    .contains(&r.lambda_nm)
+                && r.coef.iter().all(|v| v.abs() <= 1e12)
+        };
+        if let Some(i) = reps.iter().position(|r| !rep_ok(r)) {
+            return Err(bad(&format!(
+                "representative ray {i} holds a value out of range (not finite, or beyond the geometry); the table is not used"
+            )));
+        }
         Ok(CameraTable {
             key,
             settings: *ts,
