@@ -493,7 +493,9 @@ def _white_peak(s: Scene) -> float:
 def sensor_noise(scene: Optional[Scene], clean: Any, seed: int = 1,
                  white_peak: Optional[float] = None) -> np.ndarray:
     """The scene's sensor model (``[noise]``: shot, read and dark noise, bit depth,
-    saturation, exposure) applied to a clean capture (any shape, capture units): float32,
+    saturation, exposure, and the EMVA 1288 fixed patterns when the scene sets them: PRNU,
+    DSNU, dark current, hot pixels, drawn per value index from ``noise.sensor_seed`` and the
+    same for every ``seed``) applied to a clean capture (any shape, capture units): float32,
     same shape, in capture units with the mean dark offset removed, exactly as ``stscam
     dataset`` stores a noisy capture (pixel i draws from ``NoiseRng([seed, 0x4E4F4953, i])``;
     a dataset sample's seed is ``metadata.jsonl``'s ``seed``). The exposure is fixed by

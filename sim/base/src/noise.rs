@@ -9,8 +9,24 @@
 //!   ADC         DN = round(e_noisy / (FW / (2^bits − 1)) + dark offset), clipped to
 //!               [0, 2^bits − 1] (saturation), and converted back to capture units with the
 //!               same gain, the dark offset left in (the camera's black level).
-//! Assumptions: no dark current, no fixed-pattern noise, no pixel cross-talk, linear response
-//! up to full scale (gamma, LUT, auto-exposure and auto-gain disabled, as docs/physics.md §7.3 asks).
+//! Assumptions: no pixel cross-talk, linear response up to full scale (gamma, LUT,
+//! auto-exposure and auto-gain disabled, as docs/physics.md §7.3 asks).
+//!
+//! EMVA 1288 terms (European Machine Vision Association, *Standard for Characterization of
+//! Image Sensors and Cameras*, release 4.0, 2021: its linear camera model, §2): each off by
+//! default (0), which is the model above bit for bit. Per pixel i a fixed pattern, drawn once
+//! per sensor from `NoiseRng([sensor_seed, FPN_TAG, i])` and the same in every frame:
+//!   PRNU        gain gᵢ = max(0, 1 + prnu·zᵢ), zᵢ ~ N(0, 1): e = v·G·gᵢ;
+//!   dark current μ_d,i = dark_current_e_per_s · t_exp · 2^(ΔT / T_double) electrons (the
+//!               temperature-doubling rule, EMVA 1288 §4.2), plus `hot_pixel_dark_e` for a
+//!               fraction `hot_pixel_fraction` of the pixels (hot pixels); it adds to the
+//!               signal before shot noise (dark-current shot noise);
+//!   DSNU        a fixed offset oᵢ = dsnu_e·z'ᵢ electrons added after shot noise (the dark
+//!               signal's spatial spread; it may be negative, the black level absorbs it);
+//! so the temporal dark noise is σ_d² = σ_read² + μ_d (+ the ADC's 1/12 DN²) and the spatial
+//! dark spread is dsnu_e (hot pixels aside).
+//! The pixel index i is the capture's value index (the row of H: channel-major, then the crop's
+//! pixels row by row), so a pixel keeps its pattern in every frame, capture and dataset sample.
 //!
 //! Random numbers come from small generators keyed by hashing (seed, stream, …): one per value,
 //! or one per sensor pixel drawn through its frames in order (calibration); Gaussians come from
@@ -36,6 +52,164 @@ pub struct NoiseDesc {
     pub dark_offset_dn: f64,
     /// ADC bit depth; full scale 2^bits − 1 DN maps to the full well.
     pub bit_depth: u32,
+    /// Mean dark current at the reference temperature, electrons per second (EMVA 1288 μ_I).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub dark_current_e_per_s: f64,
+    /// Exposure time, ms (what the dark current integrates over).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub exposure_time_ms: f64,
+    /// Sensor temperature minus the dark current's reference temperature, K.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub temperature_above_reference_k: f64,
+    /// Temperature rise that doubles the dark current, K.
+    #[serde(
+        default = "default_doubling_k",
+        skip_serializing_if = "is_default_doubling_k"
+    )]
+    pub dark_current_doubling_k: f64,
+    /// Dark signal non-uniformity: standard deviation of the dark signal across pixels,
+    /// electrons (EMVA 1288 σ_o, in electrons).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub dsnu_e: f64,
+    /// Photo-response non-uniformity: relative standard deviation of the pixel gain (0.01 =
+    /// 1 %, EMVA 1288 PRNU₁₂₈₈ / 100).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub prnu: f64,
+    /// Fraction of hot pixels.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub hot_pixel_fraction: f64,
+    /// Extra dark signal of a hot pixel, electrons per frame.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub hot_pixel_dark_e: f64,
+    /// Seed of the sensor's fixed patterns (another seed: another sensor of the same model).
+    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    pub sensor_seed: u64,
+}
+
+/// Default of `noise.dark_current_doubling_k` (ASSUMED: a typical CMOS value, dark current
+/// doubling every 6.5 K; no datasheet value for the paper's sensor).
+pub const DEFAULT_DARK_CURRENT_DOUBLING_K: f64 = 6.5;
+
+fn default_doubling_k() -> f64 {
+    DEFAULT_DARK_CURRENT_DOUBLING_K
+}
+fn is_default_doubling_k(v: &f64) -> bool {
+    *v == DEFAULT_DARK_CURRENT_DOUBLING_K
+}
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+fn is_zero_u64(v: &u64) -> bool {
+    *v == 0
+}
+
+impl NoiseDesc {
+    /// The model of the ideal sensor: every EMVA 1288 term off.
+    pub fn ideal(
+        full_well_e: f64,
+        exposure_fraction: f64,
+        read_noise_e: f64,
+        dark_offset_dn: f64,
+        bit_depth: u32,
+    ) -> Self {
+        NoiseDesc {
+            full_well_e,
+            exposure_fraction,
+            read_noise_e,
+            dark_offset_dn,
+            bit_depth,
+            dark_current_e_per_s: 0.0,
+            exposure_time_ms: 0.0,
+            temperature_above_reference_k: 0.0,
+            dark_current_doubling_k: DEFAULT_DARK_CURRENT_DOUBLING_K,
+            dsnu_e: 0.0,
+            prnu: 0.0,
+            hot_pixel_fraction: 0.0,
+            hot_pixel_dark_e: 0.0,
+            sensor_seed: 0,
+        }
+    }
+
+    /// Mean dark signal per frame, electrons: dark current × exposure time, doubled every
+    /// `dark_current_doubling_k` above the reference temperature.
+    pub fn mean_dark_e(&self) -> f64 {
+        self.dark_current_e_per_s
+            * self.exposure_time_ms
+            * 1e-3
+            * (self.temperature_above_reference_k / self.dark_current_doubling_k).exp2()
+    }
+
+    /// The fixed patterns of this sensor, or None when every term is off.
+    fn fixed_pattern(&self) -> Option<FixedPattern> {
+        let dark_e = self.mean_dark_e();
+        let hot = self.hot_pixel_fraction > 0.0 && self.hot_pixel_dark_e > 0.0;
+        (self.prnu > 0.0 || self.dsnu_e > 0.0 || dark_e > 0.0 || hot).then_some(FixedPattern {
+            seed: self.sensor_seed,
+            prnu: self.prnu,
+            dsnu_e: self.dsnu_e,
+            dark_e,
+            hot_fraction: if hot { self.hot_pixel_fraction } else { 0.0 },
+            hot_e: self.hot_pixel_dark_e,
+        })
+    }
+}
+
+/// Stream tag of the sensor's fixed patterns: pixel i draws from
+/// `NoiseRng([sensor_seed, FPN_TAG, i])`.
+pub const FPN_TAG: u64 = 0x4650_4E00;
+
+/// A sensor's fixed patterns (module notes, "EMVA 1288 terms").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FixedPattern {
+    /// Seed of the patterns.
+    pub seed: u64,
+    /// Relative standard deviation of the pixel gain.
+    pub prnu: f64,
+    /// Standard deviation of the dark signal across pixels, electrons.
+    pub dsnu_e: f64,
+    /// Mean dark signal per frame, electrons.
+    pub dark_e: f64,
+    /// Fraction of hot pixels.
+    pub hot_fraction: f64,
+    /// Extra dark signal of a hot pixel, electrons.
+    pub hot_e: f64,
+}
+
+/// One pixel's fixed pattern.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pixel {
+    /// Gain (1 for the ideal sensor).
+    pub gain: f64,
+    /// Mean dark current per frame, electrons (shot noise applies).
+    pub dark_e: f64,
+    /// Fixed offset (DSNU), electrons (no shot noise).
+    pub offset_e: f64,
+}
+
+/// The ideal sensor's pixel.
+pub const IDEAL_PIXEL: Pixel = Pixel {
+    gain: 1.0,
+    dark_e: 0.0,
+    offset_e: 0.0,
+};
+
+impl FixedPattern {
+    /// Pixel `i`'s pattern.
+    #[inline]
+    pub fn pixel(&self, i: u64) -> Pixel {
+        let mut r = NoiseRng::new(&[self.seed, FPN_TAG, i]);
+        let gain = (1.0 + self.prnu * r.normal()).max(0.0);
+        let offset_e = self.dsnu_e * r.normal();
+        let mut dark_e = self.dark_e;
+        if self.hot_fraction > 0.0 && r.uniform() < self.hot_fraction {
+            dark_e += self.hot_e;
+        }
+        Pixel {
+            gain,
+            dark_e,
+            offset_e,
+        }
+    }
 }
 
 /// Below this mean (electrons) shot noise is drawn from the exact Poisson distribution.
@@ -166,6 +340,8 @@ pub struct SensorNoise {
     pub read_noise_e: f64,
     /// Dark offset, DN.
     pub dark_offset_dn: f64,
+    /// The sensor's fixed patterns (None: the ideal sensor).
+    pub fixed: Option<FixedPattern>,
 }
 
 impl SensorNoise {
@@ -186,6 +362,7 @@ impl SensorNoise {
             full_scale_dn,
             read_noise_e: desc.read_noise_e,
             dark_offset_dn: desc.dark_offset_dn,
+            fixed: desc.fixed_pattern(),
         }
     }
 
@@ -221,17 +398,48 @@ impl SensorNoise {
         self.dark_offset_dn / self.dn_per_unit()
     }
 
-    /// A noisy measurement of the noiseless value `v` (capture units), in capture units with
-    /// the dark offset included; `rng` supplies the randomness.
+    /// Pixel `i`'s fixed pattern ([`IDEAL_PIXEL`] for the ideal sensor).
+    #[inline]
+    pub fn pixel(&self, i: u64) -> Pixel {
+        self.fixed.map_or(IDEAL_PIXEL, |f| f.pixel(i))
+    }
+
+    /// A noisy measurement of the noiseless value `v` (capture units) at pixel `i` (the
+    /// capture's value index, module notes), in capture units with the dark offset included;
+    /// `rng` supplies the randomness. With the ideal sensor this is [`measure`](Self::measure).
+    #[inline(always)]
+    pub fn measure_at(&self, v: f64, i: u64, rng: &mut NoiseRng) -> f64 {
+        match self.fixed {
+            None => self.measure(v, rng),
+            Some(f) => {
+                let p = f.pixel(i);
+                self.measure_electrons(
+                    v.max(0.0) * self.electrons_per_unit * p.gain + p.dark_e,
+                    p.offset_e,
+                    rng,
+                )
+            }
+        }
+    }
+
+    /// A noisy measurement of the noiseless value `v` (capture units) by a pixel of the ideal
+    /// sensor (gain 1, no dark signal), in capture units with the dark offset included; `rng`
+    /// supplies the randomness.
     #[inline(always)]
     pub fn measure(&self, v: f64, rng: &mut NoiseRng) -> f64 {
-        let e = v.max(0.0) * self.electrons_per_unit;
+        self.measure_electrons(v.max(0.0) * self.electrons_per_unit, 0.0, rng)
+    }
+
+    /// A noisy measurement of a pixel that collects `e` electrons on average (shot noise)
+    /// with the fixed offset `offset_e` electrons.
+    #[inline(always)]
+    fn measure_electrons(&self, e: f64, offset_e: f64, rng: &mut NoiseRng) -> f64 {
         let electrons = if e < POISSON_EXACT_BELOW_E {
             rng.poisson(e) + self.read_noise_e * rng.normal()
         } else {
             // Shot and read noise are independent Gaussians: one deviate with the summed variance.
             e + (e + self.read_noise_e * self.read_noise_e).sqrt() * rng.normal()
-        };
+        } + offset_e;
         // Round half up after clipping (the cast is exact for the clipped range and avoids a
         // libm call).
         let dn = (electrons * (1.0 / self.electrons_per_dn) + self.dark_offset_dn)
@@ -331,7 +539,11 @@ pub fn measure_capture(noise: &SensorNoise, clean: &[f64], seed: u64) -> Vec<f32
         .iter()
         .enumerate()
         .map(|(i, &v)| {
-            (noise.measure(v, &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64])) - dark) as f32
+            (noise.measure_at(
+                v,
+                i as u64,
+                &mut NoiseRng::new(&[seed, NOISE_TAG, i as u64]),
+            ) - dark) as f32
         })
         .collect()
 }
@@ -449,14 +661,85 @@ mod tests {
         }
     }
 
-    fn desc() -> NoiseDesc {
-        NoiseDesc {
-            full_well_e: 10000.0,
-            exposure_fraction: 0.8,
-            read_noise_e: 7.0,
-            dark_offset_dn: 4.0,
-            bit_depth: 12,
+    /// The EMVA 1288 terms: every term off is the ideal sensor bit for bit; a pixel keeps its
+    /// pattern in every frame; over 200k pixels the gains spread by `prnu`, the offsets by
+    /// `dsnu_e`, the dark mean is dark current × time doubled per `dark_current_doubling_k`,
+    /// and the fraction of hot pixels is `hot_pixel_fraction` (each within 4 standard errors).
+    #[test]
+    fn emva_fixed_patterns() {
+        let ideal = SensorNoise::new(&desc(), 2.0);
+        let mut off = desc();
+        off.sensor_seed = 5;
+        off.dark_current_doubling_k = 3.0;
+        let off = SensorNoise::new(&off, 2.0);
+        assert!(off.fixed.is_none());
+        for i in 0..1000u64 {
+            let v = i as f64 * 0.003;
+            let a = ideal.measure(v, &mut NoiseRng::new(&[1, i]));
+            let b = off.measure_at(v, i, &mut NoiseRng::new(&[1, i]));
+            assert_eq!(a.to_bits(), b.to_bits());
         }
+        let mut d = desc();
+        d.prnu = 0.02;
+        d.dsnu_e = 3.0;
+        d.dark_current_e_per_s = 40.0;
+        d.exposure_time_ms = 250.0;
+        d.temperature_above_reference_k = 13.0;
+        d.hot_pixel_fraction = 0.01;
+        d.hot_pixel_dark_e = 500.0;
+        d.sensor_seed = 11;
+        assert!((d.mean_dark_e() - 40.0 * 0.25 * 4.0).abs() < 1e-12);
+        let nz = SensorNoise::new(&d, 2.0);
+        let f = nz.fixed.unwrap();
+        let n = 200_000u64;
+        let (mut g1, mut g2, mut o1, mut o2, mut hot) = (0.0, 0.0, 0.0, 0.0, 0u64);
+        for i in 0..n {
+            let p = f.pixel(i);
+            assert_eq!(p, nz.pixel(i));
+            g1 += p.gain;
+            g2 += p.gain * p.gain;
+            o1 += p.offset_e;
+            o2 += p.offset_e * p.offset_e;
+            if p.dark_e > 40.0 + 1e-9 {
+                assert!((p.dark_e - 540.0).abs() < 1e-9);
+                hot += 1;
+            } else {
+                assert!((p.dark_e - 40.0).abs() < 1e-9);
+            }
+        }
+        let nf = n as f64;
+        let sd = |s1: f64, s2: f64| (s2 / nf - (s1 / nf).powi(2)).sqrt();
+        // Standard error of a standard deviation: sd/sqrt(2n) (0.16 %).
+        assert!(
+            (sd(g1, g2) / 0.02 - 1.0).abs() < 4.0 / (2.0 * nf).sqrt(),
+            "{}",
+            sd(g1, g2)
+        );
+        assert!((g1 / nf - 1.0).abs() < 4.0 * 0.02 / nf.sqrt());
+        assert!((sd(o1, o2) / 3.0 - 1.0).abs() < 4.0 / (2.0 * nf).sqrt());
+        let p_hot = hot as f64 / nf;
+        assert!(
+            (p_hot - 0.01).abs() < 4.0 * (0.01 * 0.99 / nf).sqrt(),
+            "{p_hot}"
+        );
+        // Doubled PRNU is outside the band (the check can fail).
+        assert!((sd(g1, g2) / 0.04 - 1.0).abs() > 0.4);
+        // A pixel keeps its pattern in every frame: the mean of 4000 frames of one pixel at
+        // v = 0.5 is G·v·g + dark (+ offset), in capture units with the dark offset.
+        let i = 12_345u64;
+        let p = nz.pixel(i);
+        let m: f64 = (0..4000u64)
+            .map(|k| nz.measure_at(0.5, i, &mut NoiseRng::new(&[9, k])))
+            .sum::<f64>()
+            / 4000.0;
+        let g = nz.electrons_per_unit;
+        let want = (0.5 * g * p.gain + p.dark_e + p.offset_e) / g + nz.dark_offset_units();
+        let se = ((0.5 * g * p.gain + p.dark_e + 49.0).sqrt() / g) / 4000f64.sqrt();
+        assert!((m - want).abs() < 4.0 * se, "{m} {want} {se}");
+    }
+
+    fn desc() -> NoiseDesc {
+        NoiseDesc::ideal(10000.0, 0.8, 7.0, 4.0, 12)
     }
 
     #[test]

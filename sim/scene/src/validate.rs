@@ -324,6 +324,71 @@ fn validate_noise(ls: &LoadedScene) -> Result<(), SceneError> {
             )
         },
     )?;
+    // EMVA 1288 terms (all 0: the ideal sensor).
+    in_range(
+        ls,
+        nz.dark_current_e_per_s,
+        0.0,
+        1e9,
+        "noise.dark_current_e_per_s",
+    )?;
+    in_range(ls, nz.exposure_time_ms, 0.0, 1e7, "noise.exposure_time_ms")?;
+    check(
+        ls,
+        nz.dark_current_e_per_s == 0.0 || nz.exposure_time_ms > 0.0,
+        blame(
+            ls,
+            &["noise.exposure_time_ms", "noise.dark_current_e_per_s"],
+        ),
+        || {
+            format!(
+                "noise.dark_current_e_per_s = {} needs noise.exposure_time_ms > 0 (the time the dark current integrates over)",
+                sig6(nz.dark_current_e_per_s)
+            )
+        },
+    )?;
+    in_range(
+        ls,
+        nz.temperature_above_reference_k,
+        -100.0,
+        100.0,
+        "noise.temperature_above_reference_k",
+    )?;
+    in_range(
+        ls,
+        nz.dark_current_doubling_k,
+        0.5,
+        100.0,
+        "noise.dark_current_doubling_k",
+    )?;
+    in_range(ls, nz.dsnu_e, 0.0, 1e6, "noise.dsnu_e")?;
+    in_range(ls, nz.prnu, 0.0, 0.5, "noise.prnu")?;
+    in_range(
+        ls,
+        nz.hot_pixel_fraction,
+        0.0,
+        1.0,
+        "noise.hot_pixel_fraction",
+    )?;
+    in_range(ls, nz.hot_pixel_dark_e, 0.0, 1e9, "noise.hot_pixel_dark_e")?;
+    check(
+        ls,
+        nz.mean_dark_e() <= 1e9,
+        blame(
+            ls,
+            &[
+                "noise.dark_current_e_per_s",
+                "noise.exposure_time_ms",
+                "noise.temperature_above_reference_k",
+            ],
+        ),
+        || {
+            format!(
+                "the mean dark signal (dark current x exposure time, doubled per noise.dark_current_doubling_k) is {} electrons; at most 1e9",
+                sig6(nz.mean_dark_e())
+            )
+        },
+    )?;
     Ok(())
 }
 

@@ -84,8 +84,9 @@ pub fn dark_frame(m: &SystemMatrix, noise: &SensorNoise, seed: u64) -> Vec<f64> 
         .iter()
         .enumerate()
         .map(|(i, &o)| {
-            noise.measure(
+            noise.measure_at(
                 f64::from(o),
+                i as u64,
                 &mut NoiseRng::new(&[seed, 0x4441_524B, i as u64]),
             )
         })
@@ -158,6 +159,12 @@ fn measure_frame(
 ) -> Vec<f64> {
     clean
         .enumerate()
-        .map(|(i, v)| noise.measure(v, &mut NoiseRng::new(&[seed, 0x4341_5054, index, i as u64])))
+        .map(|(i, v)| {
+            noise.measure_at(
+                v,
+                i as u64,
+                &mut NoiseRng::new(&[seed, 0x4341_5054, index, i as u64]),
+            )
+        })
         .collect()
 }

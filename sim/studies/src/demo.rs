@@ -722,7 +722,7 @@ pub fn table_markdown(rows: &[DemoRow]) -> String {
 /// parameters and what they mean for the all-white frame.
 fn noise_conditions(desc: &crate::scene::NoiseDesc, noise: &SensorNoise) -> serde_json::Value {
     let white_e = desc.exposure_fraction * desc.full_well_e;
-    serde_json::json!({
+    let mut v = serde_json::json!({
         "bit_depth": desc.bit_depth,
         "full_well_e": desc.full_well_e,
         "read_noise_e": desc.read_noise_e,
@@ -731,7 +731,22 @@ fn noise_conditions(desc: &crate::scene::NoiseDesc, noise: &SensorNoise) -> serd
         "white_peak_dn": white_e / noise.electrons_per_dn,
         "white_peak_snr": white_e / (white_e + desc.read_noise_e * desc.read_noise_e).sqrt(),
         "frames_averaged": 1,
-    })
+    });
+    // The EMVA 1288 fixed patterns, when the sensor has them (absent for the ideal sensor).
+    if let (Some(f), Some(m)) = (noise.fixed, v.as_object_mut()) {
+        m.insert(
+            "fixed_pattern".into(),
+            serde_json::json!({
+                "prnu": f.prnu,
+                "dsnu_e": f.dsnu_e,
+                "mean_dark_e": f.dark_e,
+                "hot_pixel_fraction": f.hot_fraction,
+                "hot_pixel_dark_e": f.hot_e,
+                "sensor_seed": f.seed,
+            }),
+        );
+    }
+    v
 }
 
 /// The several-depths table as Markdown: one row per target.

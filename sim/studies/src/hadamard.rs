@@ -338,17 +338,28 @@ fn measure_row(v: &mut [f64], d: &mut f64, set: &CalibrationSettings, m: usize) 
         let read2 = nz.read_noise_e * nz.read_noise_e;
         let q = 1.0 / (12.0 * nz.dn_per_unit().powi(2));
         let sat = (nz.full_scale_dn - nz.dark_offset_dn) / nz.dn_per_unit();
-        let var_of = |x: f64| (x.max(0.0) * nz.electrons_per_unit + read2) * inv_g * inv_g + q;
+        // The pixel's fixed pattern: it collects x·gain + dark/G in capture units (its
+        // shot-noisy electrons over G); the ideal sensor's pixel collects x.
+        let px = nz.pixel(m as u64);
+        let ideal = nz.fixed.is_none();
+        let collected = |x: f64| {
+            if ideal {
+                x.max(0.0)
+            } else {
+                x.max(0.0) * px.gain + px.dark_e * inv_g
+            }
+        };
+        let var_of = |x: f64| (collected(x) * nz.electrons_per_unit + read2) * inv_g * inv_g + q;
         let mut e_sum = 0.0;
         var0 = var_of(v[0]);
         var_dark = var_of(*d);
         for x in v.iter_mut() {
-            saturated |= *x > sat;
-            e_sum += x.max(0.0);
-            *x = nz.measure(*x, &mut rng);
+            saturated |= collected(*x) > sat;
+            e_sum += collected(*x);
+            *x = nz.measure_at(*x, m as u64, &mut rng);
         }
         var_sum = (e_sum * nz.electrons_per_unit + n as f64 * read2) * inv_g * inv_g + n as f64 * q;
-        *d = nz.measure(*d, &mut rng);
+        *d = nz.measure_at(*d, m as u64, &mut rng);
     }
     RowNoise {
         var_sum,
