@@ -173,3 +173,31 @@ fn rendered_replica_rows_of_a_point_match_the_closed_form() {
     }
     assert!(checked >= 3, "only {checked} replicas were bright enough");
 }
+
+/// A fabricated film (shrinkage, mean-index change, temperature, a reference-angle error):
+/// the closed forms of its equivalent recording match the tracer, which traces the fabricated
+/// film; the design's recording (the closed forms as they were before fabrication keys were
+/// read) fails on the Bragg wavelength.
+#[test]
+fn closed_forms_follow_the_fabricated_film() {
+    let sys = system(&[
+        "hoe.shrinkage=0.02",
+        "hoe.mean_index_change=0.002",
+        "hoe.temperature_change_k=15",
+        "hoe.reference_angle_error_deg=0.3",
+    ]);
+    let report = analytic::compare(&sys, 50);
+    for s in &report.summary {
+        assert!(s.pass, "{}: {s:?}", s.quantity);
+    }
+    assert!(report.pass);
+    let mut design = ClosedForm::from_scene(&sys.scene);
+    (design.lambda0_nm, design.reference_angle_deg, design.n_film) = (532.0, 61.2, 1.5);
+    let r = analytic::compare_with(&sys, &design, 50);
+    let lb = r
+        .summary
+        .iter()
+        .find(|s| s.quantity == quantity::LAMBDA_B)
+        .unwrap();
+    assert!(!lb.pass && lb.max_abs_diff > 1.0, "{lb:?}");
+}

@@ -96,10 +96,17 @@ pub struct GratingReport {
     pub u: [f64; 2],
     /// The gratings.
     pub gratings: Vec<GratingSpec>,
-    /// Film thickness (µm) and mean index.
+    /// Film thickness (µm) as fabricated (the film the curves are for).
     pub film_thickness_um: f64,
-    /// Mean index of the film.
+    /// Mean index of the film as fabricated.
     pub mean_index: f64,
+    /// True if any fabrication key differs from the design (`hoe.shrinkage`, …): the film
+    /// then differs from the designed one, whose thickness and index follow.
+    pub fabricated: bool,
+    /// Film thickness as designed (µm).
+    pub design_film_thickness_um: f64,
+    /// Mean index as designed.
+    pub design_mean_index: f64,
     /// RCWA harmonic half-width and slices per period (as requested).
     pub harmonics: usize,
     /// RCWA slices per z-period.
@@ -188,6 +195,8 @@ fn parse_grating(spec: &str, mean_index: f64) -> Result<GratingSpec, Failure> {
                 reference_angle_deg: a,
                 object_angle_deg: 0.0,
                 index_modulation: n1,
+                index_modulation_shortfall: 0.0,
+                reference_angle_error_deg: 0.0,
             })
         }
         _ => Err(bad_input(format!(
@@ -262,6 +271,8 @@ pub fn compute(o: &GratingOptions) -> Result<GratingReport, Failure> {
         .iter()
         .map(|&l| gs::stack_media(s, o.stack, l))
         .collect();
+    let film_thickness_um = gs::film(s, &gratings).thickness_nm * 1e-3;
+    let fabricated = fabricated(s, &gratings);
     Ok(GratingReport {
         model: o.model,
         stack: o.stack,
@@ -269,8 +280,11 @@ pub fn compute(o: &GratingOptions) -> Result<GratingReport, Failure> {
         field_deg: field,
         u: u.to_array(),
         gratings,
-        film_thickness_um: s.hoe.film_thickness_um,
-        mean_index: s.hoe.mean_index,
+        film_thickness_um,
+        mean_index: gs::fabricated_mean_index(s),
+        fabricated,
+        design_film_thickness_um: s.hoe.film_thickness_um,
+        design_mean_index: s.hoe.mean_index,
         harmonics: o.harmonics,
         slices_per_period: o.slices_per_period,
         n_in: media.iter().map(|m| m.n_in).collect(),
@@ -317,13 +331,38 @@ pub fn plot(r: &GratingReport) -> LinePlot {
     }
 }
 
+/// True if the fabricated film differs from the design (any fabrication key of the scene or
+/// any grating's own error is non-zero).
+fn fabricated(s: &crate::scene::Scene, gratings: &[GratingSpec]) -> bool {
+    let f = s.hoe.fabrication();
+    [
+        f.shrinkage,
+        f.mean_index_change,
+        f.thickness_error_um,
+        f.temperature_change_k,
+    ]
+    .iter()
+    .any(|&v| v != 0.0)
+        || gratings
+            .iter()
+            .any(|g| g.index_modulation_shortfall != 0.0 || g.reference_angle_error_deg != 0.0)
+}
+
 fn print_text(r: &GratingReport, con: &Console) {
     con.out(format_args!(
-        "model {:?}, stack {:?}: film {} um, n = {}; field ({}, {}) deg, u = ({:.6}, {:.6})",
+        "model {:?}, stack {:?}: film {} um, n = {}{}; field ({}, {}) deg, u = ({:.6}, {:.6})",
         r.model,
         r.stack,
         r.film_thickness_um,
         r.mean_index,
+        if r.fabricated {
+            format!(
+                " as fabricated (designed {} um, n = {})",
+                r.design_film_thickness_um, r.design_mean_index
+            )
+        } else {
+            String::new()
+        },
         r.field_deg[0],
         r.field_deg[1],
         r.u[0],

@@ -44,6 +44,13 @@ fn cmd_info(
         "grating period: {:.2} nm; focus {:.1} mm, lens–sensor {:.4} mm",
         info.grating_period_nm, info.focus_distance_mm, info.sensor_distance_mm
     ));
+    let h = &sys.scene.hoe;
+    if h.is_fabricated() {
+        con.out(format_args!(
+            "film as fabricated (hoe.* fabrication keys): {:.4} um, n = {:.5} (designed {} um, n = {}); every figure below is for this film",
+            info.film_thickness_um, info.film_mean_index, h.film_thickness_um, h.mean_index
+        ));
+    }
     let multiplexed = info.gratings.len() > 1;
     for g in &info.gratings {
         print_grating(g, multiplexed, con);

@@ -130,6 +130,26 @@ pub fn shrunk_bragg_wavelength_nm(
     2.0 * lambda0_nm * q * (a * ti.cos() - b * q * ti.sin()) / (a * a + b * b * q * q)
 }
 
+/// The recording (vacuum wavelength λ0' in nm, reference angle θ' in degrees, object beam
+/// normal) that gives the grating vector of `g` in a film of `g`'s own mean index: the
+/// fabricated grating seen as a designed one, so that closed forms written for a recording
+/// (docs/physics.md §3) apply to it. With ŝ_O = ẑ, K = k0(0, −sin θ, 1 + cos θ), so
+/// θ' = 2·atan2(−K_y, K_z) and k0' = K_z/(1 + cos θ'), λ0' = 2π n'/k0'. Exact when K_x = 0
+/// (every error here keeps the fringes in the yz plane of an object beam normal to the film);
+/// None if K_x ≠ 0 or K_z ≤ 0.
+pub fn equivalent_recording(g: &VolumeGrating) -> Option<(f64, f64)> {
+    let k = g.k_rad_per_nm;
+    if k.x != 0.0 || k.z <= 0.0 {
+        return None;
+    }
+    let theta = 2.0 * (-k.y).atan2(k.z);
+    let k0 = k.z / (1.0 + theta.cos());
+    Some((
+        2.0 * std::f64::consts::PI * g.n_film / k0,
+        theta.to_degrees(),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -220,6 +240,43 @@ mod tests {
         assert!((g.thickness_nm / n.thickness_nm - (1.0 + 1e-4 * 20.0)).abs() < 1e-12);
         assert!((n.k_rad_per_nm.z / g.k_rad_per_nm.z - (1.0 + 1e-4 * 20.0)).abs() < 1e-12);
         assert!((n.k_rad_per_nm.y / g.k_rad_per_nm.y - (1.0 + 9e-6 * 20.0)).abs() < 1e-12);
+    }
+
+    /// The equivalent recording of a fabricated grating: for the design it gives back the
+    /// recording (1e-12); for a shrunk film, a grating recorded at (λ0', θ') in the same film has
+    /// the fabricated grating's K (1e-15 rad/nm) and the closed form's Bragg wavelength
+    /// (independent: `shrunk_bragg_wavelength_nm`, 1e-9 relative); the design's recording is
+    /// more than 2 nm off there (the check can fail).
+    #[test]
+    fn equivalent_recording_of_fabricated_films() {
+        let (mut h, r) = paper();
+        let (l, t) = equivalent_recording(&fabricated_grating(&h, &r)).unwrap();
+        assert!(
+            (l - 532.0).abs() < 1e-12 && (t - 61.2).abs() < 1e-12,
+            "{l} {t}"
+        );
+        h.shrinkage = 0.02;
+        h.mean_index_change = 0.002;
+        let g = fabricated_grating(&h, &r);
+        let (l, t) = equivalent_recording(&g).unwrap();
+        let e = VolumeGrating::from_recording(l, t, g.n_film, 16.0, 0.015, 0.0);
+        assert!((e.k_rad_per_nm - g.k_rad_per_nm).length() < 1e-15);
+        h.mean_index_change = 0.0;
+        let g = fabricated_grating(&h, &r);
+        let (l, t) = equivalent_recording(&g).unwrap();
+        let design = VolumeGrating::from_recording(532.0, 61.2, 1.5, 16.0, 0.015, 0.0);
+        for theta in [-8.0f64, 0.0, 6.0] {
+            let u = DVec2::new(0.0, 1.5 * theta.to_radians().sin());
+            let want = shrunk_bragg_wavelength_nm(532.0, 61.2, 0.02, theta);
+            let e = VolumeGrating::from_recording(l, t, 1.5, 16.0, 0.015, 0.0);
+            let got = e.bragg_wavelength_nm(u).unwrap();
+            assert!((got - want).abs() < 1e-9 * want, "{theta}: {got} {want}");
+            assert!((design.bragg_wavelength_nm(u).unwrap() - want).abs() > 2.0);
+        }
+        // A grating tilted out of the yz plane has no such recording.
+        let mut tilted = g;
+        tilted.k_rad_per_nm.x = 1e-3;
+        assert!(equivalent_recording(&tilted).is_none());
     }
 
     /// Shortfall, thickness error and angle error against their definitions.

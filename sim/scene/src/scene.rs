@@ -183,6 +183,24 @@ impl HoeDesc {
         }
     }
 
+    /// True if a fabrication key differs from the design (the film's shrinkage, mean-index
+    /// change, thickness error or temperature change, or a grating's shortfall or angle
+    /// error): the film traced then differs from the one designed.
+    pub fn is_fabricated(&self) -> bool {
+        [
+            self.shrinkage,
+            self.mean_index_change,
+            self.thickness_error_um,
+            self.temperature_change_k,
+        ]
+        .iter()
+        .any(|&v| v != 0.0)
+            || self
+                .gratings()
+                .iter()
+                .any(|g| g.index_modulation_shortfall != 0.0 || g.reference_angle_error_deg != 0.0)
+    }
+
     /// Every grating of the film as fabricated ([`crate::optics::fabrication`]), in scene
     /// order.
     pub fn fabricated_gratings(&self) -> Vec<crate::optics::grating::VolumeGrating> {

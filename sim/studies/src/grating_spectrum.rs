@@ -13,10 +13,14 @@
 //! absent). Kogelnik's TE/TM (relative to the plane of diffraction, as the tracer uses them) are
 //! converted to the plane-of-incidence basis both models report
 //! (`rcwa::kogelnik_in_incidence_basis`); the undiffracted order is 1 − Σ η per polarisation.
+//! The film is the one fabricated (`optics::fabrication`: the scene's shrinkage, mean-index
+//! change, thickness error, temperature and each grating's shortfall and angle error), as the
+//! tracer sees it; with every fabrication key 0 it is the designed film bit for bit.
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
+use crate::optics::fabrication::{GratingRecording, fabricated_grating};
 use crate::optics::grating::VolumeGrating;
 use crate::optics::rcwa::{self, Film, RcwaError, Settings, Stack};
 use crate::scene::Scene;
@@ -30,8 +34,12 @@ pub struct GratingSpec {
     pub reference_angle_deg: f64,
     /// Object-beam angle inside the film, degrees from +z (0: normal to the film).
     pub object_angle_deg: f64,
-    /// Index modulation n1 of this grating.
+    /// Index modulation n1 of this grating (as designed).
     pub index_modulation: f64,
+    /// Relative shortfall of the index modulation (fabrication; 0 as designed).
+    pub index_modulation_shortfall: f64,
+    /// Error of the reference-beam angle at recording, degrees (fabrication; 0 as designed).
+    pub reference_angle_error_deg: f64,
 }
 
 /// The grating list of a scene: its `[[hoe.grating]]` entries, or the one grating of the
@@ -45,38 +53,51 @@ pub fn scene_gratings(s: &Scene) -> Vec<GratingSpec> {
             reference_angle_deg: g.reference_angle_deg,
             object_angle_deg: g.object_angle_deg,
             index_modulation: g.index_modulation,
+            index_modulation_shortfall: g.index_modulation_shortfall,
+            reference_angle_error_deg: g.reference_angle_error_deg,
         })
         .collect()
 }
 
-/// The Kogelnik gratings of a list, in the scene's film.
+/// The Kogelnik gratings of a list in the scene's film **as fabricated** (the `hoe.*`
+/// fabrication keys of the scene and each entry's own errors, `optics::fabrication`; every key 0
+/// gives the recorded design bit for bit), as the tracer builds them.
 pub fn volume_gratings(s: &Scene, gratings: &[GratingSpec]) -> Vec<VolumeGrating> {
+    let film = s.hoe.fabrication();
     gratings
         .iter()
         .map(|g| {
-            VolumeGrating::from_recording_beams(
-                g.recording_wavelength_nm,
-                g.reference_angle_deg,
-                g.object_angle_deg,
-                s.hoe.mean_index,
-                s.hoe.film_thickness_um,
-                g.index_modulation,
-                s.hoe.amplitude_absorption_per_mm,
+            fabricated_grating(
+                &film,
+                &GratingRecording {
+                    recording_wavelength_nm: g.recording_wavelength_nm,
+                    reference_angle_deg: g.reference_angle_deg,
+                    object_angle_deg: g.object_angle_deg,
+                    index_modulation: g.index_modulation,
+                    index_modulation_shortfall: g.index_modulation_shortfall,
+                    reference_angle_error_deg: g.reference_angle_error_deg,
+                },
             )
         })
         .collect()
 }
 
-/// The RCWA film of a grating list in the scene's film.
+/// The mean index of the scene's film as fabricated (n + δn + (dn/dT)·ΔT).
+pub fn fabricated_mean_index(s: &Scene) -> f64 {
+    let f = s.hoe.fabrication();
+    f.mean_index + f.mean_index_change + f.index_change_per_k * f.temperature_change_k
+}
+
+/// The RCWA film of a grating list in the scene's film as fabricated.
 pub fn film(s: &Scene, gratings: &[GratingSpec]) -> Film {
+    let vg = volume_gratings(s, gratings);
     Film {
-        mean_index: s.hoe.mean_index,
+        mean_index: fabricated_mean_index(s),
         alpha0_per_nm: s.hoe.amplitude_absorption_per_mm * 1e-6,
-        thickness_nm: s.hoe.film_thickness_um * 1e3,
-        gratings: volume_gratings(s, gratings)
-            .iter()
-            .map(rcwa::Grating::of)
-            .collect(),
+        thickness_nm: vg
+            .first()
+            .map_or(s.hoe.film_thickness_um * 1e3, |g| g.thickness_nm),
+        gratings: vg.iter().map(rcwa::Grating::of).collect(),
     }
 }
 
@@ -97,8 +118,8 @@ pub enum StackKind {
 pub fn stack_media(s: &Scene, kind: StackKind, lambda_nm: f64) -> Stack {
     match kind {
         StackKind::Bulk => Stack {
-            n_in: s.hoe.mean_index,
-            n_out: s.hoe.mean_index,
+            n_in: fabricated_mean_index(s),
+            n_out: fabricated_mean_index(s),
         },
         StackKind::Contact => Stack {
             n_in: crate::system::glass_of(&s.plate.glass).index(lambda_nm),

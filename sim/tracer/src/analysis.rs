@@ -273,6 +273,11 @@ pub struct DesignInfo {
     pub n_glass_recording: f64,
     /// Grating period, nm.
     pub grating_period_nm: f64,
+    /// Film thickness as fabricated (the `hoe.*` fabrication keys applied; the design's
+    /// `hoe.film_thickness_um` when they are all 0), µm. Every figure here is for this film.
+    pub film_thickness_um: f64,
+    /// Mean index of the film as fabricated.
+    pub film_mean_index: f64,
     /// Sensor rows (continuous, row 0 = top) at which a point at the display centre appears,
     /// one entry per replica, with the weights of the chief rays that see it.
     pub point_replicas: Vec<PointReplica>,
@@ -824,6 +829,8 @@ pub fn info(sys: &System) -> DesignInfo {
         film_critical_angle_deg: critical_angle(wg.gratings.film().n_film, 1.0).to_degrees(),
         n_glass_recording: n0,
         grating_period_nm: wg.gratings.film().period_nm(),
+        film_thickness_um: wg.gratings.film().thickness_nm * 1e-3,
+        film_mean_index: wg.gratings.film().n_film,
         replica_pitch_sensor_px: gratings[0].replica_pitch_sensor_px,
         point_replicas: point,
         field: gratings[0].field.clone(),

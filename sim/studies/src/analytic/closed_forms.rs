@@ -13,8 +13,11 @@ use crate::system::glass_of;
 /// the runtime objects built from it). Fields may be changed to test the comparison.
 #[derive(Clone, Debug, Serialize)]
 pub struct ClosedForm {
-    /// Recording wavelength λ0, nm.
+    /// Recording wavelength λ0, nm (of the film as fabricated, [`recording_of`]).
     pub lambda0_nm: f64,
+    /// The design's recording wavelength, nm: where the plate's index is taken when no
+    /// wavelength is Bragg-matched (as the tracer takes it: the scene's primary wavelength).
+    pub design_lambda_nm: f64,
     /// Reference angle θ_R inside the film, degrees.
     pub reference_angle_deg: f64,
     /// Film index n_f.
@@ -118,8 +121,40 @@ fn odd_in(a: f64, b: f64) -> Option<(u32, u32)> {
     (m_hi >= m_lo).then(|| (m_lo as u32, m_hi.min(1e6) as u32))
 }
 
+/// The recording the closed forms take for the scene's first grating: its design (recording
+/// wavelength, reference angle, mean index) or, when the scene's fabrication keys change the
+/// film (`hoe.shrinkage`, …), the recording that gives the fabricated grating's vector in the
+/// fabricated film (`optics::fabrication::equivalent_recording`), so the closed forms describe
+/// the film the tracer traces.
+pub fn recording_of(s: &Scene) -> (f64, f64, f64) {
+    let d = &s.hoe.gratings()[0];
+    let design = (
+        d.recording_wavelength_nm,
+        d.reference_angle_deg,
+        s.hoe.mean_index,
+    );
+    let fab = s.hoe.fabricated_gratings()[0];
+    let nominal = crate::optics::grating::VolumeGrating::from_recording_beams(
+        d.recording_wavelength_nm,
+        d.reference_angle_deg,
+        d.object_angle_deg,
+        s.hoe.mean_index,
+        s.hoe.film_thickness_um,
+        d.index_modulation,
+        s.hoe.amplitude_absorption_per_mm,
+    );
+    if fab.k_rad_per_nm == nominal.k_rad_per_nm && fab.n_film == nominal.n_film {
+        return design;
+    }
+    match crate::optics::fabrication::equivalent_recording(&fab) {
+        Some((l, t)) => (l, t, fab.n_film),
+        None => design,
+    }
+}
+
 impl ClosedForm {
-    /// Reads the plain design values of a scene description.
+    /// Reads the plain design values of a scene description (the film as fabricated,
+    /// [`recording_of`]).
     pub fn from_scene(s: &Scene) -> ClosedForm {
         let glass = glass_of(&s.plate.glass);
         let w = s.plate.thickness_mm;
@@ -133,10 +168,12 @@ impl ClosedForm {
             }
         };
         let (cw, ch) = s.sensor.crop_px.size();
+        let (lambda0_nm, reference_angle_deg, n_film) = recording_of(s);
         ClosedForm {
-            lambda0_nm: s.hoe.gratings()[0].recording_wavelength_nm,
-            reference_angle_deg: s.hoe.gratings()[0].reference_angle_deg,
-            n_film: s.hoe.mean_index,
+            lambda0_nm,
+            design_lambda_nm: s.hoe.primary_wavelength_nm(),
+            reference_angle_deg,
+            n_film,
             thickness_mm: w,
             glass,
             bottom_size_mm: [s.bottom_hoe.width_mm, s.bottom_hoe.height_mm],
@@ -228,7 +265,7 @@ impl ClosedForm {
         let u = -dt;
         let lam_opt = self.bragg_wavelength_nm(u.to_array());
         let lam = lam_opt.unwrap_or(f64::NAN);
-        let n = self.n_glass(lam_opt.unwrap_or(self.lambda0_nm));
+        let n = self.n_glass(lam_opt.unwrap_or(self.design_lambda_nm));
         let w = self.thickness_mm;
         let lens = DVec3::from_array(self.lens_mm());
         let p_b = lens.truncate() + self.camera_distance_mm * t;

@@ -661,7 +661,7 @@ fn height_rows(rows: &mut Vec<Row>, sys: &System, cf: &ClosedForm) {
 fn fov_section(rows: &mut Vec<Row>, sys: &System, cf: &ClosedForm) {
     let tol = DETERMINISTIC_REL_TOL;
     let crit = info(sys);
-    let n0 = cf.n_glass(cf.lambda0_nm);
+    let n0 = cf.n_glass(cf.design_lambda_nm);
     rows.push(row(
         "fov",
         quantity::CRITICAL,
