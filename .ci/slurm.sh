@@ -109,3 +109,21 @@ if ! diff -r "$work/merged" "$work/unsharded" >/dev/null; then
     exit 1
 fi
 echo "slurm: merged dataset byte-identical to the unsharded run ($(find "$work/merged" -type f | wc -l) files)"
+# A design study with each step's batch spread over a 4-task array (studies/slurm-optimize.sh:
+# --collect plans a step, the array evaluates it, the next --collect merges), against a local run.
+study=validation/design/slurm-ci.toml
+t0=$(date +%s)
+if ! timeout 900 studies/slurm-optimize.sh "$study" "$work/optimize-slurm" 4 20 3 "$stscam" >"$work/optimize.log" 2>&1; then
+    echo "slurm: the sharded study failed; log:" >&2
+    tail -n 20 "$work/optimize.log" >&2
+    exit 1
+fi
+echo "slurm: design study over 4 array tasks per step finished in $(( $(date +%s) - t0 )) s"
+"$stscam" optimize "$study" --out "$work/optimize-local" --budget 20 --seed 3 2>/dev/null >/dev/null
+# history.csv without its last column (seconds).
+strip() { sed 's/,[^,]*$//' "$1"; }
+if ! diff <(strip "$work/optimize-slurm/history.csv") <(strip "$work/optimize-local/history.csv") >/dev/null; then
+    echo "slurm: the sharded study's history differs from the local run's" >&2
+    exit 1
+fi
+echo "slurm: sharded study's history.csv equal to the local run's ($(( $(wc -l < "$work/optimize-local/history.csv") - 1 )) evaluations; seconds column aside)"

@@ -1421,6 +1421,7 @@ fn optimize(
         resume,
         skip_final,
         threads,
+        ..OptimizeOptions::local(PathBuf::new(), budget, seed, PathBuf::new())
     };
     run_job_with(py, threads, progress.as_ref(), || {
         let count = stscam::progress::Progress::new(false, budget as u64, "evaluations");

@@ -147,6 +147,11 @@ fn an_infeasible_study_is_reported_and_writes_no_best() {
             .unwrap()
             .contains(">= 80")
     );
+    // Its convergence plot shows the least violation so far, not an empty frame: a line
+    // that never rises.
+    let svg = std::fs::read_to_string(out.join("convergence.svg")).unwrap();
+    assert!(svg.contains("No feasible design"), "{svg}");
+    assert!(svg.contains("<path d=\"M"), "no curve drawn");
 }
 
 #[test]
@@ -303,6 +308,64 @@ fn history_is_the_same_for_any_thread_count_and_after_sigkill_and_resume() {
     ]);
     assert_eq!(r.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&r.stderr).contains("another study or seed"));
+    // The same run as shard tasks (a cluster's array): `--collect` plans each step, N tasks
+    // evaluate their shares, the last `--collect` writes the files; 3 and 4 tasks, and 3 tasks
+    // where task 2 fails on the first step (the next collect plans only what is missing).
+    for (tasks, fail_once) in [(4usize, false), (3, true)] {
+        let out = dir.path().join(format!("shards-{tasks}"));
+        let o = out.to_str().unwrap();
+        let common = ["optimize", s, "--budget", "14", "--seed", "5", "--out", o];
+        // A shard before any plan is refused (exit 2, naming step.json).
+        let r = stscam(&[&common[..], &["--shard", "0/2"]].concat());
+        assert_eq!(r.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&r.stderr).contains("step.json"));
+        let mut failed = false;
+        let mut rounds = 0;
+        loop {
+            let said = stscam_ok(&[&common[..], &["--collect", "--skip-final"]].concat());
+            if out.join("summary.json").exists() {
+                break;
+            }
+            assert!(said.contains("planned step"), "{said}");
+            rounds += 1;
+            assert!(rounds < 20, "the collect never finished");
+            if rounds == 1 {
+                // A shard task of another seed is refused (the plan's digest).
+                let r = stscam(&[
+                    "optimize", s, "--budget", "14", "--seed", "6", "--out", o, "--shard", "0/2",
+                ]);
+                assert_eq!(r.status.code(), Some(2));
+                assert!(String::from_utf8_lossy(&r.stderr).contains("another study or seed"));
+            }
+            for i in 0..tasks {
+                if fail_once && !failed && i == 2 {
+                    failed = true;
+                    continue;
+                }
+                let shard = format!("{i}/{tasks}");
+                stscam_ok(&[&common[..], &["--shard", &shard]].concat());
+            }
+        }
+        assert_eq!(
+            reference,
+            csv_without_timing(&out.join("history.csv")),
+            "{tasks} tasks"
+        );
+        assert!(!out.join("step.json").exists());
+        assert!(files_in(&out).iter().all(|f| !f.starts_with("shard-")));
+    }
+    // Bad shard specifications exit 2.
+    for bad in ["2/2", "1", "a/3", "0/0", "0/99999"] {
+        let r = stscam(&[
+            "optimize",
+            s,
+            "--out",
+            dir.path().join("bad").to_str().unwrap(),
+            "--shard",
+            bad,
+        ]);
+        assert_eq!(r.status.code(), Some(2), "{bad}");
+    }
 }
 
 #[test]

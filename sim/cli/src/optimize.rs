@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use stscam_design::optimize::{Outcome, RunSettings, optimize};
+use stscam_design::optimize::{Outcome, Progress, Role, RunSettings, optimize};
 use stscam_design::report;
 use stscam_design::study::Study;
 
@@ -32,6 +32,59 @@ pub struct OptimizeOptions {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Evaluate shard I of N (0-based) of the step planned in --out by `--collect`, into
+    /// DIR/shard-III-of-NNN.jsonl, and stop (a cluster's array task; resumable).
+    #[arg(long, value_name = "I/N", value_parser = parse_shard, conflicts_with_all = ["collect", "resume"])]
+    pub shard: Option<(usize, usize)>,
+    /// Merge the shard files in --out into the checkpoint, then plan the next step for the
+    /// shard tasks (DIR/step.json) or, with the budget spent, write the run's files.
+    #[arg(long, conflicts_with = "resume")]
+    pub collect: bool,
+}
+
+/// Parses `I/N` (0 <= I < N <= MAX_SHARDS).
+fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let bad = || {
+        format!(
+            "`{s}`: expected I/N with 0 <= I < N <= {}, e.g. 0/4",
+            stscam_design::optimize::MAX_SHARDS
+        )
+    };
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let (i, n) = (
+        i.trim().parse::<usize>().map_err(|_| bad())?,
+        n.trim().parse::<usize>().map_err(|_| bad())?,
+    );
+    if i < n && n <= stscam_design::optimize::MAX_SHARDS {
+        Ok((i, n))
+    } else {
+        Err(bad())
+    }
+}
+
+impl OptimizeOptions {
+    /// The options of a local run (no shards).
+    pub fn local(study: PathBuf, budget: usize, seed: u64, out: PathBuf) -> Self {
+        OptimizeOptions {
+            study,
+            budget,
+            seed,
+            out,
+            resume: false,
+            skip_final: false,
+            threads: None,
+            shard: None,
+            collect: false,
+        }
+    }
+
+    fn role(&self) -> Role {
+        match (self.shard, self.collect) {
+            (Some((index, count)), _) => Role::Shard { index, count },
+            (None, true) => Role::Collect,
+            (None, false) => Role::Local,
+        }
+    }
 }
 
 /// The files of a finished run.
@@ -88,16 +141,16 @@ fn files(
     Ok(f)
 }
 
-/// Runs `study` as the options say (budget, seed, `--out`, resume, final re-evaluation) in
-/// the caller's thread pool and writes the run's files into `--out` (all or nothing);
-/// `on_record` is called after each evaluation with its record and the best feasible first
-/// objective so far; returns the outcome and the number of files written. The CLI and the
-/// Python package both run studies through this.
+/// Runs `study` as the options say (budget, seed, `--out`, resume, shard or collect, final
+/// re-evaluation) in the caller's thread pool and, when the run is complete, writes its files
+/// into `--out` (all or nothing); `on_record` is called after each evaluation with its record
+/// and the best feasible first objective so far; returns where the run stopped and the number
+/// of files written. The CLI and the Python package both run studies through this.
 pub fn run_study(
     study: &Study,
     o: &OptimizeOptions,
     on_record: &(dyn Fn(&stscam_design::optimize::Record, Option<f64>) + Sync),
-) -> Result<(Outcome, usize), JobError> {
+) -> Result<(Progress, usize), JobError> {
     if o.budget == 0 || o.budget > stscam_design::study::MAX_BUDGET {
         return Err(bad_input(format!(
             "--budget {}: must be 1..={}",
@@ -106,25 +159,39 @@ pub fn run_study(
         )));
     }
     check_out_dir(&o.out)?;
-    if !o.resume && o.out.join("history.jsonl").exists() {
-        return Err(bad_input(format!(
-            "{}: holds a run already (history.jsonl); pass --resume to continue it or choose another --out",
-            o.out.display()
-        )));
+    let role = o.role();
+    if role == Role::Local && !o.resume {
+        use stscam_design::optimize::{BASE, HISTORY, STEP};
+        if let Some(f) = [HISTORY, BASE, STEP]
+            .into_iter()
+            .find(|f| o.out.join(f).exists())
+        {
+            return Err(bad_input(format!(
+                "{}: holds a run already ({f}); pass --resume to continue it or choose another --out",
+                o.out.display()
+            )));
+        }
     }
     let set = RunSettings {
         budget: o.budget,
         seed: o.seed,
         resume: o.resume,
         skip_final: o.skip_final,
+        role,
     };
-    let outcome = optimize(study, &set, &o.out, on_record).map_err(|e| match e {
+    let progress = optimize(study, &set, &o.out, on_record).map_err(|e| match e {
         stscam_design::optimize::OptimizeError::Write(m) => write_failure(m),
         e => bad_input(e.to_string()),
     })?;
-    let f = files(study, &outcome, o.seed, o.budget)?;
-    write_files(&o.out, &f)?;
-    Ok((outcome, f.len()))
+    let written = match &progress {
+        Progress::Finished(outcome) => {
+            let f = files(study, outcome, o.seed, o.budget)?;
+            write_files(&o.out, &f)?;
+            f.len()
+        }
+        _ => 0,
+    };
+    Ok((progress, written))
 }
 
 /// Runs the job.
@@ -149,7 +216,34 @@ pub fn run(o: &OptimizeOptions, con: &Console) -> Result<(), JobError> {
             best.map_or("none yet".to_string(), |b| format!("{b:.4}"))
         ));
     };
-    let (outcome, written) = pool.install(|| run_study(&study, o, &on_record))?;
+    let (progress, written) = pool.install(|| run_study(&study, o, &on_record))?;
+    let outcome = match progress {
+        Progress::Finished(outcome) => outcome,
+        Progress::Planned { step, points } => {
+            con.out(format_args!(
+                "planned step {step}: {points} evaluations in {} for the shard tasks (--shard I/N), then --collect again",
+                o.out.join(stscam_design::optimize::STEP).display()
+            ));
+            return Ok(());
+        }
+        Progress::ShardDone {
+            step,
+            evaluated,
+            kept,
+        } => {
+            con.out(format_args!(
+                "shard {}: step {step}: {evaluated} evaluations done{} in {:.1} s",
+                o.shard.map_or(String::new(), |(i, n)| format!("{i}/{n}")),
+                if kept > 0 {
+                    format!(" ({kept} kept from an earlier attempt)")
+                } else {
+                    String::new()
+                },
+                t0.elapsed().as_secs_f64()
+            ));
+            return Ok(());
+        }
+    };
     match (outcome.best, &outcome.least_violating) {
         (Some(b), _) => {
             let r = report::record(&outcome, b);

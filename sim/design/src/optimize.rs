@@ -28,7 +28,18 @@
 //! flushed as each ends; `--resume` reads it back (each line checked against the study's
 //! digest and the parameters), skips the evaluations it holds and continues. At the end every
 //! output is written from the records sorted by index: `history.csv`, `history.jsonl`,
-//! `pareto.csv`, `best.toml`, `summary.json`, `report.md` and the plots.
+//! `pareto.csv`, `best.toml`, `summary.json`, `report.md` and the plots. `base.json` holds the
+//! base design's evaluation (its metrics and the exposure it fixes) so that a resumed run or a
+//! shard task does not evaluate it again.
+//!
+//! # Shards (a cluster's array tasks)
+//! A step's batch can be evaluated by separate processes ([`Role`]): `--collect` merges the
+//! shard files into the checkpoint and plans the next step into `step.json` (its points, as
+//! bit patterns); each of N tasks (`--shard I/N`) evaluates the planned points at positions
+//! k ≡ I (mod N) into `shard-III-of-NNN.jsonl` (resumable the same way); the next `--collect`
+//! merges them, and once the budget is spent writes the run's files as a local run does.
+//! Every evaluation is a pure function of the study, the seed and its point, and every step's
+//! points a pure function of the earlier records, so the history is the same for any split.
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -70,6 +81,52 @@ pub struct RunSettings {
     pub resume: bool,
     /// Skip the final re-evaluation at full fidelity.
     pub skip_final: bool,
+    /// How this process takes part (module notes, "Shards").
+    pub role: Role,
+}
+
+/// How a process takes part in a run (module notes, "Shards").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// Evaluates every step itself, on the threads of its pool.
+    Local,
+    /// Merges the shard files into the checkpoint, then plans the next step into `step.json`
+    /// or, with the budget spent, finishes as a local run.
+    Collect,
+    /// Shard `index` of `count`: evaluates its share of the planned step and stops.
+    Shard {
+        /// 0-based.
+        index: usize,
+        /// Number of shards (tasks).
+        count: usize,
+    },
+}
+
+/// Most shard tasks of a run.
+pub const MAX_SHARDS: usize = 4096;
+
+/// Where a call of [`optimize`] stopped.
+#[derive(Debug)]
+pub enum Progress {
+    /// The run is complete.
+    Finished(Box<Outcome>),
+    /// `Collect`: the step `step` with `points` evaluations to do is planned in `step.json`.
+    Planned {
+        /// The step.
+        step: usize,
+        /// Its evaluations still to do.
+        points: usize,
+    },
+    /// `Shard`: this shard's share of step `step` is done (`evaluated` now, `kept` from an
+    /// earlier attempt of the same task).
+    ShardDone {
+        /// The step.
+        step: usize,
+        /// Evaluated by this call.
+        evaluated: usize,
+        /// Found already in the shard's file.
+        kept: usize,
+    },
 }
 
 /// One evaluation of the search.
@@ -353,10 +410,8 @@ pub fn evaluate_design(
 
 /// Reads the checkpoint of a resumed run.
 fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Record>, OptimizeError> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(OptimizeError::Input(format!("{}: {e}", path.display()))),
+    let Some(text) = read_if_any(path)? else {
+        return Ok(Vec::new());
     };
     let mut out: Vec<Record> = Vec::new();
     let lines: Vec<&str> = text.lines().collect();
@@ -389,14 +444,342 @@ fn read_checkpoint(path: &Path, study: &Study, digest: &str) -> Result<Vec<Recor
     Ok(out)
 }
 
-/// Runs the study (module notes), writing the checkpoint into `out`; `on_record` is called
-/// after each evaluation with the record and the best feasible first objective so far.
+/// The checkpoint's file name.
+pub const HISTORY: &str = "history.jsonl";
+/// The base design's evaluation (metrics and exposure).
+pub const BASE: &str = "base.json";
+/// The step planned for shard tasks.
+pub const STEP: &str = "step.json";
+
+fn write_error(path: &Path, e: impl std::fmt::Display) -> OptimizeError {
+    OptimizeError::Write(format!("{}: {e}", path.display()))
+}
+
+/// The bit patterns of `x` as a JSON array.
+fn bits_of(x: impl Iterator<Item = f64>) -> serde_json::Value {
+    x.map(f64::to_bits).collect::<Vec<u64>>().into()
+}
+
+/// The numbers of JSON array `v` of bit patterns.
+fn numbers_of(v: &serde_json::Value) -> Option<Vec<f64>> {
+    v.as_array()?
+        .iter()
+        .map(|b| b.as_u64().map(f64::from_bits))
+        .collect()
+}
+
+/// Reads a text file of the run, checked as every input is (a regular file of at most
+/// `MAX_TEXT_BYTES`, UTF-8); None if it does not exist.
+fn read_if_any(path: &Path) -> Result<Option<String>, OptimizeError> {
+    use crate::io::IoError;
+    match crate::io::input::read_text(path) {
+        Ok(t) => Ok(Some(t)),
+        Err(IoError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            Ok(None)
+        }
+        Err(e) => Err(OptimizeError::Input(e.to_string())),
+    }
+}
+
+/// Reads a small JSON file of the run (`base.json`, `step.json`): None if it does not exist;
+/// its `study` digest checked.
+fn read_run_json(path: &Path, digest: &str) -> Result<Option<serde_json::Value>, OptimizeError> {
+    let bad = |m: String| OptimizeError::Input(format!("{}: {m}", path.display()));
+    let Some(text) = read_if_any(path)? else {
+        return Ok(None);
+    };
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad(format!("not JSON ({e})")))?;
+    match v["study"].as_str() {
+        Some(d) if d == digest => Ok(Some(v)),
+        Some(d) => Err(bad(format!(
+            "written for another study or seed (digest {d} against {digest}); use a new --out"
+        ))),
+        None => Err(bad("no study digest".into())),
+    }
+}
+
+/// The base design's evaluation as `base.json` holds it: (metrics, white peak), read back
+/// exactly from the bit patterns.
+fn read_base(
+    out: &Path,
+    digest: &str,
+) -> Result<Option<(BTreeMap<String, f64>, f64)>, OptimizeError> {
+    let path = out.join(BASE);
+    let Some(v) = read_run_json(&path, digest)? else {
+        return Ok(None);
+    };
+    let bad = |m: &str| OptimizeError::Input(format!("{}: {m}", path.display()));
+    let names: Vec<String> = v["metrics"]
+        .as_object()
+        .ok_or_else(|| bad("no metrics"))?
+        .keys()
+        .cloned()
+        .collect();
+    let x = numbers_of(&v["bits"]).ok_or_else(|| bad("no bit patterns"))?;
+    if x.len() != names.len() + 1 {
+        return Err(bad("the bit patterns do not match the metrics"));
+    }
+    Ok(Some((
+        names.into_iter().zip(x[1..].iter().copied()).collect(),
+        x[0],
+    )))
+}
+
+fn base_json(digest: &str, metrics: &BTreeMap<String, f64>, white_peak: f64) -> String {
+    serde_json::json!({
+        "study": digest,
+        "white_peak": white_peak,
+        "metrics": metrics,
+        "bits": bits_of(std::iter::once(white_peak).chain(metrics.values().copied())),
+    })
+    .to_string()
+}
+
+/// The planned step in `step.json`: (step, [(index, unit point)]), checked against the study
+/// (digest, dimensions, indices below the budget, points in the unit cube).
+fn read_step(
+    out: &Path,
+    study: &Study,
+    digest: &str,
+    budget: usize,
+) -> Result<(usize, Vec<(usize, Vec<f64>)>), OptimizeError> {
+    let path = out.join(STEP);
+    let bad = |m: &str| OptimizeError::Input(format!("{}: {m}", path.display()));
+    let v = read_run_json(&path, digest)?.ok_or_else(|| {
+        OptimizeError::Input(format!(
+            "{}: no step is planned: run `stscam optimize STUDY --out {} --collect` first",
+            path.display(),
+            out.display()
+        ))
+    })?;
+    let step = v["step"].as_u64().ok_or_else(|| bad("no step"))? as usize;
+    let indices = v["indices"].as_array().ok_or_else(|| bad("no indices"))?;
+    let points = v["bits"].as_array().ok_or_else(|| bad("no bit patterns"))?;
+    if indices.len() != points.len() {
+        return Err(bad("the indices and the points differ in number"));
+    }
+    let d = study.parameters.len();
+    indices
+        .iter()
+        .zip(points)
+        .map(|(i, p)| {
+            let i = i
+                .as_u64()
+                .filter(|&i| (i as usize) < budget)
+                .ok_or_else(|| bad(&format!("an index is not below --budget {budget}")))?;
+            let u = numbers_of(p)
+                .filter(|u| u.len() == d && u.iter().all(|x| (0.0..=1.0).contains(x)))
+                .ok_or_else(|| bad("a point is not in the study's unit cube"))?;
+            Ok((i as usize, u))
+        })
+        .collect::<Result<_, _>>()
+        .map(|p| (step, p))
+}
+
+/// The shard files in `out` (`shard-*.jsonl`), sorted.
+fn shard_files(out: &Path) -> Result<Vec<std::path::PathBuf>, OptimizeError> {
+    let mut v = Vec::new();
+    let rd = match std::fs::read_dir(out) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(v),
+        Err(e) => return Err(OptimizeError::Input(format!("{}: {e}", out.display()))),
+    };
+    for e in rd.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        if n.starts_with("shard-") && n.ends_with(".jsonl") {
+            v.push(e.path());
+        }
+    }
+    v.sort();
+    Ok(v)
+}
+
+/// Adds the records of every shard file to `records`; a record held twice must be the same
+/// to the bit.
+fn merge_shards(
+    out: &Path,
+    study: &Study,
+    digest: &str,
+    records: &mut Vec<Record>,
+) -> Result<Vec<std::path::PathBuf>, OptimizeError> {
+    let files = shard_files(out)?;
+    for f in &files {
+        for r in read_checkpoint(f, study, digest)? {
+            match records.iter().find(|o| o.index == r.index) {
+                Some(o)
+                    if o.numbers()
+                        .map(f64::to_bits)
+                        .eq(r.numbers().map(f64::to_bits)) => {}
+                Some(_) => {
+                    return Err(OptimizeError::Input(format!(
+                        "{}: evaluation {} differs from the one already recorded",
+                        f.display(),
+                        r.index
+                    )));
+                }
+                None => records.push(r),
+            }
+        }
+    }
+    records.sort_by_key(|r| r.index);
+    Ok(files)
+}
+
+/// Writes `records` as a fresh checkpoint file (dropping a cut last line), synced, and opens
+/// it for appending.
+fn rewrite_checkpoint(path: &Path, records: &[Record]) -> Result<std::fs::File, OptimizeError> {
+    let mut file = std::fs::File::create(path).map_err(|e| write_error(path, e))?;
+    for r in records {
+        writeln!(file, "{}", r.to_line()).map_err(|e| write_error(path, e))?;
+    }
+    file.sync_data().map_err(|e| write_error(path, e))?;
+    Ok(file)
+}
+
+/// The best feasible first objective among `rs`, in the objective's own sign.
+fn best_of(study: &Study, rs: &[Record]) -> Option<f64> {
+    let sign = if study.objectives[0].goal == Goal::Maximize {
+        1.0
+    } else {
+        -1.0
+    };
+    rs.iter()
+        .filter(|r| r.feasible)
+        .map(|r| -minimised(study, 0, r))
+        .filter(|v| v.is_finite())
+        .fold(None, |b: Option<f64>, v| Some(b.map_or(v, |b| b.max(v))))
+        .map(|b| b * sign)
+}
+
+/// What evaluations of a step need besides their points.
+struct StepContext<'a> {
+    study: &'a Study,
+    step: usize,
+    search: &'a Fidelity,
+    exposure: Exposure,
+    digest: &'a str,
+    /// The file each record is appended to (and synced) as it ends.
+    file: std::sync::Mutex<std::fs::File>,
+    path: &'a Path,
+    /// Records so far (for the progress line's best value).
+    live: std::sync::Mutex<Vec<Record>>,
+    on_record: &'a (dyn Fn(&Record, Option<f64>) + Sync),
+}
+
+impl StepContext<'_> {
+    /// Evaluates `todo` in parallel, each record appended to the file as it ends.
+    fn evaluate(&self, todo: &[&(usize, Vec<f64>)]) -> Result<Vec<Record>, OptimizeError> {
+        let cancel = crate::cancel::current();
+        let study = self.study;
+        todo.par_iter()
+            .map(|(index, u)| {
+                if cancel.is_cancelled() {
+                    return Err(OptimizeError::Cancelled);
+                }
+                let (params, overrides) = point(study, u);
+                let ev = evaluate_design(study, &overrides, self.search, self.exposure)?;
+                let violations = violations(study, &overrides, &ev.values)?;
+                let r = Record {
+                    index: *index,
+                    step: self.step,
+                    unit: u.clone(),
+                    params,
+                    feasible: violations.iter().all(|v| *v <= 0.0),
+                    metrics: ev.values,
+                    violations,
+                    seconds: ev.seconds,
+                    study: self.digest.to_string(),
+                };
+                let mut f = self.file.lock().unwrap_or_else(|p| p.into_inner());
+                writeln!(f, "{}", r.to_line())
+                    .and_then(|()| f.sync_data())
+                    .map_err(|e| write_error(self.path, e))?;
+                // One progress line as each evaluation finishes (under the file's lock, so
+                // lines never interleave).
+                let mut done = self.live.lock().unwrap_or_else(|p| p.into_inner());
+                done.push(r.clone());
+                (self.on_record)(&r, best_of(study, &done));
+                Ok(r)
+            })
+            .collect()
+    }
+}
+
+fn exposure_of(white_peak: f64) -> Exposure {
+    if white_peak.is_finite() {
+        Exposure::WhitePeak(white_peak)
+    } else {
+        Exposure::Own
+    }
+}
+
+/// A shard task: evaluates its share of the planned step (module notes, "Shards").
+fn run_shard(
+    study: &Study,
+    set: &RunSettings,
+    out: &Path,
+    digest: &str,
+    (index, count): (usize, usize),
+    on_record: &(dyn Fn(&Record, Option<f64>) + Sync),
+) -> Result<Progress, OptimizeError> {
+    if count == 0 || count > MAX_SHARDS || index >= count {
+        return Err(OptimizeError::Input(format!(
+            "--shard {index}/{count}: needs 0 <= I < N <= {MAX_SHARDS}"
+        )));
+    }
+    let (step, plan) = read_step(out, study, digest, set.budget)?;
+    let (_, white_peak) = read_base(out, digest)?.ok_or_else(|| {
+        OptimizeError::Input(format!(
+            "{}: missing; run `stscam optimize STUDY --out {} --collect` first",
+            out.join(BASE).display(),
+            out.display()
+        ))
+    })?;
+    let mut search = study.search.clone();
+    search.seed = set.seed;
+    let path = out.join(format!("shard-{index:03}-of-{count:03}.jsonl"));
+    let kept = read_checkpoint(&path, study, digest)?;
+    let file = rewrite_checkpoint(&path, &kept)?;
+    let todo: Vec<&(usize, Vec<f64>)> = plan
+        .iter()
+        .enumerate()
+        .filter(|(k, (i, _))| k % count == index && !kept.iter().any(|r| r.index == *i))
+        .map(|(_, p)| p)
+        .collect();
+    let n_kept = plan
+        .iter()
+        .enumerate()
+        .filter(|(k, (i, _))| k % count == index && kept.iter().any(|r| r.index == *i))
+        .count();
+    let ctx = StepContext {
+        study,
+        step,
+        search: &search,
+        exposure: exposure_of(white_peak),
+        digest,
+        file: std::sync::Mutex::new(file),
+        path: &path,
+        live: std::sync::Mutex::new(kept),
+        on_record,
+    };
+    let evaluated = ctx.evaluate(&todo)?.len();
+    Ok(Progress::ShardDone {
+        step,
+        evaluated,
+        kept: n_kept,
+    })
+}
+
+/// Runs the study (module notes) as `set.role` says, writing the checkpoint into `out`;
+/// `on_record` is called after each evaluation with the record and the best feasible first
+/// objective so far.
 pub fn optimize(
     study: &Study,
     set: &RunSettings,
     out: &Path,
     on_record: &(dyn Fn(&Record, Option<f64>) + Sync),
-) -> Result<Outcome, OptimizeError> {
+) -> Result<Progress, OptimizeError> {
     if set.budget == 0 || set.budget > crate::study::MAX_BUDGET {
         return Err(OptimizeError::Input(format!(
             "--budget {}: must be 1..={}",
@@ -405,48 +788,57 @@ pub fn optimize(
         )));
     }
     let digest = study.digest(set.seed);
-    let ckpt = out.join("history.jsonl");
-    let mut records = if set.resume {
+    if let Role::Shard { index, count } = set.role {
+        return run_shard(study, set, out, &digest, (index, count), on_record);
+    }
+    let collect = set.role == Role::Collect;
+    let continuing = set.resume || collect;
+    let ckpt = out.join(HISTORY);
+    let mut records = if continuing {
         read_checkpoint(&ckpt, study, &digest)?
+    } else {
+        Vec::new()
+    };
+    let merged = if continuing {
+        merge_shards(out, study, &digest, &mut records)?
     } else {
         Vec::new()
     };
     let mut search = study.search.clone();
     search.seed = set.seed;
     // The base design fixes the exposure.
-    let base = evaluate_design(study, &study.set, &search, Exposure::Own)?;
-    let exposure = if base.white_peak.is_finite() {
-        Exposure::WhitePeak(base.white_peak)
+    let cached = if continuing {
+        read_base(out, &digest)?
     } else {
-        Exposure::Own
+        None
     };
-    std::fs::create_dir_all(out)
-        .map_err(|e| OptimizeError::Write(format!("{}: {e}", out.display())))?;
-    // Rewrite the checkpoint with the records kept (drops a cut last line).
-    let mut file = std::fs::File::create(&ckpt)
-        .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
-    for r in &records {
-        writeln!(file, "{}", r.to_line())
-            .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
+    let (base_values, white_peak, fresh) = match cached {
+        Some((m, w)) => (m, w, false),
+        None => {
+            let b = evaluate_design(study, &study.set, &search, Exposure::Own)?;
+            (b.values, b.white_peak, true)
+        }
+    };
+    let exposure = exposure_of(white_peak);
+    std::fs::create_dir_all(out).map_err(|e| write_error(out, e))?;
+    if fresh {
+        let p = out.join(BASE);
+        crate::io::atomic::write_atomic(
+            &p,
+            base_json(&digest, &base_values, white_peak).as_bytes(),
+        )
+        .map_err(|e| write_error(&p, e))?;
     }
-    file.sync_data()
-        .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
-    let file = std::sync::Mutex::new(file);
+    // Rewrite the checkpoint with the records kept and merged (drops a cut last line); the
+    // shard files merged are removed once it is on disk.
+    let file = rewrite_checkpoint(&ckpt, &records)?;
+    for f in merged {
+        std::fs::remove_file(&f).map_err(|e| write_error(&f, e))?;
+    }
     let d = study.parameters.len();
     let initial = study.initial.unwrap_or(2 * d + 2).min(set.budget);
     let cancel = crate::cancel::current();
-    let best_of = |rs: &[Record]| {
-        rs.iter()
-            .filter(|r| r.feasible)
-            .map(|r| -minimised(study, 0, r))
-            .filter(|v| v.is_finite())
-            .fold(None, |b: Option<f64>, v| Some(b.map_or(v, |b| b.max(v))))
-    };
-    let sign = if study.objectives[0].goal == Goal::Maximize {
-        1.0
-    } else {
-        -1.0
-    };
+    let mut ctx_file = std::sync::Mutex::new(file);
     let mut step = 0;
     let mut next = 0usize;
     while next < set.budget {
@@ -467,46 +859,44 @@ pub fn optimize(
             .iter()
             .filter(|(i, _)| !records.iter().any(|r| r.index == *i))
             .collect();
+        if collect && !todo.is_empty() {
+            let p = out.join(STEP);
+            let plan = serde_json::json!({
+                "study": digest,
+                "step": step,
+                "indices": todo.iter().map(|(i, _)| *i).collect::<Vec<usize>>(),
+                "bits": todo.iter().map(|(_, u)| bits_of(u.iter().copied())).collect::<Vec<_>>(),
+            });
+            crate::io::atomic::write_atomic(&p, plan.to_string().as_bytes())
+                .map_err(|e| write_error(&p, e))?;
+            return Ok(Progress::Planned {
+                step,
+                points: todo.len(),
+            });
+        }
         // Finished records in completion order, for the progress line only (the run's records
         // are collected in index order below).
-        let live = std::sync::Mutex::new(records.clone());
-        let new: Vec<Result<Record, OptimizeError>> = todo
-            .par_iter()
-            .map(|(index, u)| {
-                if cancel.is_cancelled() {
-                    return Err(OptimizeError::Cancelled);
-                }
-                let (params, overrides) = point(study, u);
-                let ev = evaluate_design(study, &overrides, &search, exposure)?;
-                let violations = violations(study, &overrides, &ev.values)?;
-                let r = Record {
-                    index: *index,
-                    step,
-                    unit: u.clone(),
-                    params,
-                    feasible: violations.iter().all(|v| *v <= 0.0),
-                    metrics: ev.values,
-                    violations,
-                    seconds: ev.seconds,
-                    study: digest.clone(),
-                };
-                let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
-                writeln!(f, "{}", r.to_line())
-                    .and_then(|()| f.sync_data())
-                    .map_err(|e| OptimizeError::Write(format!("{}: {e}", ckpt.display())))?;
-                // One progress line as each evaluation finishes (under the checkpoint's lock,
-                // so lines never interleave).
-                let mut done = live.lock().unwrap_or_else(|p| p.into_inner());
-                done.push(r.clone());
-                on_record(&r, best_of(&done).map(|b| b * sign));
-                Ok(r)
-            })
-            .collect();
-        for r in new {
-            records.push(r?);
-        }
+        let ctx = StepContext {
+            study,
+            step,
+            search: &search,
+            exposure,
+            digest: &digest,
+            file: ctx_file,
+            path: &ckpt,
+            live: std::sync::Mutex::new(records.clone()),
+            on_record,
+        };
+        records.extend(ctx.evaluate(&todo)?);
         records.sort_by_key(|r| r.index);
+        ctx_file = ctx.file;
         step += 1;
+    }
+    match std::fs::remove_file(out.join(STEP)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(write_error(&out.join(STEP), e));
+        }
+        _ => {}
     }
     records.sort_by_key(|r| r.index);
     let best = records
@@ -571,15 +961,15 @@ pub fn optimize(
             finals.push((Some(i), ev.values));
         }
     }
-    Ok(Outcome {
+    Ok(Progress::Finished(Box::new(Outcome {
         records,
-        base: base.values,
-        white_peak: base.white_peak,
+        base: base_values,
+        white_peak,
         best,
         least_violating,
         pareto,
         finals,
-    })
+    })))
 }
 
 /// The feasible evaluations no other feasible one dominates (every objective at least as

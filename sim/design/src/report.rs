@@ -170,21 +170,54 @@ pub fn plots(study: &Study, outcome: &Outcome) -> Vec<(String, LinePlot)> {
         curve.push(((r.index + 1) as f64, best));
     }
     let base0 = outcome.base.get(&name0).copied().unwrap_or(f64::NAN);
-    let mut out = vec![(
-        "convergence".to_string(),
+    // An infeasible study has no best feasible value: its convergence plot is the least total
+    // normalised constraint violation so far (what the search drove down), not an empty frame.
+    let least_violation = || {
+        let mut least = f64::INFINITY;
+        let points = outcome
+            .records
+            .iter()
+            .map(|r| {
+                let v: f64 = r.violations.iter().map(|v| v.max(0.0)).sum();
+                if v.is_finite() {
+                    least = least.min(v);
+                }
+                ((r.index + 1) as f64, least)
+            })
+            .collect();
         LinePlot {
-            title: format!("Best feasible {name0} against evaluations"),
+            title: "No feasible design: least total constraint violation against evaluations"
+                .into(),
             x_label: "evaluations".into(),
-            y_label: name0.clone(),
+            y_label: "sum of normalised violations".into(),
             log_x: false,
             log_y: false,
             series: vec![Series {
-                name: "best feasible".into(),
-                points: curve,
+                name: "least violation".into(),
+                points,
             }],
-            h_line: base0
-                .is_finite()
-                .then(|| (base0, "base design".to_string())),
+            h_line: None,
+        }
+    };
+    let mut out = vec![(
+        "convergence".to_string(),
+        if outcome.best.is_none() && !outcome.records.is_empty() {
+            least_violation()
+        } else {
+            LinePlot {
+                title: format!("Best feasible {name0} against evaluations"),
+                x_label: "evaluations".into(),
+                y_label: name0.clone(),
+                log_x: false,
+                log_y: false,
+                series: vec![Series {
+                    name: "best feasible".into(),
+                    points: curve,
+                }],
+                h_line: base0
+                    .is_finite()
+                    .then(|| (base0, "base design".to_string())),
+            }
         },
     )];
     if study.objectives.len() >= 2 {
