@@ -21,6 +21,7 @@ pub use stscam_io::plot;
 pub use stscam_optics as optics;
 pub use stscam_recon as recon;
 pub use stscam_scene as scene;
+pub use stscam_stray as stray;
 pub use stscam_studies::{
     analytic, bench, capture, colour_demo, demo, grating_spectrum, hadamard, sweep, tolerance,
 };

@@ -36,6 +36,7 @@ mod reconstruction;
 mod render_capture;
 mod scenes3d_physics;
 mod shading_furnace;
+mod stray;
 mod stress;
 mod sweep;
 mod tolerance;

@@ -73,6 +73,10 @@ enum Command {
     /// Efficiency of every diffracted order of one vHOE film (Kogelnik or RCWA, bulk or contact
     /// stack) over a wavelength range: text or JSON, and a plot with --out.
     Grating(jobs::grating::GratingOptions),
+    /// Stray-light report: every path light can take through the plate (Fresnel ghosts, every
+    /// grating's orders, cross-coupling, repeated film passes), the image split by path class,
+    /// each class's share of the signal: DIR/stray.{json,md,png} and class images (EXR, PNG).
+    Stray(jobs::stray::StrayOptions),
 }
 
 #[derive(Subcommand, Debug)]
@@ -161,6 +165,7 @@ where
         Command::Compare(o) => jobs::compare::run(o, con).map(drop),
         Command::Probe(o) => jobs::probe::run(o, con).map(drop),
         Command::Grating(o) => jobs::grating::run(o, con).map(drop),
+        Command::Stray(o) => jobs::stray::run(o, con).map(drop),
     };
     match result {
         Ok(()) => match jobs::stdout_failure() {

@@ -25,6 +25,7 @@ pub mod optimize;
 pub mod probe;
 pub mod reconstruct;
 pub mod render;
+pub mod stray;
 pub mod sweep;
 pub mod tolerance;
 pub mod validate;

@@ -31,7 +31,8 @@ mod user_side;
 
 pub use samples::BROADBAND_UNIFORM_FRACTION;
 pub use samples::{
-    CameraSample, SampleConsumer, channel_weights, display_weight, drive_pixel, lattice_rule,
+    CameraSample, SampleConsumer, channel_weights, display_weight, draw_samples, drive_pixel,
+    lattice_rule,
 };
 pub use user_side::{
     BRANCH_ROULETTE_FRACTION, RESAMPLE_WINDOW_BRANCHES, USER_SIDE_PATHS_PER_SAMPLE,

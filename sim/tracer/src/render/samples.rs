@@ -135,6 +135,28 @@ pub fn drive_pixel<C: SampleConsumer>(
     }
 }
 
+/// Camera samples `start`, `start + 1`, … of pixel (col, row) into `out` (at most
+/// [`SAMPLE_BATCH`] at a time), exactly as [`drive_pixel`] draws them for `set` and the lattice
+/// rule `rule` ([`lattice_rule`] of `set.spp`): `None` where a wavelength falls outside the band.
+/// For estimators outside this crate that trace the samples their own way (the stray-light
+/// tracer), so that their images and `render`'s share every sample.
+pub fn draw_samples(
+    sys: &System,
+    set: &RenderSettings,
+    rule: Option<LatticeRule>,
+    (col, row): (usize, usize),
+    start: u64,
+    out: &mut [Option<CameraSample>],
+) {
+    let pixel = (row * sys.camera.width_px + col) as u64;
+    let sampler = PixelSampler::new(set.sampler, set.seed, pixel).with_rule(rule);
+    let n0 = sys.waveguide.n_glass(sys.scene.hoe.primary_wavelength_nm());
+    for (k, chunk) in out.chunks_mut(SAMPLE_BATCH).enumerate() {
+        let first = start + (k * SAMPLE_BATCH) as u64;
+        camera_samples(sys, &sampler, (col, row), first, chunk, (n0, set.estimator));
+    }
+}
+
 /// The film quantities of a batch's samples, four at a time ([`crate::trace::prepare_paths`]);
 /// a lane without a sample repeats one of its packet's samples (its result is not used).
 #[inline]

@@ -1,0 +1,567 @@
+//! Every path light can take through the plate: a branching tracer of the camera's importance.
+//!
+//! Model. A camera ray is followed from the lens into the plate as if it were light (the
+//! adjoint, or importance, ray), and at every interaction **every** outgoing wave is a branch:
+//! - at a face, Fresnel reflection and transmission (s and p, [`reflectance`]; R = 1 under
+//!   total internal reflection), from the glass side or from the air side;
+//! - at a film (the top vHOE on the front face, the bottom vHOE on the back face, each carrying
+//!   every grating of the film), orders −1 and +1 of **every** grating (Kogelnik's two-wave
+//!   efficiencies, `optics::grating`; directions by k-closure, reflection- or transmission-type
+//!   as the closure gives them), so grating j's guided wave diffracted by grating k
+//!   (cross-coupling) is a branch like any other, and the zero order (1 − Σ η) times the film's
+//!   mean absorption;
+//! - a film is the thin layer on the glass side of its face, index-matched to the glass (as in
+//!   the designed-path tracer: glass–film reflections are neglected); a face's air interface
+//!   has the glass index on its inner side. Light reflected at the air interface crosses the
+//!   film again (the second pass), so multiple interactions with a film are traced;
+//! - the cover of the top vHOE absorbs what leaves the front face there, and all of it when it
+//!   frustrates total internal reflection;
+//! - light that leaves the front face travels to the display plane (its radiance is read
+//!   there); light that leaves the back face returns to the camera side, where this scene has
+//!   no source (it is accounted as `CameraSide`);
+//! - the plate has no edge inside the films' reach: a guided wave (|u| ≥ 1, trapped by total
+//!   internal reflection) that can reach neither film any more is absorbed at the plate's edge
+//!   (`Edge`, an absorbing edge); a wave that is not trapped is followed until it leaves.
+//!
+//! Reciprocity makes the importance ray's weights the light's: for the reversed waves the
+//! Fresnel coefficients are equal, and Kogelnik's efficiency of order m from wave A into B
+//! equals that of the reversed B into the reversed A (the dephasing |Δk_z| and the product of
+//! the obliquity factors are unchanged; a film's undiffracted fraction of a wave equals that of
+//! its reversal). The importance ray's order m is the light's order m. So the designed paths
+//! this tracer finds carry the designed-path tracer's weights (`stscam_tracer::trace`), to
+//! rounding, which the tests check.
+//!
+//! Energy closes at every interaction by construction (R + T = 1, Σ η + zero + absorbed = 1;
+//! when two gratings' orders sum past 1 they are scaled to 1, as the designed tracer scales
+//! the top vHOE's out-coupled shares), so per camera ray the weights reaching the display and
+//! every [`Sink`] sum to 1. Branches whose weight falls below a threshold play Russian
+//! roulette (survive with probability w/threshold, weight divided by it: unbiased); what dies
+//! is accounted as `Roulette`, what exceeds the event limit as `Truncated` (and, for checks
+//! only, what falls below a deterministic cutoff as `Cutoff`).
+//!
+//! Sources: Fresnel equations (Born & Wolf, *Principles of Optics*, §1.5); H. Kogelnik, Bell
+//! Syst. Tech. J. 48, 2909 (1969); Russian roulette and splitting: J. Spanier & E. M. Gelbard,
+//! *Monte Carlo Principles and Neutron Transport Problems* (1969), ch. 2; the reciprocity of
+//! the adjoint: E. Veach, PhD thesis, Stanford 1997, ch. 3–5.
+
+use glam::{DVec2, DVec3};
+
+use crate::optics::interface::{lateral_shift, path_length, reflectance};
+use crate::optics::multiplex::MAX_GRATINGS;
+use crate::sampler::PathRng;
+use crate::tracer::waveguide::{Rect, Waveguide};
+
+/// A face of the plate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Face {
+    /// The user-side face (z = 0), carrying the top vHOE.
+    Front,
+    /// The camera-side face (z = w), carrying the bottom vHOE.
+    Back,
+}
+
+impl Face {
+    /// The other face.
+    #[inline]
+    pub fn other(self) -> Face {
+        match self {
+            Face::Front => Face::Back,
+            Face::Back => Face::Front,
+        }
+    }
+
+    /// The face's name in path classes (`front`, `back`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Face::Front => "front",
+            Face::Back => "back",
+        }
+    }
+
+    /// The vHOE on this face in path classes (`top`, `bottom`).
+    pub fn film_name(self) -> &'static str {
+        match self {
+            Face::Front => "top",
+            Face::Back => "bottom",
+        }
+    }
+
+    /// The sign of z along which a wave travels when it leaves the plate through this face
+    /// (the user side is z < 0).
+    #[inline]
+    fn outward(self) -> f64 {
+        match self {
+            Face::Front => -1.0,
+            Face::Back => 1.0,
+        }
+    }
+}
+
+/// One interaction of a path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Event {
+    /// Fresnel transmission through a face (either way).
+    T(Face),
+    /// Fresnel reflection at a face (partial: not total), from either side.
+    R(Face),
+    /// Total internal reflection at a face.
+    Tir(Face),
+    /// Diffraction by grating `grating` (0-based, scene order) of the film on `face` into
+    /// `order` (−1 or +1, the light's order).
+    D {
+        /// The film's face (front: top vHOE; back: bottom vHOE).
+        face: Face,
+        /// The grating's index in the film.
+        grating: u8,
+        /// The order.
+        order: i8,
+        /// True for a transmission-type order (it leaves the film through the side opposite
+        /// to the one it entered; a reflection hologram's designed orders are reflection-type).
+        transmitted: bool,
+    },
+}
+
+/// Where weight that does not reach the display goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sink {
+    /// Left the back face toward the camera side (no source there in this scene).
+    CameraSide,
+    /// Absorbed by the top vHOE's cover.
+    Cover,
+    /// A trapped wave that can reach neither film: absorbed at the plate's edge.
+    Edge,
+    /// Absorbed in the glass or a film.
+    Absorbed,
+    /// Removed by Russian roulette (its weight before the roulette).
+    Roulette,
+    /// Stopped at the event limit.
+    Truncated,
+    /// Below the cutoff weight (a deterministic, biased stop: for checks that need every
+    /// weight accounted without roulette).
+    Cutoff,
+}
+
+/// Number of [`Sink`] kinds.
+pub const SINKS: usize = 7;
+
+impl Sink {
+    /// Every sink, in ledger order.
+    pub const ALL: [Sink; SINKS] = [
+        Sink::CameraSide,
+        Sink::Cover,
+        Sink::Edge,
+        Sink::Absorbed,
+        Sink::Roulette,
+        Sink::Truncated,
+        Sink::Cutoff,
+    ];
+
+    /// The sink's name (snake case).
+    pub fn name(self) -> &'static str {
+        match self {
+            Sink::CameraSide => "camera_side",
+            Sink::Cover => "cover",
+            Sink::Edge => "edge",
+            Sink::Absorbed => "absorbed",
+            Sink::Roulette => "roulette",
+            Sink::Truncated => "truncated",
+            Sink::Cutoff => "cutoff",
+        }
+    }
+}
+
+/// Settings of the branching tracer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathSettings {
+    /// Branches whose larger polarisation weight falls below this play Russian roulette
+    /// (0: never).
+    pub roulette_threshold: f64,
+    /// Branches whose larger polarisation weight falls below this are stopped without
+    /// roulette (biased; 0: never, the default).
+    pub cutoff_weight: f64,
+    /// At most this many events per path.
+    pub max_events: usize,
+}
+
+/// The default roulette threshold: a branch below 10⁻⁴ of the camera ray's weight survives
+/// with probability w/10⁻⁴.
+pub const DEFAULT_ROULETTE_THRESHOLD: f64 = 1e-4;
+
+/// The default event limit (a guided wave makes about 2 events per millimetre of plate it
+/// crosses at the paper's design; 400 covers every reachable contact of the paper's films).
+pub const DEFAULT_MAX_EVENTS: usize = 400;
+
+impl Default for PathSettings {
+    fn default() -> Self {
+        PathSettings {
+            roulette_threshold: DEFAULT_ROULETTE_THRESHOLD,
+            cutoff_weight: 0.0,
+            max_events: DEFAULT_MAX_EVENTS,
+        }
+    }
+}
+
+/// A branch that left the front face toward the display.
+#[derive(Clone, Copy, Debug)]
+pub struct Exit<'a> {
+    /// The path's events, in order (the last is `T(front)`).
+    pub events: &'a [Event],
+    /// Energy fraction [TE, TM] of the camera ray carried to the display.
+    pub weight: [f64; 2],
+    /// Where it leaves the front face (x, y), mm.
+    pub exit_point_mm: DVec2,
+    /// Where it meets the display plane (x, y), mm.
+    pub object_point_mm: DVec2,
+}
+
+/// Weight [TE, TM] of one camera ray that went to each sink.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ledger {
+    /// Per sink ([`Sink::ALL`] order), [TE, TM].
+    pub sinks: [[f64; 2]; SINKS],
+    /// Branches created.
+    pub branches: u64,
+}
+
+impl Ledger {
+    #[inline]
+    fn add(&mut self, sink: Sink, w: [f64; 2]) {
+        let s = &mut self.sinks[sink as usize];
+        s[0] += w[0];
+        s[1] += w[1];
+    }
+
+    /// The weight [TE, TM] that went to `sink`.
+    pub fn get(&self, sink: Sink) -> [f64; 2] {
+        self.sinks[sink as usize]
+    }
+
+    /// Adds another ledger.
+    pub fn merge(&mut self, o: &Ledger) {
+        for (a, b) in self.sinks.iter_mut().zip(&o.sinks) {
+            a[0] += b[0];
+            a[1] += b[1];
+        }
+        self.branches += o.branches;
+    }
+}
+
+/// Where a branch is, and which way it is going.
+#[derive(Clone, Copy, Debug)]
+enum At {
+    /// In air, arriving at `face` (the camera ray at the back face).
+    FromAir(Face),
+    /// In glass, having left `face`, crossing to the other face.
+    Crossing(Face),
+    /// In glass, arriving at `face` (its film, if any, then the air interface).
+    FromGlass(Face),
+    /// Inside `face`'s layers, meeting the air interface from inside.
+    InterfaceFromInside(Face),
+    /// Entering the film of `face`, from the glass side if `from_glass`, else from the air
+    /// interface.
+    Film(Face, bool),
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    at: At,
+    p: DVec2,
+    /// The importance ray's tangential direction cosines (n·ŝ_t), conserved at the faces.
+    v: DVec2,
+    w: [f64; 2],
+    /// Length of the path's event list before this node's own event (the list is shared,
+    /// depth-first).
+    depth: usize,
+    /// The event that made this node, if any.
+    event: Option<Event>,
+}
+
+/// A branch produced by one interaction: where it goes, its direction cosines, weight and
+/// event.
+type Child = (At, DVec2, DVec2, [f64; 2], Option<Event>);
+
+/// A diffracted order: its direction cosines, whether it leaves toward the glass, its
+/// efficiency [TE, TM] and its event.
+type Order = (DVec2, bool, [f64; 2], Event);
+
+/// What one path's branches share.
+struct Ctx<'a> {
+    wg: &'a Waveguide,
+    lambda_nm: f64,
+    n_g: f64,
+    alpha: f64,
+    display_z_mm: f64,
+}
+
+/// Traces every path of the camera ray (lens point `origin`, unit `dir` toward the screen) at
+/// `lambda_nm`, calling `visit` for every branch that reaches the display plane at
+/// `display_z_mm` (< 0), and returns where the rest went. `rng` draws the roulette's numbers
+/// (depth-first order, so the same ray and seed give the same branches).
+pub fn trace_all_paths(
+    wg: &Waveguide,
+    display_z_mm: f64,
+    set: PathSettings,
+    (origin, dir, lambda_nm): (DVec3, DVec3, f64),
+    rng: &mut PathRng,
+    mut visit: impl FnMut(&Exit),
+) -> Ledger {
+    let mut ledger = Ledger::default();
+    let w = wg.thickness_mm;
+    if dir.z >= 0.0 || origin.z <= w {
+        return ledger;
+    }
+    let ctx = Ctx {
+        wg,
+        lambda_nm,
+        n_g: wg.n_glass(lambda_nm),
+        alpha: wg.absorption_per_mm(lambda_nm),
+        display_z_mm,
+    };
+    let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
+    let mut events: Vec<Event> = Vec::with_capacity(64);
+    let mut stack = vec![Node {
+        at: At::FromAir(Face::Back),
+        p: p_back,
+        // The importance ray's direction cosines in air (the light's are the opposite).
+        v: dir.truncate(),
+        w: [1.0, 1.0],
+        depth: 0,
+        event: None,
+    }];
+    let mut children: Vec<Child> = Vec::with_capacity(16);
+    while let Some(node) = stack.pop() {
+        events.truncate(node.depth);
+        events.extend(node.event);
+        if events.len() > set.max_events {
+            ledger.add(Sink::Truncated, node.w);
+            continue;
+        }
+        children.clear();
+        ctx.step(&node, &mut children, &mut ledger, &mut events, &mut visit);
+        // Depth-first, children in the order produced (pushed reversed).
+        for &(at, p, v, w, event) in children.iter().rev() {
+            ledger.branches += 1;
+            let big = w[0].max(w[1]);
+            if big.is_nan() || big <= 0.0 {
+                continue;
+            }
+            let mut w = w;
+            if big < set.cutoff_weight {
+                ledger.add(Sink::Cutoff, w);
+                continue;
+            }
+            if big < set.roulette_threshold {
+                let q = big / set.roulette_threshold;
+                if rng.uniform() >= q {
+                    ledger.add(Sink::Roulette, w);
+                    continue;
+                }
+                w = [w[0] / q, w[1] / q];
+            }
+            stack.push(Node {
+                at,
+                p,
+                v,
+                w,
+                depth: events.len(),
+                event,
+            });
+        }
+    }
+    ledger
+}
+
+#[inline]
+fn mul(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] * b[0], a[1] * b[1]]
+}
+
+#[inline]
+fn one_minus(a: [f64; 2]) -> [f64; 2] {
+    [1.0 - a[0], 1.0 - a[1]]
+}
+
+impl Ctx<'_> {
+    /// The film on `face` at `p`, if any.
+    #[inline]
+    fn film_at(&self, face: Face, p: DVec2) -> bool {
+        let r: &Rect = match face {
+            Face::Front => &self.wg.top,
+            Face::Back => &self.wg.bottom,
+        };
+        r.contains(p)
+    }
+
+    /// One interaction of `node`: its branches into `out`, its losses into `ledger`, and a
+    /// branch that reaches the display to `visit`.
+    fn step(
+        &self,
+        node: &Node,
+        out: &mut Vec<Child>,
+        ledger: &mut Ledger,
+        events: &mut Vec<Event>,
+        visit: &mut impl FnMut(&Exit),
+    ) {
+        let Node { at, p, v, w, .. } = *node;
+        match at {
+            At::FromAir(face) => {
+                // Air → glass (the film, if any, lies behind the interface).
+                let r = reflectance(1.0, self.n_g, v);
+                let t = one_minus(r);
+                // Reflected back into the air on the camera side: no source there.
+                ledger.add(Sink::CameraSide, mul(w, r));
+                let next = if self.film_at(face, p) {
+                    At::Film(face, false)
+                } else {
+                    At::Crossing(face)
+                };
+                out.push((next, p, v, mul(w, t), Some(Event::T(face))));
+            }
+            At::Crossing(face) => {
+                let (n, thick) = (self.n_g, self.wg.thickness_mm);
+                if v.length_squared() >= n * n {
+                    // Cannot exist in the glass (never produced; kept for safety).
+                    ledger.add(Sink::Absorbed, w);
+                    return;
+                }
+                let shift = lateral_shift(v, n, thick);
+                let t = (-self.alpha * path_length(v, n, thick)).exp();
+                let q = p + shift;
+                ledger.add(Sink::Absorbed, [w[0] * (1.0 - t), w[1] * (1.0 - t)]);
+                let w = [w[0] * t, w[1] * t];
+                // A trapped wave that can reach neither film goes to the plate's edge.
+                let trapped = v.length_squared() >= 1.0;
+                if trapped
+                    && !self.wg.top.reachable(q, 2.0 * shift)
+                    && !self.wg.bottom.reachable(q, 2.0 * shift)
+                    && !self.film_at(face.other(), q)
+                {
+                    ledger.add(Sink::Edge, w);
+                    return;
+                }
+                out.push((At::FromGlass(face.other()), q, v, w, None));
+            }
+            At::FromGlass(face) => {
+                let next = if self.film_at(face, p) {
+                    At::Film(face, true)
+                } else {
+                    At::InterfaceFromInside(face)
+                };
+                out.push((next, p, v, w, None));
+            }
+            At::InterfaceFromInside(face) => {
+                let covered = face == Face::Front && self.wg.covered && self.wg.top.contains(p);
+                if covered && self.wg.cover_frustrates_tir {
+                    ledger.add(Sink::Cover, w);
+                    return;
+                }
+                let r = reflectance(self.n_g, 1.0, v);
+                let tir = r == [1.0, 1.0];
+                let back = if self.film_at(face, p) {
+                    At::Film(face, false)
+                } else {
+                    At::Crossing(face)
+                };
+                let event = if tir {
+                    Event::Tir(face)
+                } else {
+                    Event::R(face)
+                };
+                out.push((back, p, v, mul(w, r), Some(event)));
+                if tir {
+                    return;
+                }
+                let t = mul(w, one_minus(r));
+                match face {
+                    Face::Back => ledger.add(Sink::CameraSide, t),
+                    Face::Front if covered => ledger.add(Sink::Cover, t),
+                    Face::Front => {
+                        let air = lateral_shift(v, 1.0, -self.display_z_mm);
+                        events.push(Event::T(Face::Front));
+                        visit(&Exit {
+                            events,
+                            weight: t,
+                            exit_point_mm: p,
+                            object_point_mm: p + air,
+                        });
+                        events.pop();
+                    }
+                }
+            }
+            At::Film(face, from_glass) => self.film(face, from_glass, node, out, ledger),
+        }
+    }
+
+    /// The film of `face` crossed by `node`'s wave (from the glass side if `from_glass`):
+    /// every grating's orders ±1 and the zero order.
+    fn film(
+        &self,
+        face: Face,
+        from_glass: bool,
+        node: &Node,
+        out: &mut Vec<Child>,
+        ledger: &mut Ledger,
+    ) {
+        let Node { p, v, w, .. } = *node;
+        // The wave's direction along z inside the film.
+        let z_sign = if from_glass {
+            face.outward()
+        } else {
+            -face.outward()
+        };
+        let gratings = &self.wg.gratings;
+        // Where a wave leaving the film toward the glass or the air side goes next.
+        let to_glass = At::Crossing(face);
+        let to_air = At::InterfaceFromInside(face);
+        let Some(wave) = gratings.incident(v, z_sign, self.lambda_nm) else {
+            // It cannot enter the film (|u| ≥ n_film): it crosses undiffracted, as in the
+            // designed tracer.
+            out.push((if from_glass { to_air } else { to_glass }, p, v, w, None));
+            return;
+        };
+        let mut orders: [Option<Order>; 2 * MAX_GRATINGS] = [None; 2 * MAX_GRATINGS];
+        let mut sum = [0.0f64; 2];
+        for (k, g) in gratings.as_slice().iter().enumerate() {
+            for (o, order) in [-1i32, 1].into_iter().enumerate() {
+                if let Some(d) = wave.order(g, order) {
+                    sum[0] += d.eta[0];
+                    sum[1] += d.eta[1];
+                    // A reflection-type order leaves on the side it entered.
+                    let leaves_to_glass = d.reflection == from_glass;
+                    orders[2 * k + o] = Some((
+                        d.u,
+                        leaves_to_glass,
+                        d.eta,
+                        Event::D {
+                            face,
+                            grating: k as u8,
+                            order: order as i8,
+                            transmitted: !d.reflection,
+                        },
+                    ));
+                }
+            }
+        }
+        // Independent gratings whose orders sum past 1 are scaled to 1 (energy conservation).
+        let scale = [
+            if sum[0] > 1.0 { 1.0 / sum[0] } else { 1.0 },
+            if sum[1] > 1.0 { 1.0 / sum[1] } else { 1.0 },
+        ];
+        for (u, leaves_to_glass, eta, event) in orders.into_iter().flatten() {
+            let eta = [eta[0] * scale[0], eta[1] * scale[1]];
+            let at = if leaves_to_glass { to_glass } else { to_air };
+            out.push((at, p, u, mul(w, eta), Some(event)));
+        }
+        let att = gratings.film().film_attenuation(v);
+        let rest = [
+            (1.0 - sum[0] * scale[0]).max(0.0),
+            (1.0 - sum[1] * scale[1]).max(0.0),
+        ];
+        ledger.add(
+            Sink::Absorbed,
+            [w[0] * rest[0] * (1.0 - att), w[1] * rest[1] * (1.0 - att)],
+        );
+        let zero = [w[0] * rest[0] * att, w[1] * rest[1] * att];
+        out.push((if from_glass { to_air } else { to_glass }, p, v, zero, None));
+    }
+}

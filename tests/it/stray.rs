@@ -1,0 +1,413 @@
+//! Every path light can take (`stscam::stray`): energy closes per camera ray, Russian roulette
+//! leaves the mean unchanged, the designed paths it finds are `render`'s image, a plain plate's
+//! first ghost sits where geometry puts it with the Fresnel closed form's power, and a
+//! cross-coupled order leaves in the direction k-closure gives. Each check states its
+//! tolerance and shows a wrong input failing it.
+
+use glam::{DVec2, DVec3};
+
+use stscam::optics::interface::lateral_shift;
+use stscam::render::{RenderSettings, render};
+use stscam::sampler::PathRng;
+use stscam::stray::classes::{self, SIGNAL};
+use stscam::stray::image::{StraySettings, stray_images};
+use stscam::stray::paths::{Event, Face, Ledger, PathSettings, Sink, trace_all_paths};
+use stscam::system::{System, repo_system};
+
+/// No roulette: every branch above 1e-13 of the camera ray's weight followed (what is below
+/// is accounted in the `cutoff` sink), no practical event limit.
+const EXACT: PathSettings = PathSettings {
+    roulette_threshold: 0.0,
+    cutoff_weight: 1e-13,
+    max_events: 100_000,
+};
+
+/// Sum per polarisation of every exit's weight and every sink's.
+fn closure(
+    sys: &System,
+    ray: (DVec3, DVec3, f64),
+    set: PathSettings,
+    seed: u64,
+) -> ([f64; 2], Ledger) {
+    let mut exits = [0.0; 2];
+    let mut rng = PathRng::new(&[seed]);
+    let ledger = trace_all_paths(&sys.waveguide, sys.display.z_mm, set, ray, &mut rng, |e| {
+        exits[0] += e.weight[0];
+        exits[1] += e.weight[1];
+    });
+    let mut sum = exits;
+    for s in Sink::ALL {
+        let w = ledger.get(s);
+        sum[0] += w[0];
+        sum[1] += w[1];
+    }
+    (sum, ledger)
+}
+
+/// Camera rays of `sys` spread over the image and the lens, at wavelengths over the band.
+fn rays(sys: &System, n: usize) -> Vec<(DVec3, DVec3, f64)> {
+    let mut state = 99u64;
+    let mut next = || {
+        state = stscam::sampler::mix64(state);
+        stscam::sampler::to_unit(state)
+    };
+    (0..n)
+        .map(|_| {
+            let r = sys.camera.generate_ray(
+                (next() * sys.camera.width_px as f64) as usize,
+                (next() * sys.camera.height_px as f64) as usize,
+                [next(), next()],
+                [next(), next()],
+            );
+            (r.origin, r.dir, 420.0 + 240.0 * next())
+        })
+        .collect()
+}
+
+/// Per camera ray, the display's share and every sink's sum to 1 within 1e-12 (TE and TM), on
+/// the paper camera, uncovered and with the RGB multiplex film (cross-coupling included). The
+/// camera side's share is above 1e-3 on every design, so a ledger that forgot it would fail.
+#[test]
+fn energy_closes_per_camera_ray() {
+    for (scene, sets) in [
+        ("scenes/paper-2022.toml", &[][..]),
+        ("scenes/paper-2022.toml", &["top_hoe.covered=false"][..]),
+        ("scenes/rgb-multiplex.toml", &[][..]),
+    ] {
+        let sys = repo_system(scene, sets);
+        let mut camera_side = 0.0f64;
+        for ray in rays(&sys, 300) {
+            let (sum, ledger) = closure(&sys, ray, EXACT, 1);
+            for p in 0..2 {
+                assert!(
+                    (sum[p] - 1.0).abs() <= 1e-12,
+                    "{scene} {sets:?}: energy {} (pol {p}) for ray {ray:?}",
+                    sum[p]
+                );
+            }
+            assert_eq!(ledger.get(Sink::Roulette), [0.0, 0.0]);
+            camera_side = camera_side.max(ledger.get(Sink::CameraSide)[0]);
+        }
+        assert!(camera_side > 1e-3, "{scene}: camera side {camera_side}");
+    }
+}
+
+/// Russian roulette is unbiased: over 400 seeds, the mean weight reaching the display with a
+/// threshold of 0.02 (most branches play) is within 4 standard errors of the exact tree's,
+/// on a ray through the top vHOE. Truncating at 6 events instead (a biased estimator) is
+/// outside that band, so the test can fail.
+#[test]
+fn roulette_leaves_the_mean_unchanged() {
+    let sys = repo_system("scenes/paper-2022.toml", &["top_hoe.covered=false"]);
+    let r = sys
+        .camera
+        .chief_ray(sys.camera.width_px / 2, sys.camera.height_px / 2);
+    let lb = sys
+        .waveguide
+        .gratings
+        .film()
+        .bragg_wavelength_nm(-r.dir.truncate());
+    let ray = (r.origin, r.dir, lb.unwrap_or(532.0));
+    let exits = |set: PathSettings, seed: u64| -> f64 {
+        let mut sum = 0.0;
+        let mut rng = PathRng::new(&[seed, 7]);
+        trace_all_paths(&sys.waveguide, sys.display.z_mm, set, ray, &mut rng, |e| {
+            sum += e.weight[0]
+        });
+        sum
+    };
+    let exact = exits(EXACT, 0);
+    let roulette = PathSettings {
+        roulette_threshold: 0.02,
+        ..EXACT
+    };
+    let n = 400;
+    let xs: Vec<f64> = (0..n).map(|s| exits(roulette, s)).collect();
+    let mean = xs.iter().sum::<f64>() / n as f64;
+    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    let se = (var / n as f64).sqrt();
+    assert!(var > 0.0, "the roulette never played");
+    assert!(
+        (mean - exact).abs() <= 4.0 * se,
+        "roulette mean {mean} vs exact {exact} (se {se})"
+    );
+    let truncated = exits(
+        PathSettings {
+            max_events: 6,
+            ..EXACT
+        },
+        0,
+    );
+    assert!(
+        (truncated - exact).abs() > 4.0 * se,
+        "truncation {truncated} vs exact {exact} (se {se}): the test cannot tell a bias"
+    );
+}
+
+/// Fresnel reflectance [R_s, R_p] from the angles (Born & Wolf §1.5.2, written out here
+/// independently of `optics::interface`).
+fn fresnel_r(n1: f64, n2: f64, theta1: f64) -> [f64; 2] {
+    let s2 = n1 / n2 * theta1.sin();
+    let theta2 = s2.asin();
+    let rs = (theta1 - theta2).sin() / (theta1 + theta2).sin();
+    let rp = (theta1 - theta2).tan() / (theta1 + theta2).tan();
+    [rs * rs, rp * rp]
+}
+
+/// A plain plate (no index modulation, no cover): the first ghost of a camera ray leaves the
+/// front face 2w·tanθ_t from the direct ray (to 1e-12 mm) with weight T_back·R_front·R_back·
+/// T_front·e^{−3αw/cosθ_t} of the Fresnel closed form (relative 1e-12; the issue asks 1 %).
+/// The same closed form with the glass index off by 0.05 misses by more than 1 %.
+#[test]
+fn plain_plate_ghost_is_where_geometry_puts_it_with_fresnel_power() {
+    let sys = repo_system(
+        "scenes/paper-2022.toml",
+        &["hoe.index_modulation=0", "top_hoe.covered=false"],
+    );
+    let wg = &sys.waveguide;
+    let w = wg.thickness_mm;
+    for (theta_deg, phi_deg) in [(5.0f64, 90.0f64), (20.0, 30.0), (35.0, -120.0)] {
+        let (t, ph) = (theta_deg.to_radians(), phi_deg.to_radians());
+        let dir = DVec3::new(t.sin() * ph.cos(), t.sin() * ph.sin(), -t.cos());
+        // 1 mm behind the back face, far from both vHOEs (y = 70 mm).
+        let origin = DVec3::new(0.0, 70.0, w) - dir * (1.0 / t.cos());
+        let lambda = 550.0;
+        let mut direct = None;
+        let mut ghost = None;
+        let mut rng = PathRng::new(&[1]);
+        trace_all_paths(
+            wg,
+            sys.display.z_mm,
+            EXACT,
+            (origin, dir, lambda),
+            &mut rng,
+            |e| {
+                let mut tokens = Vec::new();
+                classes::fold(e.events, &mut tokens);
+                let name = classes::name(&tokens);
+                if name == SIGNAL {
+                    direct = Some((e.exit_point_mm, e.weight));
+                } else if name == "T(back) R(front) R(back) T(front)" {
+                    ghost = Some((e.exit_point_mm, e.weight));
+                }
+            },
+        );
+        let (pd, wd) = direct.expect("direct branch");
+        let (pg, wgh) = ghost.expect("first ghost");
+        let n = wg.n_glass(lambda);
+        let theta_t = (t.sin() / n).asin();
+        let offset = 2.0 * w * theta_t.tan();
+        let along = DVec2::new(ph.cos(), ph.sin());
+        assert!(
+            (pg - pd - along * offset).length() <= 1e-12,
+            "ghost offset {:?} vs 2w tan θt = {offset} along {along:?}",
+            pg - pd
+        );
+        let alpha = wg.absorption_per_mm(lambda);
+        let cross = (-alpha * w / theta_t.cos()).exp();
+        let closed = |n: f64| -> [f64; 2] {
+            let r_out = fresnel_r(1.0, n, t);
+            let r_in = fresnel_r(n, 1.0, (t.sin() / n).asin());
+            [0, 1].map(|p| (1.0 - r_out[p]) * r_in[p] * r_in[p] * (1.0 - r_in[p]) * cross.powi(3))
+        };
+        let want = closed(n);
+        for p in 0..2 {
+            assert!(
+                (wgh[p] / want[p] - 1.0).abs() <= 1e-12,
+                "θ {theta_deg}: ghost weight {} vs closed form {}",
+                wgh[p],
+                want[p]
+            );
+            let wrong = closed(n - 0.05);
+            assert!((wgh[p] / wrong[p] - 1.0).abs() > 0.01);
+        }
+        // The direct branch is T·T with one crossing.
+        let r_out = fresnel_r(1.0, n, t);
+        assert!((wd[0] / ((1.0 - r_out[0]).powi(2) * cross) - 1.0).abs() <= 1e-12);
+    }
+}
+
+/// The designed paths the branching tracer finds are `render`'s image: its `signal` class
+/// equals the capture pixel for pixel (within 2e-7 of the peak: both images are stored as
+/// float32; per camera ray the two tracers agree to 1.4e-12 in weight over 3000 random rays),
+/// on the paper camera with a 24 × 24 crop at 8 spp; the classes it
+/// adds are not empty (their total is above 1e-4 of the signal's), so a tracer that called
+/// every path signal would fail the first comparison.
+#[test]
+fn signal_class_is_the_render() {
+    let sys = repo_system("scenes/paper-2022.toml", &["sensor.crop_px=[24,24]"]);
+    let set = StraySettings {
+        spp: 8,
+        seed: 3,
+        paths: EXACT,
+        progress: false,
+    };
+    let st = stray_images(&sys, &set);
+    let cap = render(&sys, &RenderSettings::lattice(8, 3, false));
+    let signal = &st.classes[0];
+    assert_eq!(signal.name, SIGNAL);
+    let img = signal.image.as_ref().expect("signal image");
+    let peak = cap.channels[0].iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+    assert!(peak > 0.0);
+    let mut worst = 0.0f64;
+    for (a, b) in img[0].iter().zip(&cap.channels[0]) {
+        worst = worst.max((f64::from(*a) - f64::from(*b)).abs());
+    }
+    assert!(
+        worst <= 2e-7 * peak,
+        "signal vs render: {worst} of peak {peak}"
+    );
+    let stray: f64 = st.classes[1..].iter().map(|c| c.total).sum();
+    assert!(
+        stray > 1e-4 * signal.total,
+        "stray {stray} vs signal {}",
+        signal.total
+    );
+    // Every image row's signal sum matches the render's row sums too.
+    let w = cap.width;
+    for (r, s) in signal.row_sums.iter().enumerate() {
+        let want: f64 = cap.channels[0][r * w..(r + 1) * w]
+            .iter()
+            .map(|&v| f64::from(v))
+            .sum();
+        assert!((s - want).abs() <= 2e-7 * peak * w as f64);
+    }
+}
+
+/// Cross-coupling in the two-grating film: a path coupled out at the top vHOE by grating j and
+/// in at the bottom vHOE by grating k ≠ j leaves in the direction k-closure gives,
+/// u_out = u + (λ/2π)(K_k − K_j)_t for the importance ray (to 1e-12), and the designed path
+/// (j = k) leaves parallel to the camera ray (the periscope), which the cross-coupled one does
+/// not (their directions differ by more than 1e-3).
+#[test]
+fn cross_coupled_orders_follow_k_closure() {
+    let sys = repo_system("scenes/two-grating.toml", &["top_hoe.covered=false"]);
+    let wg = &sys.waveguide;
+    assert!(wg.gratings.len() >= 2);
+    let mut found = 0;
+    for ray in rays(&sys, 400) {
+        let (origin, dir, lambda) = ray;
+        let mut rng = PathRng::new(&[5]);
+        let v_in = dir.truncate();
+        trace_all_paths(wg, sys.display.z_mm, EXACT, ray, &mut rng, |e| {
+            let ds: Vec<(Face, u8)> = e
+                .events
+                .iter()
+                .filter_map(|ev| match *ev {
+                    Event::D { face, grating, .. } => Some((face, grating)),
+                    _ => None,
+                })
+                .collect();
+            let [(Face::Front, j), (Face::Back, k)] = ds[..] else {
+                return;
+            };
+            // The exit direction from the air leg to the display.
+            let leg = e.object_point_mm - e.exit_point_mm;
+            let h = -sys.display.z_mm;
+            let v_out = leg / (h * h + leg.length_squared()).sqrt();
+            let shift = |g: u8| wg.gratings.get(usize::from(g)).u_shift(lambda);
+            let want = v_in + shift(j) - shift(k);
+            assert!(
+                (v_out - want).length() <= 1e-12,
+                "j {j} k {k}: {v_out:?} vs {want:?}"
+            );
+            if j != k {
+                assert!((v_out - v_in).length() > 1e-3);
+                found += 1;
+            }
+            // lateral_shift of the air leg is the direction's tangent: consistent geometry.
+            assert!((lateral_shift(v_out, 1.0, h) - leg).length() <= 1e-9 * h);
+        });
+        let _ = origin;
+    }
+    assert!(found > 0, "no cross-coupled path found");
+}
+
+/// `stscam stray` writes its report: stray.json with the signal first (fraction 1, peak ratio
+/// 1) and every class's name, events, fraction of the signal and peak ratio, the fractions
+/// summing to 1 + the stray fraction; the same seed gives the same JSON figures with 1 and 2
+/// threads; class images as EXR and PNG; bad numbers, a 3-D scene and an --out that is a file
+/// are refused with exit 2 and nothing written.
+#[test]
+fn stray_command_writes_the_report() {
+    use crate::common::{stscam, write};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = |out: &str, threads: &str| {
+        let out = d.join(out);
+        let o = stscam(&[
+            "stray",
+            "--set",
+            "sensor.crop_px=[32,32]",
+            "--spp",
+            "2",
+            "--threads",
+            threads,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text = std::fs::read_to_string(out.join("stray.json")).unwrap();
+        (
+            out,
+            serde_json::from_str::<serde_json::Value>(&text).unwrap(),
+        )
+    };
+    let (out, j) = run("a", "2");
+    let classes = j["classes"].as_array().unwrap();
+    assert_eq!(classes[0]["name"], SIGNAL);
+    assert_eq!(classes[0]["fraction_of_signal"].as_f64(), Some(1.0));
+    assert_eq!(classes[0]["peak_ratio"].as_f64(), Some(1.0));
+    let mut sum = 0.0;
+    for c in classes {
+        for key in [
+            "name",
+            "events",
+            "fraction_of_signal",
+            "peak_ratio",
+            "row_fraction",
+        ] {
+            assert!(!c[key].is_null(), "{key} missing in {c}");
+        }
+        sum += c["fraction_of_signal"].as_f64().unwrap();
+    }
+    let stray = j["stray_fraction_of_signal"].as_f64().unwrap();
+    assert!(stray > 0.0 && stray < 0.1, "stray {stray}");
+    assert!((sum - 1.0 - stray).abs() <= 1e-9 * sum);
+    assert!(out.join("class_00_signal.exr").is_file());
+    assert!(out.join("class_00_signal.png").is_file());
+    assert!(out.join("class_01.png").is_file());
+    assert!(out.join("stray.md").is_file() && out.join("stray.png").is_file());
+    let (_, one) = run("b", "1");
+    for k in ["classes", "stray_fraction_of_signal", "importance_per_ray"] {
+        assert_eq!(one[k], j[k], "{k} differs with 1 thread");
+    }
+    // Refusals.
+    let file = write(d, "file", "x");
+    let scene3d = write(
+        d,
+        "s3d.toml",
+        "[[object]]\nmesh = \"sphere\"\nscale = 100\nposition_mm = [0, 0, -500]\n",
+    );
+    for (args, needle) in [
+        (vec!["--roulette", "2"], "--roulette"),
+        (vec!["--roulette", "nan"], "--roulette"),
+        (vec!["--max-events", "0"], "--max-events"),
+        (vec!["--spp", "0"], "--spp"),
+        (vec!["--out", file.to_str().unwrap()], "--out"),
+        (vec![scene3d.to_str().unwrap()], "display scenes only"),
+    ] {
+        let target = d.join("refused");
+        let mut a = vec!["stray"];
+        if args[0] != "--out" {
+            a.extend(["--out", target.to_str().unwrap()]);
+        }
+        a.extend(args.iter().copied());
+        let o = stscam(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{a:?}: {err}");
+        assert!(err.contains(needle), "{a:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{a:?}: {err}");
+        assert!(!target.exists());
+    }
+}
