@@ -105,10 +105,46 @@ pub struct StraySettings {
     pub progress: bool,
 }
 
+/// A multiply-rotate hasher for the class keys (short token lists hashed once per branch that
+/// reaches the display; SipHash's protection against chosen keys is not needed here).
+#[derive(Default, Clone, Copy)]
+struct KeyHasher(u64);
+
+impl std::hash::Hasher for KeyHasher {
+    #[inline]
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+
+    #[inline]
+    fn write_u64(&mut self, n: u64) {
+        self.0 = (self.0.rotate_left(5) ^ n).wrapping_mul(0x51_7cc1_b727_220a_95);
+    }
+
+    #[inline]
+    fn write_u8(&mut self, n: u8) {
+        self.write_u64(u64::from(n));
+    }
+
+    #[inline]
+    fn write_usize(&mut self, n: usize) {
+        self.write_u64(n as u64);
+    }
+}
+
+type KeyMap = HashMap<Vec<Token>, usize, std::hash::BuildHasherDefault<KeyHasher>>;
+
 /// A row's classes: each class's values over the row (columns × channels), by folded key.
 #[derive(Default)]
 struct RowClasses {
-    keys: HashMap<Vec<Token>, usize>,
+    keys: KeyMap,
     values: Vec<Vec<f64>>,
     ledger: Ledger,
     exit_weight: f64,

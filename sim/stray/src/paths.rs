@@ -280,9 +280,66 @@ struct Node {
 /// event.
 type Child = (At, DVec2, DVec2, [f64; 2], Option<Event>);
 
-/// A diffracted order: its direction cosines, whether it leaves toward the glass, its
-/// efficiency [TE, TM] and its event.
-type Order = (DVec2, bool, [f64; 2], Event);
+/// A film's split of one wave: each order (direction cosines, reflection-type, efficiency
+/// [TE, TM] after the multiplex scaling, grating, order) and the undiffracted remainder with
+/// the film's mean transmission; `None` orders do not propagate. `enters` is false for a wave
+/// that cannot enter the film (it crosses undiffracted).
+#[derive(Clone, Copy, Debug)]
+struct FilmSplit {
+    enters: bool,
+    orders: [Option<(DVec2, bool, [f64; 2], u8, i8)>; 2 * MAX_GRATINGS],
+    rest: [f64; 2],
+    att: f64,
+}
+
+/// What a path computes once per distinct wave (its direction cosines; the zig-zag of a guided
+/// wave meets the same wave at every contact): the glass crossing, the inner Fresnel
+/// reflectance and the film's split per direction along z. Entries hold exactly the values the
+/// computation gives, so a path traces the same with or without them.
+#[derive(Clone, Copy, Debug)]
+struct WaveData {
+    key: [u64; 2],
+    cross: Option<(DVec2, f64)>,
+    r_inside: Option<[f64; 2]>,
+    film: [Option<FilmSplit>; 2],
+}
+
+/// Distinct waves a path remembers (later ones are computed each time).
+const WAVE_MEMO: usize = 48;
+
+/// The per-path memo of [`WaveData`] (linear search: a path has a few dozen waves).
+#[derive(Default)]
+struct WaveMemo {
+    entries: Vec<WaveData>,
+    last: usize,
+}
+
+impl WaveMemo {
+    /// The entry of wave `v`, created if there is room.
+    #[inline]
+    fn entry(&mut self, v: DVec2) -> Option<&mut WaveData> {
+        let key = [v.x.to_bits(), v.y.to_bits()];
+        // The last wave asked for is the likeliest (a zig-zag asks for one wave in turn).
+        if self.entries.get(self.last).is_some_and(|e| e.key == key) {
+            return Some(&mut self.entries[self.last]);
+        }
+        if let Some(i) = self.entries.iter().position(|e| e.key == key) {
+            self.last = i;
+            return Some(&mut self.entries[i]);
+        }
+        self.last = self.entries.len();
+        if self.entries.len() >= WAVE_MEMO {
+            return None;
+        }
+        self.entries.push(WaveData {
+            key,
+            cross: None,
+            r_inside: None,
+            film: [None; 2],
+        });
+        self.entries.last_mut()
+    }
+}
 
 /// What one path's branches share.
 struct Ctx<'a> {
@@ -329,6 +386,7 @@ pub fn trace_all_paths(
         event: None,
     }];
     let mut children: Vec<Child> = Vec::with_capacity(16);
+    let mut memo = WaveMemo::default();
     while let Some(node) = stack.pop() {
         events.truncate(node.depth);
         events.extend(node.event);
@@ -337,7 +395,14 @@ pub fn trace_all_paths(
             continue;
         }
         children.clear();
-        ctx.step(&node, &mut children, &mut ledger, &mut events, &mut visit);
+        ctx.step(
+            &node,
+            &mut memo,
+            &mut children,
+            &mut ledger,
+            &mut events,
+            &mut visit,
+        );
         // Depth-first, children in the order produced (pushed reversed).
         for &(at, p, v, w, event) in children.iter().rev() {
             ledger.branches += 1;
@@ -397,6 +462,7 @@ impl Ctx<'_> {
     fn step(
         &self,
         node: &Node,
+        memo: &mut WaveMemo,
         out: &mut Vec<Child>,
         ledger: &mut Ledger,
         events: &mut Vec<Event>,
@@ -424,8 +490,16 @@ impl Ctx<'_> {
                     ledger.add(Sink::Absorbed, w);
                     return;
                 }
-                let shift = lateral_shift(v, n, thick);
-                let t = (-self.alpha * path_length(v, n, thick)).exp();
+                let compute = || {
+                    (
+                        lateral_shift(v, n, thick),
+                        (-self.alpha * path_length(v, n, thick)).exp(),
+                    )
+                };
+                let (shift, t) = match memo.entry(v) {
+                    Some(e) => *e.cross.get_or_insert_with(compute),
+                    None => compute(),
+                };
                 let q = p + shift;
                 ledger.add(Sink::Absorbed, [w[0] * (1.0 - t), w[1] * (1.0 - t)]);
                 let w = [w[0] * t, w[1] * t];
@@ -455,7 +529,11 @@ impl Ctx<'_> {
                     ledger.add(Sink::Cover, w);
                     return;
                 }
-                let r = reflectance(self.n_g, 1.0, v);
+                let compute = || reflectance(self.n_g, 1.0, v);
+                let r = match memo.entry(v) {
+                    Some(e) => *e.r_inside.get_or_insert_with(compute),
+                    None => compute(),
+                };
                 let tir = r == [1.0, 1.0];
                 let back = if self.film_at(face, p) {
                     At::Film(face, false)
@@ -488,8 +566,49 @@ impl Ctx<'_> {
                     }
                 }
             }
-            At::Film(face, from_glass) => self.film(face, from_glass, node, out, ledger),
+            At::Film(face, from_glass) => self.film(face, from_glass, node, memo, out, ledger),
         }
+    }
+
+    /// The film's split of the wave `v` travelling along `z_sign`: every grating's orders ±1
+    /// (scaled to sum to at most 1) and the undiffracted rest.
+    fn film_split(&self, v: DVec2, z_sign: f64) -> FilmSplit {
+        let gratings = &self.wg.gratings;
+        let mut split = FilmSplit {
+            enters: false,
+            orders: [None; 2 * MAX_GRATINGS],
+            rest: [1.0, 1.0],
+            att: 1.0,
+        };
+        let Some(wave) = gratings.incident(v, z_sign, self.lambda_nm) else {
+            return split;
+        };
+        split.enters = true;
+        let mut sum = [0.0f64; 2];
+        for (k, g) in gratings.as_slice().iter().enumerate() {
+            for (o, order) in [-1i32, 1].into_iter().enumerate() {
+                if let Some(d) = wave.order(g, order) {
+                    sum[0] += d.eta[0];
+                    sum[1] += d.eta[1];
+                    split.orders[2 * k + o] =
+                        Some((d.u, d.reflection, d.eta, k as u8, order as i8));
+                }
+            }
+        }
+        // Independent gratings whose orders sum past 1 are scaled to 1 (energy conservation).
+        let scale = [
+            if sum[0] > 1.0 { 1.0 / sum[0] } else { 1.0 },
+            if sum[1] > 1.0 { 1.0 / sum[1] } else { 1.0 },
+        ];
+        for (_, _, eta, _, _) in split.orders.iter_mut().flatten() {
+            *eta = [eta[0] * scale[0], eta[1] * scale[1]];
+        }
+        split.rest = [
+            (1.0 - sum[0] * scale[0]).max(0.0),
+            (1.0 - sum[1] * scale[1]).max(0.0),
+        ];
+        split.att = gratings.film().film_attenuation(v);
+        split
     }
 
     /// The film of `face` crossed by `node`'s wave (from the glass side if `from_glass`):
@@ -499,6 +618,7 @@ impl Ctx<'_> {
         face: Face,
         from_glass: bool,
         node: &Node,
+        memo: &mut WaveMemo,
         out: &mut Vec<Child>,
         ledger: &mut Ledger,
     ) {
@@ -509,59 +629,43 @@ impl Ctx<'_> {
         } else {
             -face.outward()
         };
-        let gratings = &self.wg.gratings;
+        let compute = || self.film_split(v, z_sign);
+        let mut local = None;
+        let split: &FilmSplit = match memo.entry(v) {
+            Some(e) => e.film[usize::from(z_sign > 0.0)].get_or_insert_with(compute),
+            None => local.insert(compute()),
+        };
         // Where a wave leaving the film toward the glass or the air side goes next.
         let to_glass = At::Crossing(face);
         let to_air = At::InterfaceFromInside(face);
-        let Some(wave) = gratings.incident(v, z_sign, self.lambda_nm) else {
+        let straight = if from_glass { to_air } else { to_glass };
+        if !split.enters {
             // It cannot enter the film (|u| ≥ n_film): it crosses undiffracted, as in the
             // designed tracer.
-            out.push((if from_glass { to_air } else { to_glass }, p, v, w, None));
+            out.push((straight, p, v, w, None));
             return;
-        };
-        let mut orders: [Option<Order>; 2 * MAX_GRATINGS] = [None; 2 * MAX_GRATINGS];
-        let mut sum = [0.0f64; 2];
-        for (k, g) in gratings.as_slice().iter().enumerate() {
-            for (o, order) in [-1i32, 1].into_iter().enumerate() {
-                if let Some(d) = wave.order(g, order) {
-                    sum[0] += d.eta[0];
-                    sum[1] += d.eta[1];
-                    // A reflection-type order leaves on the side it entered.
-                    let leaves_to_glass = d.reflection == from_glass;
-                    orders[2 * k + o] = Some((
-                        d.u,
-                        leaves_to_glass,
-                        d.eta,
-                        Event::D {
-                            face,
-                            grating: k as u8,
-                            order: order as i8,
-                            transmitted: !d.reflection,
-                        },
-                    ));
-                }
-            }
         }
-        // Independent gratings whose orders sum past 1 are scaled to 1 (energy conservation).
-        let scale = [
-            if sum[0] > 1.0 { 1.0 / sum[0] } else { 1.0 },
-            if sum[1] > 1.0 { 1.0 / sum[1] } else { 1.0 },
-        ];
-        for (u, leaves_to_glass, eta, event) in orders.into_iter().flatten() {
-            let eta = [eta[0] * scale[0], eta[1] * scale[1]];
-            let at = if leaves_to_glass { to_glass } else { to_air };
+        for &(u, reflection, eta, grating, order) in split.orders.iter().flatten() {
+            // A reflection-type order leaves on the side it entered.
+            let at = if reflection == from_glass {
+                to_glass
+            } else {
+                to_air
+            };
+            let event = Event::D {
+                face,
+                grating,
+                order,
+                transmitted: !reflection,
+            };
             out.push((at, p, u, mul(w, eta), Some(event)));
         }
-        let att = gratings.film().film_attenuation(v);
-        let rest = [
-            (1.0 - sum[0] * scale[0]).max(0.0),
-            (1.0 - sum[1] * scale[1]).max(0.0),
-        ];
+        let (rest, att) = (split.rest, split.att);
         ledger.add(
             Sink::Absorbed,
             [w[0] * rest[0] * (1.0 - att), w[1] * rest[1] * (1.0 - att)],
         );
         let zero = [w[0] * rest[0] * att, w[1] * rest[1] * att];
-        out.push((if from_glass { to_air } else { to_glass }, p, v, zero, None));
+        out.push((straight, p, v, zero, None));
     }
 }
