@@ -7,7 +7,9 @@
 //! order −1 of the film's first grating at the top vHOE, reflection-type (the light leaves the
 //! film on the side it entered, as a reflection hologram's designed orders do), `Dt(…)` for a
 //! transmission-type order. Cross-coupling reads off the name:
-//! `D(top,g1,-1) TIR×n D(bottom,g2,+1)` is grating 1's guided wave coupled out by grating 2.
+//! `D(top,g1,-1) TIR×n D(bottom,g2,+1)` is light that grating 2 couples in at the bottom vHOE
+//! and grating 1 couples out at the top (events run from the camera outward, the reverse of
+//! the light's travel).
 
 use crate::paths::{Event, Face};
 
