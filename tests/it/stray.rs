@@ -411,3 +411,88 @@ fn stray_command_writes_the_report() {
         assert!(!target.exists());
     }
 }
+
+/// `evaluate --metrics stray_percent` is `stscam stray`'s total at the same crop, spp and seed
+/// (one replicate, no binning: equal to 1e-12 relative; with two replicates it carries an
+/// error), a quantile of it and a 3-D scene are refused (exit 2). A scene without the cover
+/// reports more stray light than the paper's, so the metric can tell designs apart.
+#[test]
+fn evaluate_stray_percent_is_the_stray_total() {
+    use crate::common::{stscam, stscam_json, write};
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s");
+    let crop = "sensor.crop_px=[40,40]";
+    let o = stscam(&[
+        "stray",
+        "--set",
+        crop,
+        "--spp",
+        "2",
+        "--seed",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stray.json")).unwrap()).unwrap();
+    let want = 100.0 * j["stray_fraction_of_signal"].as_f64().unwrap();
+    let eval = |extra: &[&str], reps: &str| {
+        let mut a = vec![
+            "evaluate",
+            "--metrics",
+            "stray_percent",
+            "--json",
+            "--set",
+            crop,
+            "--binning",
+            "1",
+            "--spp",
+            "2",
+            "--seed",
+            "1",
+            "--replicates",
+            reps,
+        ];
+        a.extend_from_slice(extra);
+        stscam_json(&a)
+    };
+    let one = eval(&[], "1");
+    let got = one["stray_percent"].as_f64().unwrap();
+    assert!(
+        (got / want - 1.0).abs() <= 1e-12,
+        "evaluate {got} vs stray {want}"
+    );
+    let two = eval(&[], "2");
+    assert!(two["stray_percent_error"].as_f64().unwrap() > 0.0);
+    let open = eval(&["--set", "top_hoe.covered=false"], "1");
+    assert!(open["stray_percent"].as_f64().unwrap() > 2.0 * got);
+    let scene3d = write(
+        dir.path(),
+        "s3d.toml",
+        "[[object]]\nmesh = \"sphere\"\nscale = 100\nposition_mm = [0, 0, -500]\n",
+    );
+    for args in [
+        vec![
+            "evaluate",
+            "--metrics",
+            "stray_percent_q05",
+            "--draw",
+            "hoe.shrinkage=normal(0,0.01)",
+        ],
+        vec![
+            "evaluate",
+            scene3d.to_str().unwrap(),
+            "--metrics",
+            "stray_percent",
+        ],
+    ] {
+        let o = stscam(&args);
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}

@@ -28,13 +28,13 @@ pub struct EvaluateOptions {
     /// the display).
     #[arg(long, default_value_t = 32)]
     pub object_px: u32,
-    /// Reconstruction metrics: sensor binning (the same sensor area in fewer, larger pixels).
+    /// Reconstruction and stray-light metrics: sensor binning (the same sensor area in fewer, larger pixels).
     #[arg(long, default_value_t = 2)]
     pub binning: u32,
-    /// Reconstruction metrics: samples per pixel of H and of the capture H.
+    /// Reconstruction and stray-light metrics: samples per pixel (of H and of the capture H; of the stray-light trace).
     #[arg(long, default_value_t = 8)]
     pub spp: u32,
-    /// Reconstruction metrics: independent replicates (their spread gives the error).
+    /// Reconstruction and stray-light metrics: independent replicates (their spread gives the error).
     #[arg(long, default_value_t = 2)]
     pub replicates: usize,
     /// Reconstruction targets, comma-separated: built-in specs without size or PNG/EXR files

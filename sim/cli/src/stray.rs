@@ -111,7 +111,7 @@ pub fn run(o: &StrayOptions, con: &Console) -> Result<StrayImages, JobError> {
         "crop_px": [st.width, st.height],
         "channels": st.channel_names,
         "model": "every path of the camera's importance through the plate: both Fresnel branches at every face, orders -1 and +1 of every grating of the film at both vHOEs (cross-coupling included), repeated passes through a film, the cover, absorbing plate edges; the display in front of the screen is the only source (no source on the camera side)",
-        "units": "fraction_of_signal: the class's sum over the crop's pixels and channels over the signal's; peak_ratio: its brightest pixel over the signal's; row_fraction: per image row (row 0 at the top), the class's row sum over the signal's row sum (null where the signal's row is 0)",
+        "units": "fraction_of_signal: the class's sum over the crop's pixels and channels over the signal's; peak_ratio: its brightest pixel over the signal's; row_fraction: per image row (row 0 at the top), the class's row sum over the signal's row sum, 6 significant digits (null where the signal's row is 0)",
         "signal": {"name": SIGNAL, "definition": "the designed paths, which H models: straight through the plate, and T(back) D(top,gj,-1) [TIR×n | R]... D(bottom,gj,+1) T(front) with the same grating j at both vHOEs", "total": report.signal_total, "peak": report.signal_peak},
         "stray_fraction_of_signal": report.stray_total / report.signal_total,
         "signal_to_stray": report.signal_total / report.stray_total,
@@ -165,6 +165,11 @@ pub fn run(o: &StrayOptions, con: &Console) -> Result<StrayImages, JobError> {
         start.elapsed().as_secs_f64()
     ));
     Ok(st)
+}
+
+/// `x` to 6 significant digits (the row fractions: Monte Carlo estimates, kept short).
+fn round6(x: f64) -> f64 {
+    crate::numfmt::sig6(x).parse().unwrap_or(x)
 }
 
 /// A class image's file stem: its rank and a short name (`class_00_signal`, `class_03`).
@@ -222,7 +227,7 @@ impl Report {
                     .row_sums
                     .iter()
                     .zip(&signal_rows)
-                    .map(|(a, b)| (*b > 0.0).then(|| a / b))
+                    .map(|(a, b)| (*b > 0.0).then(|| round6(a / b)))
                     .collect();
                 serde_json::json!({
                     "rank": i,

@@ -308,7 +308,7 @@ impl Request {
         if self
             .metrics
             .iter()
-            .any(|m| m.base.kind() == Kind::Reconstruction)
+            .any(|m| matches!(m.base.kind(), Kind::Reconstruction | Kind::Stray))
         {
             if f.spp == 0 {
                 return Err(input("fidelity spp: must be at least 1"));
@@ -424,6 +424,12 @@ pub fn evaluate(
             values.insert(format!("{}_error", m.base.name()), e);
         }
     }
+    if want(Kind::Stray) {
+        let (v, e) = stray_percent(scene, overrides, &loaded, &sys, &req.fidelity)?;
+        let name = Base::StrayPercent.name();
+        values.insert(name.to_string(), v);
+        values.insert(format!("{name}_error"), e);
+    }
     if req.metrics.iter().any(|m| m.needs_draws()) {
         tolerance(scene, overrides, req, &mut values)?;
     }
@@ -513,6 +519,70 @@ pub fn fidelity_overrides(
         ));
     }
     Ok(o)
+}
+
+/// The stray light of the design, % of the signal, and its standard error: `stscam stray`'s
+/// total over the crop at the fidelity's sensor binning (the scene's own display image) and
+/// spp, once per replicate (seeds `seed`, `seed + 1`, …; one replicate: error NaN).
+fn stray_percent(
+    scene: SceneSource<'_>,
+    overrides: &[String],
+    loaded: &LoadedScene,
+    sys: &System,
+    f: &Fidelity,
+) -> Result<(f64, f64), EvalError> {
+    use stscam_stray::image::{StraySettings, bytes_bound, stray_images};
+    let binning_only = Fidelity {
+        object_px: None,
+        ..f.clone()
+    };
+    let mut set: Vec<String> = overrides.to_vec();
+    set.extend(fidelity_overrides(loaded, sys, &binning_only)?);
+    let sys = System::build(&scene.load(&set)?)?;
+    if sys.world.is_some() {
+        return Err(input(
+            "metric stray_percent: display scenes only (the stray tracer does not follow a 3-D user side)",
+        ));
+    }
+    crate::render::check_limits(
+        &sys,
+        &crate::render::RenderSettings::lattice(f.spp, 0, false),
+        f.replicates as u64,
+        "fidelity spp",
+    )
+    .map_err(|e| input(e.to_string()))?;
+    crate::limits::check_bytes(
+        "sensor.crop_px",
+        "the stray-light classes' images",
+        bytes_bound(&sys),
+    )
+    .map_err(|e| input(e.to_string()))?;
+    let mut xs = Vec::with_capacity(f.replicates);
+    for r in 0..f.replicates {
+        let st = stray_images(
+            &sys,
+            &StraySettings {
+                spp: f.spp,
+                seed: f.seed.wrapping_add(r as u64),
+                paths: Default::default(),
+                progress: false,
+            },
+        );
+        let signal: f64 = st
+            .classes
+            .iter()
+            .filter(|c| c.name == stscam_stray::classes::SIGNAL)
+            .map(|c| c.total)
+            .sum();
+        let stray: f64 = st
+            .classes
+            .iter()
+            .filter(|c| c.name != stscam_stray::classes::SIGNAL)
+            .map(|c| c.total)
+            .sum();
+        xs.push(100.0 * stray / signal);
+    }
+    Ok(mean_and_error(&xs))
 }
 
 /// Reconstruction metrics: (value, error) per base metric and the design's white peak.

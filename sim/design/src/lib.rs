@@ -16,7 +16,7 @@ pub mod report;
 pub mod study;
 
 // The layers below, under the names this crate's modules use (`crate::io::…`).
-use stscam_base::{cancel, noise, sampler, targets};
+use stscam_base::{cancel, limits, noise, sampler, targets};
 use stscam_io as io;
 use stscam_io::plot;
 use stscam_recon as recon;

@@ -48,13 +48,17 @@ pub enum Base {
     PsnrCgDb,
     /// Mean SSIM of the ADMM-TV reconstructions.
     Ssim,
+    /// Stray light over the crop, % of the signal: every path through the plate that H does
+    /// not model (`stscam stray`'s total), the scene's own display image, at the fidelity's
+    /// binning and spp.
+    StrayPercent,
     /// Fraction of the tolerance draws that meet the study's constraints (module notes).
     Yield,
 }
 
 impl Base {
     /// Every base metric, in the order reports list them.
-    pub const ALL: [Base; 18] = [
+    pub const ALL: [Base; 19] = [
         Base::FovCaptureVerticalDeg,
         Base::FovCaptureHorizontalDeg,
         Base::FovWaveguideVerticalDeg,
@@ -72,6 +76,7 @@ impl Base {
         Base::PsnrDb,
         Base::PsnrCgDb,
         Base::Ssim,
+        Base::StrayPercent,
         Base::Yield,
     ];
 
@@ -95,6 +100,7 @@ impl Base {
             Base::PsnrDb => "psnr_db",
             Base::PsnrCgDb => "psnr_cg_db",
             Base::Ssim => "ssim",
+            Base::StrayPercent => "stray_percent",
             Base::Yield => "yield",
         }
     }
@@ -110,15 +116,20 @@ impl Base {
             Base::PsnrDb | Base::PsnrCgDb | Base::Ssim => Kind::Reconstruction,
             Base::BandCoverageR | Base::BandCoverageG | Base::BandCoverageB => Kind::Colour,
             Base::Yield => Kind::Tolerance,
+            Base::StrayPercent => Kind::Stray,
             _ => Kind::Geometry,
         }
     }
 
     /// Whether the metric carries a Monte Carlo error (`<name>_error` in the output): the
-    /// reconstruction metrics (rendered H and capture, sensor noise) and the yield (a finite
-    /// number of draws). The geometry metrics are deterministic quadratures of chief rays.
+    /// reconstruction metrics (rendered H and capture, sensor noise), the stray light (traced
+    /// paths) and the yield (a finite number of draws). The geometry metrics are deterministic
+    /// quadratures of chief rays.
     pub fn has_error(self) -> bool {
-        matches!(self.kind(), Kind::Reconstruction | Kind::Tolerance)
+        matches!(
+            self.kind(),
+            Kind::Reconstruction | Kind::Stray | Kind::Tolerance
+        )
     }
 }
 
@@ -131,6 +142,8 @@ pub enum Kind {
     Colour,
     /// H, captures and reconstructions (seconds).
     Reconstruction,
+    /// Every path through the plate (`stscam_stray`; seconds).
+    Stray,
     /// Tolerance draws of the design.
     Tolerance,
 }
