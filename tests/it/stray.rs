@@ -11,7 +11,7 @@ use stscam::render::{RenderSettings, render};
 use stscam::sampler::PathRng;
 use stscam::stray::classes::{self, SIGNAL};
 use stscam::stray::image::{StraySettings, stray_images};
-use stscam::stray::paths::{Event, Face, Ledger, PathSettings, Sink, trace_all_paths};
+use stscam::stray::paths::{Event, Face, Ledger, PathSettings, Sink, Sources, trace_all_paths};
 use stscam::system::{System, repo_system};
 
 /// No roulette: every branch above 1e-13 of the camera ray's weight followed (what is below
@@ -31,10 +31,17 @@ fn closure(
 ) -> ([f64; 2], Ledger) {
     let mut exits = [0.0; 2];
     let mut rng = PathRng::new(&[seed]);
-    let ledger = trace_all_paths(&sys.waveguide, sys.display.z_mm, set, ray, &mut rng, |e| {
-        exits[0] += e.weight[0];
-        exits[1] += e.weight[1];
-    });
+    let ledger = trace_all_paths(
+        &sys.waveguide,
+        Sources::front(sys.display.z_mm),
+        set,
+        ray,
+        &mut rng,
+        |e| {
+            exits[0] += e.weight[0];
+            exits[1] += e.weight[1];
+        },
+    );
     let mut sum = exits;
     for s in Sink::ALL {
         let w = ledger.get(s);
@@ -111,9 +118,14 @@ fn roulette_leaves_the_mean_unchanged() {
     let exits = |set: PathSettings, seed: u64| -> f64 {
         let mut sum = 0.0;
         let mut rng = PathRng::new(&[seed, 7]);
-        trace_all_paths(&sys.waveguide, sys.display.z_mm, set, ray, &mut rng, |e| {
-            sum += e.weight[0]
-        });
+        trace_all_paths(
+            &sys.waveguide,
+            Sources::front(sys.display.z_mm),
+            set,
+            ray,
+            &mut rng,
+            |e| sum += e.weight[0],
+        );
         sum
     };
     let exact = exits(EXACT, 0);
@@ -177,13 +189,13 @@ fn plain_plate_ghost_is_where_geometry_puts_it_with_fresnel_power() {
         let mut rng = PathRng::new(&[1]);
         trace_all_paths(
             wg,
-            sys.display.z_mm,
+            Sources::front(sys.display.z_mm),
             EXACT,
             (origin, dir, lambda),
             &mut rng,
             |e| {
                 let mut tokens = Vec::new();
-                classes::fold(e.events, &mut tokens);
+                classes::fold(e.events, e.source, &mut tokens);
                 let name = classes::name(&tokens);
                 if name == SIGNAL {
                     direct = Some((e.exit_point_mm, e.weight));
@@ -289,35 +301,42 @@ fn cross_coupled_orders_follow_k_closure() {
         let (origin, dir, lambda) = ray;
         let mut rng = PathRng::new(&[5]);
         let v_in = dir.truncate();
-        trace_all_paths(wg, sys.display.z_mm, EXACT, ray, &mut rng, |e| {
-            let ds: Vec<(Face, u8)> = e
-                .events
-                .iter()
-                .filter_map(|ev| match *ev {
-                    Event::D { face, grating, .. } => Some((face, grating)),
-                    _ => None,
-                })
-                .collect();
-            let [(Face::Front, j), (Face::Back, k)] = ds[..] else {
-                return;
-            };
-            // The exit direction from the air leg to the display.
-            let leg = e.object_point_mm - e.exit_point_mm;
-            let h = -sys.display.z_mm;
-            let v_out = leg / (h * h + leg.length_squared()).sqrt();
-            let shift = |g: u8| wg.gratings.get(usize::from(g)).u_shift(lambda);
-            let want = v_in + shift(j) - shift(k);
-            assert!(
-                (v_out - want).length() <= 1e-12,
-                "j {j} k {k}: {v_out:?} vs {want:?}"
-            );
-            if j != k {
-                assert!((v_out - v_in).length() > 1e-3);
-                found += 1;
-            }
-            // lateral_shift of the air leg is the direction's tangent: consistent geometry.
-            assert!((lateral_shift(v_out, 1.0, h) - leg).length() <= 1e-9 * h);
-        });
+        trace_all_paths(
+            wg,
+            Sources::front(sys.display.z_mm),
+            EXACT,
+            ray,
+            &mut rng,
+            |e| {
+                let ds: Vec<(Face, u8)> = e
+                    .events
+                    .iter()
+                    .filter_map(|ev| match *ev {
+                        Event::D { face, grating, .. } => Some((face, grating)),
+                        _ => None,
+                    })
+                    .collect();
+                let [(Face::Front, j), (Face::Back, k)] = ds[..] else {
+                    return;
+                };
+                // The exit direction from the air leg to the display.
+                let leg = e.object_point_mm - e.exit_point_mm;
+                let h = -sys.display.z_mm;
+                let v_out = leg / (h * h + leg.length_squared()).sqrt();
+                let shift = |g: u8| wg.gratings.get(usize::from(g)).u_shift(lambda);
+                let want = v_in + shift(j) - shift(k);
+                assert!(
+                    (v_out - want).length() <= 1e-12,
+                    "j {j} k {k}: {v_out:?} vs {want:?}"
+                );
+                if j != k {
+                    assert!((v_out - v_in).length() > 1e-3);
+                    found += 1;
+                }
+                // lateral_shift of the air leg is the direction's tangent: consistent geometry.
+                assert!((lateral_shift(v_out, 1.0, h) - leg).length() <= 1e-9 * h);
+            },
+        );
         let _ = origin;
     }
     assert!(found > 0, "no cross-coupled path found");
@@ -493,6 +512,67 @@ fn evaluate_stray_percent_is_the_stray_total() {
             Some(2),
             "{args:?}: {}",
             String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
+
+/// The display behind the screen (`[behind_display]`): its light reaches the camera through the
+/// gratings (classes ending in `display-behind` with a diffraction) and through Fresnel
+/// reflections; with the index modulation at 0 only the Fresnel ghosts are left (no class of
+/// it holds a diffraction, and they are not empty); disabled, it adds nothing. Energy still
+/// closes per ray with it on (its share counts as reaching a source).
+#[test]
+fn display_behind_the_screen() {
+    let base = [
+        "sensor.crop_px=[24,24]",
+        "behind_display.enabled=true",
+        "behind_display.size_mm=[200,200]",
+    ];
+    let set = StraySettings {
+        spp: 4,
+        seed: 1,
+        paths: PathSettings::default(),
+        progress: false,
+    };
+    let behind = |extra: &[&str]| {
+        let mut sets = base.to_vec();
+        sets.extend_from_slice(extra);
+        let sys = repo_system("scenes/paper-2022.toml", &sets);
+        let st = stray_images(&sys, &set);
+        st.classes
+            .into_iter()
+            .filter(|c| c.name.ends_with("display-behind"))
+            .map(|c| (c.name, c.total))
+            .collect::<Vec<_>>()
+    };
+    let on = behind(&[]);
+    assert!(
+        on.iter().any(|(n, t)| n.contains("D(") && *t > 0.0),
+        "no diffracted display-behind class: {on:?}"
+    );
+    let plain = behind(&["hoe.index_modulation=0"]);
+    assert!(!plain.is_empty() && plain.iter().all(|(_, t)| *t > 0.0));
+    for (n, _) in &plain {
+        assert!(!n.contains("D(") && !n.contains("Dt("), "{n} with n1 = 0");
+    }
+    let off = behind(&["behind_display.enabled=false"]);
+    assert!(off.is_empty(), "{off:?}");
+    let sys = repo_system("scenes/paper-2022.toml", &base);
+    let sources = stscam::stray::image::sources(&sys);
+    for ray in rays(&sys, 100) {
+        let mut sum = [0.0; 2];
+        let mut rng = PathRng::new(&[2]);
+        let ledger = trace_all_paths(&sys.waveguide, sources, EXACT, ray, &mut rng, |e| {
+            sum[0] += e.weight[0];
+            sum[1] += e.weight[1];
+        });
+        for s in Sink::ALL {
+            sum[0] += ledger.get(s)[0];
+            sum[1] += ledger.get(s)[1];
+        }
+        assert!(
+            (sum[0] - 1.0).abs() <= 1e-12 && (sum[1] - 1.0).abs() <= 1e-12,
+            "{sum:?}"
         );
     }
 }

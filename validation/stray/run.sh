@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The stray-light figures of docs/stray.md and validation/results/stray/: the paper camera (as
-# published: the top vHOE taped over), the same with the tape removed, and the RGB multiplex
-# film, each at 16 spp, seed 1, the default roulette threshold.
+# published: the top vHOE taped over), the same with the tape removed, the RGB multiplex film,
+# and the paper camera with the display behind the screen at full white (50 x 50 mm, 10 mm
+# behind the back face, centred on the bottom vHOE) with a white target in front and with the
+# letter F; each at 16 spp, seed 1, the default roulette threshold (about 2.5 min on 2 cores).
 #   validation/stray/run.sh [STSCAM] [OUT]
 set -euo pipefail
 stscam=${1:-target/release/stscam}
@@ -22,3 +24,5 @@ run() {
 run paper
 run paper-uncovered --set top_hoe.covered=false
 run rgb-multiplex scenes/rgb-multiplex.toml
+run paper-display-behind --set behind_display.enabled=true --set display.image=white
+run paper-display-behind-target --set behind_display.enabled=true

@@ -450,6 +450,44 @@ pub struct SamplingDesc {
 
 pub use crate::noise::NoiseDesc;
 
+/// `[behind_display]`: the display behind the screen in the eye-contact application (on the
+/// camera side, facing the user through the plate). Only the stray-light tracer sees it
+/// (`stscam stray`): it is a uniform Lambertian emitter with the front display's backlight
+/// spectrum and polarisation. Left out of serialised scenes while disabled, so every other
+/// output keeps its bytes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BehindDisplayDesc {
+    /// Whether it is there.
+    pub enabled: bool,
+    /// Distance of its emitting plane behind the back face, mm.
+    pub distance_mm: f64,
+    /// Centre of its emitting area on its plane, mm [x, y].
+    pub center_mm: [f64; 2],
+    /// Size of its emitting area, mm [width, height].
+    pub size_mm: [f64; 2],
+    /// Radiance relative to the front display's white (1 = the same white).
+    pub luminance: f64,
+}
+
+impl Default for BehindDisplayDesc {
+    fn default() -> Self {
+        BehindDisplayDesc {
+            enabled: false,
+            distance_mm: 10.0,
+            center_mm: [0.0, 0.0],
+            size_mm: [50.0, 50.0],
+            luminance: 1.0,
+        }
+    }
+}
+
+impl BehindDisplayDesc {
+    fn is_off(&self) -> bool {
+        *self == BehindDisplayDesc::default()
+    }
+}
+
 /// A complete scene description.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -472,6 +510,9 @@ pub struct Scene {
     pub sampling: SamplingDesc,
     /// Sensor noise.
     pub noise: NoiseDesc,
+    /// The display behind the screen (stray light only).
+    #[serde(default, skip_serializing_if = "BehindDisplayDesc::is_off")]
+    pub behind_display: BehindDisplayDesc,
     /// Objects of the user side (`[[object]]`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub object: Vec<crate::desc::ObjectDesc>,

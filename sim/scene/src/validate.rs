@@ -51,6 +51,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     validate_camera(ls)?;
     validate_sensor(ls)?;
     validate_display(ls)?;
+    validate_behind_display(ls)?;
     validate_sampling(ls)?;
     validate_noise(ls)?;
     let sm = &ls.scene.sampling;
@@ -176,6 +177,27 @@ fn validate_sensor(ls: &LoadedScene) -> Result<(), SceneError> {
         },
     )?;
     Ok(())
+}
+
+/// `[behind_display]`: a finite plate behind the back face with a finite area and radiance.
+fn validate_behind_display(ls: &LoadedScene) -> Result<(), SceneError> {
+    let b = &ls.scene.behind_display;
+    in_range(ls, b.distance_mm, 1e-3, 1e4, "behind_display.distance_mm")?;
+    check(
+        ls,
+        b.center_mm.iter().all(|v| v.is_finite() && v.abs() <= 1e4),
+        "behind_display.center_mm",
+        || "must be finite, within ±1e4 mm".into(),
+    )?;
+    check(
+        ls,
+        b.size_mm
+            .iter()
+            .all(|v| v.is_finite() && *v > 0.0 && *v <= 1e4),
+        "behind_display.size_mm",
+        || "must be positive, at most 1e4 mm".into(),
+    )?;
+    in_range(ls, b.luminance, 0.0, 1e6, "behind_display.luminance")
 }
 
 /// `[display]`: geometry, spectrum, primaries, polarisation, gamma, black level and image.

@@ -6,12 +6,13 @@
 //! at a face, `TIR×n` for a run of total internal reflections (any number), `D(top,g1,-1)` for
 //! order −1 of the film's first grating at the top vHOE, reflection-type (the light leaves the
 //! film on the side it entered, as a reflection hologram's designed orders do), `Dt(…)` for a
-//! transmission-type order. Cross-coupling reads off the name:
+//! transmission-type order; a path that ends on the display behind the screen ends in
+//! `display-behind`. Cross-coupling reads off the name:
 //! `D(top,g1,-1) TIR×n D(bottom,g2,+1)` is light that grating 2 couples in at the bottom vHOE
 //! and grating 1 couples out at the top (events run from the camera outward, the reverse of
 //! the light's travel).
 
-use crate::paths::{Event, Face};
+use crate::paths::{Event, Face, Source};
 
 /// The name of the class that H models: the designed paths (see [`is_signal`]).
 pub const SIGNAL: &str = "signal";
@@ -23,6 +24,8 @@ pub enum Token {
     Event(Event),
     /// One or more total internal reflections in a row.
     TirRun,
+    /// The path ends on the display behind the screen (its last token).
+    BehindDisplay,
 }
 
 impl Token {
@@ -30,6 +33,7 @@ impl Token {
     pub fn text(self) -> String {
         match self {
             Token::TirRun => "TIR×n".to_string(),
+            Token::BehindDisplay => "display-behind".to_string(),
             Token::Event(Event::T(f)) => format!("T({})", f.name()),
             Token::Event(Event::R(f)) => format!("R({})", f.name()),
             Token::Event(Event::Tir(f)) => format!("TIR({})", f.name()),
@@ -62,6 +66,7 @@ impl Token {
         };
         match self {
             Token::TirRun => "~".to_string(),
+            Token::BehindDisplay => "@B".to_string(),
             Token::Event(Event::T(f)) => format!("T{}", face(f)),
             Token::Event(Event::R(f)) => format!("R{}", face(f)),
             Token::Event(Event::Tir(f)) => format!("I{}", face(f)),
@@ -90,8 +95,9 @@ pub fn short_name(tokens: &[Token]) -> String {
         .join(" ")
 }
 
-/// Folds `events` into `out` (cleared first): every run of `Tir` becomes one `TirRun`.
-pub fn fold(events: &[Event], out: &mut Vec<Token>) {
+/// Folds `events` into `out` (cleared first): every run of `Tir` becomes one `TirRun`; a path
+/// that ends on the display behind the screen (`source`) ends in `BehindDisplay`.
+pub fn fold(events: &[Event], source: Source, out: &mut Vec<Token>) {
     out.clear();
     for &e in events {
         match e {
@@ -102,6 +108,9 @@ pub fn fold(events: &[Event], out: &mut Vec<Token>) {
             }
             e => out.push(Token::Event(e)),
         }
+    }
+    if source == Source::BehindDisplay {
+        out.push(Token::BehindDisplay);
     }
 }
 
@@ -172,7 +181,7 @@ mod tests {
 
     fn class(events: &[Event]) -> String {
         let mut t = Vec::new();
-        fold(events, &mut t);
+        fold(events, Source::Display, &mut t);
         name(&t)
     }
 
@@ -226,11 +235,15 @@ mod tests {
         assert_eq!(
             {
                 let mut t = Vec::new();
-                fold(&cross, &mut t);
+                fold(&cross, Source::Display, &mut t);
                 short_name(&t)
             },
             "Tb Dt1- ~ Db2+ Tf"
         );
+        // The display behind the screen: its own class, never signal.
+        let mut t = Vec::new();
+        fold(&[T(Back), T(Front)], Source::BehindDisplay, &mut t);
+        assert_eq!(name(&t), "T(back) T(front) display-behind");
         // Runs of TIR fold whatever their length.
         let mut longer = replica.to_vec();
         longer.insert(2, Tir(Front));

@@ -10,12 +10,16 @@
 //! are what `render` leaves out. Russian roulette keeps every class unbiased.
 //!
 //! Assumptions: a display scene (no 3-D user side); the film by Kogelnik's model (an RCWA
-//! scene's tables describe its designed orders only); the camera side holds no source.
+//! scene's tables describe its designed orders only); on the camera side only the display
+//! behind the screen (`[behind_display]`) emits, uniform white at its luminance with the front
+//! display's spectrum and polarisation.
 
 use std::collections::{BTreeMap, HashMap};
 
 use crate::classes::{self, Token};
-use crate::paths::{Ledger, PathSettings, SINKS, Sink, trace_all_paths};
+use crate::paths::{
+    BehindPlane, Ledger, PathSettings, SINKS, Sink, Source, Sources, trace_all_paths,
+};
 use crate::sampler::PathRng;
 use crate::tracer::render::{
     CameraSample, RenderSettings, channel_weights, draw_samples, lattice_rule,
@@ -185,6 +189,22 @@ pub fn stray_images(sys: &System, set: &StraySettings) -> StrayImages {
     assemble(sys, rows, (w, h, nch))
 }
 
+/// The sources of `sys` for the tracer: the display plane, and the display behind the screen
+/// when the scene enables it.
+pub fn sources(sys: &System) -> Sources {
+    let b = &sys.scene.behind_display;
+    Sources {
+        display_z_mm: sys.display.z_mm,
+        behind: b.enabled.then(|| BehindPlane {
+            distance_mm: b.distance_mm,
+            area: crate::tracer::waveguide::Rect::centered(
+                glam::DVec2::from_array(b.center_mm),
+                glam::DVec2::from_array(b.size_mm),
+            ),
+        }),
+    }
+}
+
 /// Traces sample `i` of pixel `pixel` (in column `col` of its row) through every path and adds
 /// each branch, times `inv` (1/spp), to its class in `rc`.
 #[inline]
@@ -209,22 +229,24 @@ fn trace_sample(
     let ray = (s.ray.origin, s.ray.dir, s.lambda_nm);
     let ledger = trace_all_paths(
         &sys.waveguide,
-        disp.z_mm,
+        sources(sys),
         set.paths,
         ray,
         &mut rng,
         |exit| {
             let wt = pol[0] * exit.weight[0] + pol[1] * exit.weight[1];
             rc.exit_weight += wt;
-            let radiance = match &shares {
-                Some(sh) => disp.radiance_weighted_at(exit.object_point_mm, sh),
-                None => disp.radiance_at(exit.object_point_mm),
+            let radiance = match (exit.source, &shares) {
+                // Uniform white at its luminance (the primaries' shares of white sum to 1).
+                (Source::BehindDisplay, _) => sys.scene.behind_display.luminance,
+                (Source::Display, Some(sh)) => disp.radiance_weighted_at(exit.object_point_mm, sh),
+                (Source::Display, None) => disp.radiance_at(exit.object_point_mm),
             };
             let base = s.factor * wt * radiance;
             if !(base.is_finite() && base != 0.0) {
                 return;
             }
-            classes::fold(exit.events, tokens);
+            classes::fold(exit.events, exit.source, tokens);
             if rc.values.len() >= ROW_CLASSES && !rc.keys.contains_key(tokens.as_slice()) {
                 // The row's overflow class (empty key): named OTHER.
                 tokens.clear();

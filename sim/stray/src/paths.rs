@@ -17,8 +17,9 @@
 //! - the cover of the top vHOE absorbs what leaves the front face there, and all of it when it
 //!   frustrates total internal reflection;
 //! - light that leaves the front face travels to the display plane (its radiance is read
-//!   there); light that leaves the back face returns to the camera side, where this scene has
-//!   no source (it is accounted as `CameraSide`);
+//!   there); light that leaves the back face travels to the display behind the screen where
+//!   the scene has one and its emitting area is, else to the camera side's sink
+//!   (`CameraSide`: no source there);
 //! - the plate has no edge inside the films' reach: a guided wave (|u| ≥ 1, trapped by total
 //!   internal reflection) that can reach neither film any more is absorbed at the plate's edge
 //!   (`Edge`, an absorbing edge); a wave that is not trapped is followed until it leaves.
@@ -201,16 +202,58 @@ impl Default for PathSettings {
     }
 }
 
-/// A branch that left the front face toward the display.
+/// Where a branch that left the plate meets a source.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Source {
+    /// The display in front of the screen (the user side).
+    Display,
+    /// The display behind the screen (the camera side).
+    BehindDisplay,
+}
+
+/// The display behind the screen, as the tracer needs it: a plane `distance_mm` behind the
+/// back face, its emitting `area` (x, y) on that plane.
+#[derive(Clone, Copy, Debug)]
+pub struct BehindPlane {
+    /// Distance behind the back face, mm.
+    pub distance_mm: f64,
+    /// Emitting area on the plane.
+    pub area: Rect,
+}
+
+/// The sources a path can reach: the display plane in front (z = `display_z_mm` < 0) and,
+/// optionally, the display behind the screen.
+#[derive(Clone, Copy, Debug)]
+pub struct Sources {
+    /// z of the front display's plane, mm (< 0).
+    pub display_z_mm: f64,
+    /// The display behind the screen, if any.
+    pub behind: Option<BehindPlane>,
+}
+
+impl Sources {
+    /// The front display only.
+    pub fn front(display_z_mm: f64) -> Sources {
+        Sources {
+            display_z_mm,
+            behind: None,
+        }
+    }
+}
+
+/// A branch that left the plate toward a source.
 #[derive(Clone, Copy, Debug)]
 pub struct Exit<'a> {
-    /// The path's events, in order (the last is `T(front)`).
+    /// The source it meets.
+    pub source: Source,
+    /// The path's events, in order (the last is `T(front)` toward the display, `T(back)` or
+    /// `R(back)` toward the display behind the screen).
     pub events: &'a [Event],
     /// Energy fraction [TE, TM] of the camera ray carried to the display.
     pub weight: [f64; 2],
-    /// Where it leaves the front face (x, y), mm.
+    /// Where it leaves the plate (x, y), mm.
     pub exit_point_mm: DVec2,
-    /// Where it meets the display plane (x, y), mm.
+    /// Where it meets the source's plane (x, y), mm.
     pub object_point_mm: DVec2,
 }
 
@@ -347,16 +390,16 @@ struct Ctx<'a> {
     lambda_nm: f64,
     n_g: f64,
     alpha: f64,
-    display_z_mm: f64,
+    sources: Sources,
 }
 
 /// Traces every path of the camera ray (lens point `origin`, unit `dir` toward the screen) at
-/// `lambda_nm`, calling `visit` for every branch that reaches the display plane at
-/// `display_z_mm` (< 0), and returns where the rest went. `rng` draws the roulette's numbers
+/// `lambda_nm`, calling `visit` for every branch that reaches a source (the display plane in
+/// front, the display behind the screen), and returns where the rest went. `rng` draws the roulette's numbers
 /// (depth-first order, so the same ray and seed give the same branches).
 pub fn trace_all_paths(
     wg: &Waveguide,
-    display_z_mm: f64,
+    sources: Sources,
     set: PathSettings,
     (origin, dir, lambda_nm): (DVec3, DVec3, f64),
     rng: &mut PathRng,
@@ -372,7 +415,7 @@ pub fn trace_all_paths(
         lambda_nm,
         n_g: wg.n_glass(lambda_nm),
         alpha: wg.absorption_per_mm(lambda_nm),
-        display_z_mm,
+        sources,
     };
     let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
     let mut events: Vec<Event> = Vec::with_capacity(64);
@@ -474,8 +517,8 @@ impl Ctx<'_> {
                 // Air → glass (the film, if any, lies behind the interface).
                 let r = reflectance(1.0, self.n_g, v);
                 let t = one_minus(r);
-                // Reflected back into the air on the camera side: no source there.
-                ledger.add(Sink::CameraSide, mul(w, r));
+                // Reflected back into the air on the camera side.
+                self.camera_side(p, v, mul(w, r), Event::R(face), ledger, events, visit);
                 let next = if self.film_at(face, p) {
                     At::Film(face, false)
                 } else {
@@ -551,12 +594,13 @@ impl Ctx<'_> {
                 }
                 let t = mul(w, one_minus(r));
                 match face {
-                    Face::Back => ledger.add(Sink::CameraSide, t),
+                    Face::Back => self.camera_side(p, v, t, Event::T(face), ledger, events, visit),
                     Face::Front if covered => ledger.add(Sink::Cover, t),
                     Face::Front => {
-                        let air = lateral_shift(v, 1.0, -self.display_z_mm);
+                        let air = lateral_shift(v, 1.0, -self.sources.display_z_mm);
                         events.push(Event::T(Face::Front));
                         visit(&Exit {
+                            source: Source::Display,
                             events,
                             weight: t,
                             exit_point_mm: p,
@@ -568,6 +612,39 @@ impl Ctx<'_> {
             }
             At::Film(face, from_glass) => self.film(face, from_glass, node, memo, out, ledger),
         }
+    }
+
+    /// Weight `w` leaving the back face at `p` toward the camera side (by `event`): to the
+    /// display behind the screen where its plane's emitting area is, else to the camera side's
+    /// sink (no source there).
+    #[allow(clippy::too_many_arguments)]
+    fn camera_side(
+        &self,
+        p: DVec2,
+        v: DVec2,
+        w: [f64; 2],
+        event: Event,
+        ledger: &mut Ledger,
+        events: &mut Vec<Event>,
+        visit: &mut impl FnMut(&Exit),
+    ) {
+        let hit = self.sources.behind.and_then(|b| {
+            let q = p + lateral_shift(v, 1.0, b.distance_mm);
+            b.area.contains(q).then_some(q)
+        });
+        let Some(q) = hit else {
+            ledger.add(Sink::CameraSide, w);
+            return;
+        };
+        events.push(event);
+        visit(&Exit {
+            source: Source::BehindDisplay,
+            events,
+            weight: w,
+            exit_point_mm: p,
+            object_point_mm: q,
+        });
+        events.pop();
     }
 
     /// The film's split of the wave `v` travelling along `z_sign`: every grating's orders ±1

@@ -66,20 +66,22 @@ pub fn volume_gratings(s: &Scene, gratings: &[GratingSpec]) -> Vec<VolumeGrating
     let film = s.hoe.fabrication();
     gratings
         .iter()
-        .map(|g| {
-            fabricated_grating(
-                &film,
-                &GratingRecording {
-                    recording_wavelength_nm: g.recording_wavelength_nm,
-                    reference_angle_deg: g.reference_angle_deg,
-                    object_angle_deg: g.object_angle_deg,
-                    index_modulation: g.index_modulation,
-                    index_modulation_shortfall: g.index_modulation_shortfall,
-                    reference_angle_error_deg: g.reference_angle_error_deg,
-                },
-            )
-        })
+        .map(|g| fabricated_grating(&film, &g.recording()))
         .collect()
+}
+
+impl GratingSpec {
+    /// The recording this grating is, as the optics take it.
+    pub fn recording(&self) -> GratingRecording {
+        GratingRecording {
+            recording_wavelength_nm: self.recording_wavelength_nm,
+            reference_angle_deg: self.reference_angle_deg,
+            object_angle_deg: self.object_angle_deg,
+            index_modulation: self.index_modulation,
+            index_modulation_shortfall: self.index_modulation_shortfall,
+            reference_angle_error_deg: self.reference_angle_error_deg,
+        }
+    }
 }
 
 /// The mean index of the scene's film as fabricated (n + δn + (dn/dT)·ΔT).
