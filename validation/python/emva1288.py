@@ -11,7 +11,8 @@ non-uniformity), applied to flat fields that ``stscam.sensor_noise`` measures wi
   mu_y - mu_y.dark over the levels below 70 % of saturation;
 - temporal dark noise sigma_d = sqrt(sigma_y.dark^2 - 1/12) / K (electrons; with dark current,
   the read noise and the dark current's shot noise together);
-- saturation capacity: mu_y at the level of largest variance, over K;
+- saturation capacity: mu_y at the level of largest variance, over K (compared with the same
+  estimator on an independent numpy model of the sensor: the variance peaks below full scale);
 - DSNU and PRNU: spatial variance of M averaged frames minus their temporal share
   sigma_y^2/M; DSNU = s_y.dark/K, PRNU = sqrt(s_y.50^2 - s_y.dark^2)/(mu_y.50 - mu_y.dark);
 - dark current: slope of the dark mean against exposure time, over K; the temperature-doubling
@@ -64,28 +65,24 @@ def values_dn(s):
     return nz["exposure_fraction"] * (2 ** nz["bit_depth"] - 1)
 
 
+def nz_keys(nz):
+    """A scene's [noise] table as `noise.*` keys."""
+    return {f"noise.{k}": v for k, v in nz.items()}
+
+
 def measure(values):
     """The EMVA 1288 figures of the sensor `values` (dict of scene keys)."""
     s = scene(values)
     nz = s.to_dict()["noise"]
     sat_level = 1.0 / nz["exposure_fraction"]  # capture units at full scale
-    # Coarse steps up to 85 % of full scale, then fine ones through saturation (the largest
-    # variance, just before clipping, must be found to within 0.5 %).
-    levels = np.concatenate([np.linspace(0.0, 0.85 * sat_level, 18),
-                             np.linspace(0.9 * sat_level, 1.05 * sat_level, 31)])
     mu, var = [], []
-    for i, lv in enumerate(levels):
+    for i, lv in enumerate(levels_of(nz_keys(nz))):
         a, b = frames(s, lv, (2 * i + 1, 2 * i + 2))
         mu.append(0.5 * (a.mean() + b.mean()))
         var.append(0.5 * np.var(a - b))
-    mu, var = np.array(mu), np.array(var)
-    mu_d, var_d = mu[0], var[0]
-    i_sat = int(np.argmax(var))
-    lin = (mu - mu_d < 0.7 * (mu[i_sat] - mu_d)) & (np.arange(len(mu)) > 0)
-    k = np.polyfit(mu[lin] - mu_d, var[lin] - var_d, 1)[0]
-    sigma_d = np.sqrt(max(var_d - 1.0 / 12.0, 0.0)) / k
     # Saturation capacity: the mean signal above dark at the largest variance, in electrons.
-    sat_e = (mu[i_sat] - mu_d) / k
+    k, mu_d, var_d, sat_e = photon_transfer(np.array(mu), np.array(var))
+    sigma_d = np.sqrt(max(var_d - 1.0 / 12.0, 0.0)) / k
     m = 16
     dark = np.mean(frames(s, 0.0, range(1000, 1000 + m)), axis=0)
     half = 0.5 * sat_level
@@ -107,6 +104,54 @@ def measure(values):
             "dark_current_e_per_s": dc, "doubling": ratio}
 
 
+def levels_of(values):
+    """The flat-field levels of the photon transfer (capture units; white peak 1)."""
+    sat_level = 1.0 / values["noise.exposure_fraction"]  # capture units at full scale
+    # Coarse steps up to 85 % of full scale, then fine ones through saturation (the largest
+    # variance, just before clipping, must be found to within 0.5 %).
+    return np.concatenate([np.linspace(0.0, 0.85 * sat_level, 18),
+                           np.linspace(0.9 * sat_level, 1.05 * sat_level, 31)])
+
+
+def photon_transfer(mu, var):
+    """EMVA 1288's K, dark level and saturation capacity from the levels' temporal means and
+    variances (DN): K the slope below 70 % of saturation, saturation at the largest variance."""
+    mu_d, var_d = mu[0], var[0]
+    i_sat = int(np.argmax(var))
+    lin = (mu - mu_d < 0.7 * (mu[i_sat] - mu_d)) & (np.arange(len(mu)) > 0)
+    k = np.polyfit(mu[lin] - mu_d, var[lin] - var_d, 1)[0]
+    return k, mu_d, var_d, (mu[i_sat] - mu_d) / k
+
+
+def model_saturation(values, rng=np.random.default_rng(12345)):
+    """The saturation capacity EMVA 1288's estimator finds on an independent numpy model of
+    the sensor the keys describe (shot and read noise, PRNU gain and DSNU offset per pixel,
+    dark current, offset, rounding, clipping at full scale), on the same levels. The variance
+    peaks a few standard deviations below full scale, where the brightest pixels start to
+    clip, so this is below the full well; a datasheet's full well is not what the method
+    measures."""
+    full = 2 ** values["noise.bit_depth"] - 1
+    e_per_dn = values["noise.full_well_e"] / full
+    e_per_unit = values["noise.exposure_fraction"] * values["noise.full_well_e"]
+    dark_e = values["noise.dark_current_e_per_s"] * values["noise.exposure_time_ms"] * 1e-3
+    gain = np.maximum(1.0 + values["noise.prnu"] * rng.standard_normal(PX), 0.0)
+    offset_e = values["noise.dsnu_e"] * rng.standard_normal(PX)
+    read = values["noise.read_noise_e"]
+
+    def frame(level):
+        e = level * e_per_unit * gain + dark_e
+        electrons = e + np.sqrt(e + read * read) * rng.standard_normal(PX) + offset_e
+        dn = np.clip(electrons / e_per_dn + values["noise.dark_offset_dn"], 0.0, full)
+        return np.minimum(np.floor(dn + 0.5), full)
+
+    mu, var = [], []
+    for lv in levels_of(values):
+        a, b = frame(lv), frame(lv)
+        mu.append(0.5 * (a.mean() + b.mean()))
+        var.append(0.5 * np.var(a - b))
+    return photon_transfer(np.array(mu), np.array(var))[3]
+
+
 def expected(values):
     """What the scene's keys say each figure is."""
     full = 2 ** values["noise.bit_depth"] - 1
@@ -115,8 +160,8 @@ def expected(values):
     return {
         "K": k,
         "sigma_d_e": np.sqrt(values["noise.read_noise_e"] ** 2 + dark_e),
-        # The ADC clips at full scale; the offset and the mean dark signal take their share.
-        "saturation_e": (full - values["noise.dark_offset_dn"]) / k - dark_e,
+        # Where the independent model's variance peaks (see model_saturation).
+        "saturation_e": model_saturation(values),
         "dsnu_e": values["noise.dsnu_e"],
         "prnu": values["noise.prnu"],
         "dark_current_e_per_s": values["noise.dark_current_e_per_s"],
