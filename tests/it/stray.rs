@@ -11,7 +11,7 @@ use stscam::render::{RenderSettings, render};
 use stscam::sampler::PathRng;
 use stscam::stray::classes::{self, SIGNAL};
 use stscam::stray::image::{StraySettings, stray_images};
-use stscam::stray::paths::{Event, Face, Ledger, PathSettings, Sink, Sources, trace_all_paths};
+use stscam::stray::paths::{Event, Face, Ledger, PathSettings, Sink, Surround, trace_all_paths};
 use stscam::system::{System, repo_system};
 
 /// No roulette: every branch above 1e-13 of the camera ray's weight followed (what is below
@@ -33,7 +33,7 @@ fn closure(
     let mut rng = PathRng::new(&[seed]);
     let ledger = trace_all_paths(
         &sys.waveguide,
-        Sources::front(sys.display.z_mm),
+        Surround::front(sys.display.z_mm),
         set,
         ray,
         &mut rng,
@@ -120,7 +120,7 @@ fn roulette_leaves_the_mean_unchanged() {
         let mut rng = PathRng::new(&[seed, 7]);
         trace_all_paths(
             &sys.waveguide,
-            Sources::front(sys.display.z_mm),
+            Surround::front(sys.display.z_mm),
             set,
             ray,
             &mut rng,
@@ -189,7 +189,7 @@ fn plain_plate_ghost_is_where_geometry_puts_it_with_fresnel_power() {
         let mut rng = PathRng::new(&[1]);
         trace_all_paths(
             wg,
-            Sources::front(sys.display.z_mm),
+            Surround::front(sys.display.z_mm),
             EXACT,
             (origin, dir, lambda),
             &mut rng,
@@ -303,7 +303,7 @@ fn cross_coupled_orders_follow_k_closure() {
         let v_in = dir.truncate();
         trace_all_paths(
             wg,
-            Sources::front(sys.display.z_mm),
+            Surround::front(sys.display.z_mm),
             EXACT,
             ray,
             &mut rng,
@@ -558,7 +558,7 @@ fn display_behind_the_screen() {
     let off = behind(&["behind_display.enabled=false"]);
     assert!(off.is_empty(), "{off:?}");
     let sys = repo_system("scenes/paper-2022.toml", &base);
-    let sources = stscam::stray::image::sources(&sys);
+    let sources = stscam::stray::image::surround(&sys);
     for ray in rays(&sys, 100) {
         let mut sum = [0.0; 2];
         let mut rng = PathRng::new(&[2]);
@@ -575,4 +575,133 @@ fn display_behind_the_screen() {
             "{sum:?}"
         );
     }
+}
+
+/// Polished plate edges (`plate.edges = "polished"`): guided light that passes the bottom
+/// vHOE reflects at the plate's edges and comes back. Geometry by unfolding: the guided wave's
+/// back-face contacts on the unbounded plate are c_j = p_top + (2j − 1)·s_g (s_g its shift per
+/// crossing); the edges y = y0 and y = y1 fold them into the plate (a triangle wave of period
+/// 2(y1 − y0)), each fold flipping the wave's v_y; the replica coupled in there by order m
+/// leaves along v_g' − m·(λ/2π)K_t, across the plate. Every returning replica of the chief ray
+/// (5 nm off its Bragg wavelength, where the bottom vHOE leaves light to return) leaves the
+/// front face and meets the display where that predicts (1e-9 mm), with as many edge events as
+/// folds; replicas return after the bottom edge and after the bottom and the top edge (weight
+/// > 1e-6 each); with absorbing edges no path meets an edge.
+#[test]
+fn polished_edges_return_replicas_where_geometry_puts_them() {
+    let sets = [
+        "plate.edges=polished",
+        "plate.size_mm=[100,120]",
+        "plate.center_mm=[0,10]",
+    ];
+    let sys = repo_system("scenes/paper-2022.toml", &sets);
+    let wg = &sys.waveguide;
+    let surround = stscam::stray::image::surround(&sys);
+    let (y0, y1) = (10.0 - 60.0, 10.0 + 60.0);
+    let r = sys
+        .camera
+        .chief_ray(sys.camera.width_px / 2, sys.camera.height_px / 2);
+    let lb = wg
+        .gratings
+        .film()
+        .bragg_wavelength_nm(-r.dir.truncate())
+        .unwrap();
+    let lambda = lb + 5.0;
+    let (n, w) = (wg.n_glass(lambda), wg.thickness_mm);
+    let v = r.dir.truncate();
+    let shift = wg.gratings.film().u_shift(lambda);
+    let p_back = r.origin.truncate() + r.dir.truncate() * ((r.origin.z - w) / -r.dir.z);
+    let p_top = p_back + lateral_shift(v, n, w);
+    let v_g = v + shift;
+    let s_g = lateral_shift(v_g, n, w);
+    // Folds y into [y0, y1]: the folded y and the number of edge reflections.
+    let fold = |y: f64| -> (f64, i64) {
+        let l = y1 - y0;
+        let k = ((y - y0) / l).floor() as i64;
+        let t = (y - y0).rem_euclid(2.0 * l);
+        let yf = if t <= l { y0 + t } else { y0 + 2.0 * l - t };
+        (yf, k.abs())
+    };
+    let (mut by_bottom, mut by_top) = (0.0f64, 0.0f64);
+    let mut rng = PathRng::new(&[3]);
+    trace_all_paths(
+        wg,
+        surround,
+        EXACT,
+        (r.origin, r.dir, lambda),
+        &mut rng,
+        |e| {
+            let mut tokens = Vec::new();
+            classes::fold(e.events, e.source, &mut tokens);
+            let name = classes::name(&tokens);
+            let Some(rest) = name.strip_prefix("T(back) D(top,g1,-1) TIR×n edge(") else {
+                return;
+            };
+            let edges = name.matches("edge(").count() as i64;
+            let m: f64 = if rest.ends_with("D(bottom,g1,+1) T(front)") {
+                1.0
+            } else if rest.ends_with("D(bottom,g1,-1) R(back) T(front)")
+                || rest.ends_with("D(bottom,g1,-1) T(front)")
+            {
+                -1.0
+            } else {
+                return;
+            };
+            // Only the guided wave between the two films: TIR runs and edges.
+            let middle = &tokens[2..tokens.len()
+                - if m < 0.0 && name.contains("R(back) T(front)") {
+                    3
+                } else {
+                    2
+                }];
+            if !middle.iter().all(|t| {
+                matches!(
+                    t,
+                    classes::Token::TirRun | classes::Token::Event(Event::Edge(_))
+                )
+            }) {
+                return;
+            }
+            let found = (1..2000).any(|j| {
+                let c = p_top + s_g * (2 * j - 1) as f64;
+                let (yf, k) = fold(c.y);
+                if k != edges {
+                    return false;
+                }
+                let vy = if k % 2 == 1 { -v_g.y } else { v_g.y };
+                let v_out = DVec2::new(v_g.x, vy) - shift * m;
+                let exit = DVec2::new(c.x, yf) + lateral_shift(v_out, n, w);
+                let object = exit + lateral_shift(v_out, 1.0, -sys.display.z_mm);
+                (exit - e.exit_point_mm).length() <= 1e-9
+                    && (object - e.object_point_mm).length() <= 1e-9
+            });
+            assert!(
+                found,
+                "{name}: exit {:?} is no folded contact's",
+                e.exit_point_mm
+            );
+            let wt = e.weight[0].max(e.weight[1]);
+            if edges == 1 {
+                by_bottom = by_bottom.max(wt);
+            } else if edges == 2 {
+                by_top = by_top.max(wt);
+            }
+        },
+    );
+    assert!(
+        by_bottom > 1e-6,
+        "no replica returned by the bottom edge ({by_bottom})"
+    );
+    assert!(
+        by_top > 1e-6,
+        "no replica returned by the bottom and the top edge ({by_top})"
+    );
+    // Absorbing edges: no path meets an edge.
+    let absorbing = repo_system("scenes/paper-2022.toml", &["plate.size_mm=[100,120]"]);
+    let mut rng = PathRng::new(&[3]);
+    let s2 = stscam::stray::image::surround(&absorbing);
+    let ray = (r.origin, r.dir, lambda);
+    trace_all_paths(&absorbing.waveguide, s2, EXACT, ray, &mut rng, |e| {
+        assert!(!e.events.iter().any(|ev| matches!(ev, Event::Edge(_))));
+    });
 }

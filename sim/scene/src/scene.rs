@@ -80,6 +80,54 @@ pub struct PlateDesc {
     pub glass: GlassSpec,
     /// Intensity absorption in 1/mm or "auto" (from the glass model).
     pub absorption_per_mm: AutoOr,
+    /// The plate's edges as the stray-light tracer sees them: `"absorbing"` or `"polished"`
+    /// (specular, Fresnel or total reflection). The designed-path tracer never reaches them.
+    /// Left out of serialised scenes at its default, as are the two keys below.
+    #[serde(default = "default_edges", skip_serializing_if = "is_default_edges")]
+    pub edges: String,
+    /// The plate's size [width, height], mm.
+    #[serde(
+        default = "default_plate_size",
+        skip_serializing_if = "is_default_plate_size"
+    )]
+    pub size_mm: [f64; 2],
+    /// The plate's centre [x, y], mm.
+    #[serde(
+        default = "default_plate_center",
+        skip_serializing_if = "is_default_plate_center"
+    )]
+    pub center_mm: [f64; 2],
+}
+
+/// Default of `plate.edges`.
+pub const DEFAULT_EDGES: &str = "absorbing";
+/// Default of `plate.size_mm` (ASSUMED: the paper does not give the plate's size).
+pub const DEFAULT_PLATE_SIZE_MM: [f64; 2] = [100.0, 120.0];
+/// Default of `plate.center_mm` (ASSUMED: the films' span centred).
+pub const DEFAULT_PLATE_CENTER_MM: [f64; 2] = [0.0, 10.0];
+
+fn default_edges() -> String {
+    DEFAULT_EDGES.into()
+}
+
+fn is_default_edges(v: &String) -> bool {
+    v == DEFAULT_EDGES
+}
+
+fn default_plate_size() -> [f64; 2] {
+    DEFAULT_PLATE_SIZE_MM
+}
+
+fn is_default_plate_size(v: &[f64; 2]) -> bool {
+    *v == DEFAULT_PLATE_SIZE_MM
+}
+
+fn default_plate_center() -> [f64; 2] {
+    DEFAULT_PLATE_CENTER_MM
+}
+
+fn is_default_plate_center(v: &[f64; 2]) -> bool {
+    *v == DEFAULT_PLATE_CENTER_MM
 }
 
 /// `[hoe]`: the film both volume holograms are made of, and the gratings recorded in it.

@@ -85,6 +85,31 @@ fn validate_plate(ls: &LoadedScene) -> Result<(), SceneError> {
             format!("expected \"auto\" or a number, got {w:?}")
         })?,
     }
+    let edges = &s.plate.edges;
+    check(
+        ls,
+        edges == "absorbing" || edges == "polished",
+        "plate.edges",
+        || format!("expected \"absorbing\" or \"polished\", got {edges:?}"),
+    )?;
+    check(
+        ls,
+        s.plate
+            .size_mm
+            .iter()
+            .all(|v| v.is_finite() && *v > 0.0 && *v <= 1e4),
+        "plate.size_mm",
+        || "must be positive, at most 1e4 mm".into(),
+    )?;
+    check(
+        ls,
+        s.plate
+            .center_mm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= 1e4),
+        "plate.center_mm",
+        || "must be finite, within ±1e4 mm".into(),
+    )?;
     Ok(())
 }
 

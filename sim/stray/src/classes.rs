@@ -37,6 +37,7 @@ impl Token {
             Token::Event(Event::T(f)) => format!("T({})", f.name()),
             Token::Event(Event::R(f)) => format!("R({})", f.name()),
             Token::Event(Event::Tir(f)) => format!("TIR({})", f.name()),
+            Token::Event(Event::Edge(side)) => format!("edge({})", side.name()),
             Token::Event(Event::D {
                 face,
                 grating,
@@ -70,6 +71,7 @@ impl Token {
             Token::Event(Event::T(f)) => format!("T{}", face(f)),
             Token::Event(Event::R(f)) => format!("R{}", face(f)),
             Token::Event(Event::Tir(f)) => format!("I{}", face(f)),
+            Token::Event(Event::Edge(side)) => format!("E{}", &side.name()[..1]),
             Token::Event(Event::D {
                 face: f,
                 grating,

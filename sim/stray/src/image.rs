@@ -18,7 +18,7 @@ use std::collections::{BTreeMap, HashMap};
 
 use crate::classes::{self, Token};
 use crate::paths::{
-    BehindPlane, Ledger, PathSettings, SINKS, Sink, Source, Sources, trace_all_paths,
+    BehindPlane, Ledger, PathSettings, PlateEdges, SINKS, Sink, Source, Surround, trace_all_paths,
 };
 use crate::sampler::PathRng;
 use crate::tracer::render::{
@@ -129,7 +129,7 @@ impl std::hash::Hasher for KeyHasher {
 
     #[inline]
     fn write_u64(&mut self, n: u64) {
-        self.0 = (self.0.rotate_left(5) ^ n).wrapping_mul(0x51_7cc1_b727_220a_95);
+        self.0 = (self.0.rotate_left(5) ^ n).wrapping_mul(0x517c_c1b7_2722_0a95);
     }
 
     #[inline]
@@ -189,11 +189,19 @@ pub fn stray_images(sys: &System, set: &StraySettings) -> StrayImages {
     assemble(sys, rows, (w, h, nch))
 }
 
-/// The sources of `sys` for the tracer: the display plane, and the display behind the screen
-/// when the scene enables it.
-pub fn sources(sys: &System) -> Sources {
+/// What surrounds the plate of `sys` for the tracer: the display plane, the display behind the
+/// screen when the scene enables it, and the plate's edges.
+pub fn surround(sys: &System) -> Surround {
     let b = &sys.scene.behind_display;
-    Sources {
+    let plate = &sys.scene.plate;
+    Surround {
+        edges: Some(PlateEdges {
+            extent: crate::tracer::waveguide::Rect::centered(
+                glam::DVec2::from_array(plate.center_mm),
+                glam::DVec2::from_array(plate.size_mm),
+            ),
+            polished: plate.edges == "polished",
+        }),
         display_z_mm: sys.display.z_mm,
         behind: b.enabled.then(|| BehindPlane {
             distance_mm: b.distance_mm,
@@ -229,7 +237,7 @@ fn trace_sample(
     let ray = (s.ray.origin, s.ray.dir, s.lambda_nm);
     let ledger = trace_all_paths(
         &sys.waveguide,
-        sources(sys),
+        surround(sys),
         set.paths,
         ray,
         &mut rng,

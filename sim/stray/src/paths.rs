@@ -20,9 +20,12 @@
 //!   there); light that leaves the back face travels to the display behind the screen where
 //!   the scene has one and its emitting area is, else to the camera side's sink
 //!   (`CameraSide`: no source there);
-//! - the plate has no edge inside the films' reach: a guided wave (|u| ≥ 1, trapped by total
-//!   internal reflection) that can reach neither film any more is absorbed at the plate's edge
-//!   (`Edge`, an absorbing edge); a wave that is not trapped is followed until it leaves.
+//! - the plate's edges (when the plate is bounded) absorb, or, polished, reflect specularly:
+//!   the normal component of the direction flips, with the Fresnel (or total) reflectance of
+//!   the angle on the edge face, s and p kept in the faces' basis (an approximation: the edge's
+//!   plane of incidence differs); on an absorbing or unbounded plate a guided wave (|u| ≥ 1,
+//!   trapped by total internal reflection) that can reach neither film any more is absorbed at
+//!   the edge (`Edge`); a wave that is not trapped is followed until it leaves.
 //!
 //! Reciprocity makes the importance ray's weights the light's: for the reversed waves the
 //! Fresnel coefficients are equal, and Kogelnik's efficiency of order m from wave A into B
@@ -98,6 +101,40 @@ impl Face {
     }
 }
 
+/// An edge of the plate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Side {
+    /// x = minimum.
+    Left,
+    /// x = maximum.
+    Right,
+    /// y = minimum.
+    Bottom,
+    /// y = maximum.
+    Top,
+}
+
+impl Side {
+    /// The edge's name in path classes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Left => "left",
+            Side::Right => "right",
+            Side::Bottom => "bottom",
+            Side::Top => "top",
+        }
+    }
+}
+
+/// The plate's edges: the plate's extent (x, y) and whether the edges reflect.
+#[derive(Clone, Copy, Debug)]
+pub struct PlateEdges {
+    /// The plate's extent.
+    pub extent: Rect,
+    /// Polished (specular: Fresnel or total reflection) rather than absorbing.
+    pub polished: bool,
+}
+
 /// One interaction of a path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Event {
@@ -107,6 +144,8 @@ pub enum Event {
     R(Face),
     /// Total internal reflection at a face.
     Tir(Face),
+    /// Reflection at a polished edge of the plate (Fresnel or total).
+    Edge(Side),
     /// Diffraction by grating `grating` (0-based, scene order) of the film on `face` into
     /// `order` (−1 or +1, the light's order).
     D {
@@ -221,22 +260,26 @@ pub struct BehindPlane {
     pub area: Rect,
 }
 
-/// The sources a path can reach: the display plane in front (z = `display_z_mm` < 0) and,
-/// optionally, the display behind the screen.
+/// What surrounds the plate's paths: the display plane in front (z = `display_z_mm` < 0),
+/// optionally the display behind the screen, and the plate's edges (none: an unbounded plate
+/// whose trapped waves are absorbed once they can reach neither film).
 #[derive(Clone, Copy, Debug)]
-pub struct Sources {
+pub struct Surround {
     /// z of the front display's plane, mm (< 0).
     pub display_z_mm: f64,
     /// The display behind the screen, if any.
     pub behind: Option<BehindPlane>,
+    /// The plate's edges, if it is bounded.
+    pub edges: Option<PlateEdges>,
 }
 
-impl Sources {
-    /// The front display only.
-    pub fn front(display_z_mm: f64) -> Sources {
-        Sources {
+impl Surround {
+    /// The front display only, an unbounded plate.
+    pub fn front(display_z_mm: f64) -> Surround {
+        Surround {
             display_z_mm,
             behind: None,
+            edges: None,
         }
     }
 }
@@ -294,8 +337,9 @@ impl Ledger {
 enum At {
     /// In air, arriving at `face` (the camera ray at the back face).
     FromAir(Face),
-    /// In glass, having left `face`, crossing to the other face.
-    Crossing(Face),
+    /// In glass, having left `face` (or a polished edge on the way), crossing to the other
+    /// face: the fraction of the crossing left (1 from a face).
+    Crossing(Face, f64),
     /// In glass, arriving at `face` (its film, if any, then the air interface).
     FromGlass(Face),
     /// Inside `face`'s layers, meeting the air interface from inside.
@@ -330,10 +374,14 @@ type Child = (At, DVec2, DVec2, [f64; 2], Option<Event>);
 #[derive(Clone, Copy, Debug)]
 struct FilmSplit {
     enters: bool,
-    orders: [Option<(DVec2, bool, [f64; 2], u8, i8)>; 2 * MAX_GRATINGS],
+    orders: [Option<SplitOrder>; 2 * MAX_GRATINGS],
     rest: [f64; 2],
     att: f64,
 }
+
+/// One order of a [`FilmSplit`]: direction cosines, reflection-type, efficiency [TE, TM],
+/// grating, order.
+type SplitOrder = (DVec2, bool, [f64; 2], u8, i8);
 
 /// What a path computes once per distinct wave (its direction cosines; the zig-zag of a guided
 /// wave meets the same wave at every contact): the glass crossing, the inner Fresnel
@@ -390,7 +438,7 @@ struct Ctx<'a> {
     lambda_nm: f64,
     n_g: f64,
     alpha: f64,
-    sources: Sources,
+    surround: Surround,
 }
 
 /// Traces every path of the camera ray (lens point `origin`, unit `dir` toward the screen) at
@@ -399,7 +447,7 @@ struct Ctx<'a> {
 /// (depth-first order, so the same ray and seed give the same branches).
 pub fn trace_all_paths(
     wg: &Waveguide,
-    sources: Sources,
+    surround: Surround,
     set: PathSettings,
     (origin, dir, lambda_nm): (DVec3, DVec3, f64),
     rng: &mut PathRng,
@@ -415,7 +463,7 @@ pub fn trace_all_paths(
         lambda_nm,
         n_g: wg.n_glass(lambda_nm),
         alpha: wg.absorption_per_mm(lambda_nm),
-        sources,
+        surround,
     };
     let p_back = origin.truncate() + dir.truncate() * ((origin.z - w) / -dir.z);
     let mut events: Vec<Event> = Vec::with_capacity(64);
@@ -479,6 +527,33 @@ pub fn trace_all_paths(
     ledger
 }
 
+/// Where the segment from `p` (inside `extent`, edges included) by `seg` first leaves it: the
+/// edge and the fraction of the segment there, if it does.
+fn edge_hit(extent: &Rect, p: DVec2, seg: DVec2) -> Option<(Side, f64)> {
+    let mut best: Option<(Side, f64)> = None;
+    let mut consider = |side: Side, bound: f64, start: f64, d: f64| {
+        if d == 0.0 {
+            return;
+        }
+        let at = (bound - start) / d;
+        // Leaving through this edge within the segment (not the edge it stands on).
+        if at > 1e-12 && at < 1.0 && best.is_none_or(|(_, b)| at < b) {
+            best = Some((side, at));
+        }
+    };
+    if seg.x > 0.0 {
+        consider(Side::Right, extent.max.x, p.x, seg.x);
+    } else {
+        consider(Side::Left, extent.min.x, p.x, seg.x);
+    }
+    if seg.y > 0.0 {
+        consider(Side::Top, extent.max.y, p.y, seg.y);
+    } else {
+        consider(Side::Bottom, extent.min.y, p.y, seg.y);
+    }
+    best
+}
+
 #[inline]
 fn mul(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
     [a[0] * b[0], a[1] * b[1]]
@@ -522,11 +597,11 @@ impl Ctx<'_> {
                 let next = if self.film_at(face, p) {
                     At::Film(face, false)
                 } else {
-                    At::Crossing(face)
+                    At::Crossing(face, 1.0)
                 };
                 out.push((next, p, v, mul(w, t), Some(Event::T(face))));
             }
-            At::Crossing(face) => {
+            At::Crossing(face, frac) => {
                 let (n, thick) = (self.n_g, self.wg.thickness_mm);
                 if v.length_squared() >= n * n {
                     // Cannot exist in the glass (never produced; kept for safety).
@@ -539,16 +614,56 @@ impl Ctx<'_> {
                         (-self.alpha * path_length(v, n, thick)).exp(),
                     )
                 };
-                let (shift, t) = match memo.entry(v) {
+                let (shift, t_full) = match memo.entry(v) {
                     Some(e) => *e.cross.get_or_insert_with(compute),
                     None => compute(),
                 };
-                let q = p + shift;
+                // The rest of the crossing (all of it from a face: the values as computed).
+                let (seg, t) = if frac == 1.0 {
+                    (shift, t_full)
+                } else {
+                    (shift * frac, t_full.powf(frac))
+                };
+                if let Some(edges) = self.surround.edges
+                    && let Some((side, at)) = edge_hit(&edges.extent, p, seg)
+                {
+                    let t_part = t.powf(at);
+                    ledger.add(
+                        Sink::Absorbed,
+                        [w[0] * (1.0 - t_part), w[1] * (1.0 - t_part)],
+                    );
+                    let w = [w[0] * t_part, w[1] * t_part];
+                    if !edges.polished {
+                        ledger.add(Sink::Edge, w);
+                        return;
+                    }
+                    // Specular at the edge: the normal component of v flips; Fresnel (or total)
+                    // reflection for the angle on the edge face.
+                    let (c, flipped) = match side {
+                        Side::Left | Side::Right => (v.x, DVec2::new(-v.x, v.y)),
+                        Side::Bottom | Side::Top => (v.y, DVec2::new(v.x, -v.y)),
+                    };
+                    let r = reflectance(n, 1.0, DVec2::new((n * n - c * c).max(0.0).sqrt(), 0.0));
+                    ledger.add(Sink::Edge, mul(w, one_minus(r)));
+                    let rest = At::Crossing(face, frac * (1.0 - at));
+                    out.push((
+                        rest,
+                        p + seg * at,
+                        flipped,
+                        mul(w, r),
+                        Some(Event::Edge(side)),
+                    ));
+                    return;
+                }
+                let q = p + seg;
                 ledger.add(Sink::Absorbed, [w[0] * (1.0 - t), w[1] * (1.0 - t)]);
                 let w = [w[0] * t, w[1] * t];
-                // A trapped wave that can reach neither film goes to the plate's edge.
+                // On an absorbing or unbounded plate, a trapped wave that can reach neither film
+                // goes to the plate's edge.
                 let trapped = v.length_squared() >= 1.0;
+                let polished = self.surround.edges.is_some_and(|e| e.polished);
                 if trapped
+                    && !polished
                     && !self.wg.top.reachable(q, 2.0 * shift)
                     && !self.wg.bottom.reachable(q, 2.0 * shift)
                     && !self.film_at(face.other(), q)
@@ -581,7 +696,7 @@ impl Ctx<'_> {
                 let back = if self.film_at(face, p) {
                     At::Film(face, false)
                 } else {
-                    At::Crossing(face)
+                    At::Crossing(face, 1.0)
                 };
                 let event = if tir {
                     Event::Tir(face)
@@ -597,7 +712,7 @@ impl Ctx<'_> {
                     Face::Back => self.camera_side(p, v, t, Event::T(face), ledger, events, visit),
                     Face::Front if covered => ledger.add(Sink::Cover, t),
                     Face::Front => {
-                        let air = lateral_shift(v, 1.0, -self.sources.display_z_mm);
+                        let air = lateral_shift(v, 1.0, -self.surround.display_z_mm);
                         events.push(Event::T(Face::Front));
                         visit(&Exit {
                             source: Source::Display,
@@ -628,7 +743,7 @@ impl Ctx<'_> {
         events: &mut Vec<Event>,
         visit: &mut impl FnMut(&Exit),
     ) {
-        let hit = self.sources.behind.and_then(|b| {
+        let hit = self.surround.behind.and_then(|b| {
             let q = p + lateral_shift(v, 1.0, b.distance_mm);
             b.area.contains(q).then_some(q)
         });
@@ -713,7 +828,7 @@ impl Ctx<'_> {
             None => local.insert(compute()),
         };
         // Where a wave leaving the film toward the glass or the air side goes next.
-        let to_glass = At::Crossing(face);
+        let to_glass = At::Crossing(face, 1.0);
         let to_air = At::InterfaceFromInside(face);
         let straight = if from_glass { to_air } else { to_glass };
         if !split.enters {
