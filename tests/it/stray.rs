@@ -397,6 +397,20 @@ fn stray_command_writes_the_report() {
     assert!(out.join("class_00_signal.png").is_file());
     assert!(out.join("class_01.png").is_file());
     assert!(out.join("stray.md").is_file() && out.join("stray.png").is_file());
+    // all_paths.exr is every class together: its sum is the classes' totals' (float32 images).
+    let (_, _, chans) = stscam::io::exr::read_exr(&out.join("all_paths.exr")).unwrap();
+    let all: f64 = chans[0].data.iter().map(|&v| f64::from(v)).sum();
+    let classes_total: f64 = classes.iter().map(|c| c["total"].as_f64().unwrap()).sum();
+    assert!(
+        (all / classes_total - 1.0).abs() <= 1e-5,
+        "all_paths {all} vs classes {classes_total}"
+    );
+    let (_, _, sig) = stscam::io::exr::read_exr(&out.join("class_00_signal.exr")).unwrap();
+    let signal: f64 = sig[0].data.iter().map(|&v| f64::from(v)).sum();
+    assert!(
+        all > signal * (1.0 + 0.5 * stray),
+        "{all} vs signal {signal}"
+    );
     let (_, one) = run("b", "1");
     for k in ["classes", "stray_fraction_of_signal", "importance_per_ray"] {
         assert_eq!(one[k], j[k], "{k} differs with 1 thread");

@@ -1,6 +1,7 @@
 //! `stscam stray`: the stray-light report. Every camera sample of `render` traced through every
 //! path (`stscam_stray`), the image split by path class: `stray.json`, `stray.md`, a ranked bar
-//! chart and an image (EXR and PNG) of the signal and each leading class.
+//! chart, an image (EXR and PNG) of the signal and each leading class, and of every path
+//! together (`all_paths`: what the camera records).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -147,6 +148,23 @@ pub fn run(o: &StrayOptions, con: &Console) -> Result<StrayImages, JobError> {
         files.push((format!("{stem}.exr"), exr));
         files.push((format!("{stem}.png"), png));
     }
+    // Every path together: what the camera records (signal and stray light).
+    let all = stscam_tracer::render::Capture {
+        width: st.width,
+        height: st.height,
+        channel_names: st.channel_names.clone(),
+        channels: st.all_paths.clone(),
+        spectral: Vec::new(),
+        stats: Default::default(),
+    };
+    files.push((
+        "all_paths.exr".into(),
+        crate::output::encode_capture_exr(&all, &scene_json, seed, spp).map_err(write_failure)?,
+    ));
+    files.push((
+        "all_paths.png".into(),
+        crate::output::encode_capture_png(&all).map_err(write_failure)?,
+    ));
     let chart = report.chart(&st).to_png().map_err(write_failure)?;
     files.push(("stray.png".into(), chart));
     files.push(("stray.md".into(), report.markdown(&st, &json).into_bytes()));
@@ -158,7 +176,7 @@ pub fn run(o: &StrayOptions, con: &Console) -> Result<StrayImages, JobError> {
     con.err(format_args!(
         "wrote {}/stray.{{json,md,png}} and {} class images: {} classes, stray {:.3} % of the signal, {:.1} branches per camera ray, {:.1} s",
         o.out.display(),
-        files.len().saturating_sub(3) / 2,
+        files.len().saturating_sub(5) / 2,
         st.classes.len(),
         100.0 * report.stray_total / report.signal_total,
         st.branches as f64 / st.rays.max(1) as f64,

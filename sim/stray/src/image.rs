@@ -94,6 +94,10 @@ pub struct StrayImages {
     /// Sum over the rays of the weight (display polarisation average) per sink
     /// ([`Sink::ALL`] order).
     pub sinks: [f64; SINKS],
+    /// The image of every path together, per channel (row-major, row 0 at the top): what the
+    /// camera records, signal and stray light (each pixel's classes summed in the order the
+    /// samples met them).
+    pub all_paths: Vec<Vec<f32>>,
 }
 
 /// Settings of [`stray_images`].
@@ -150,6 +154,8 @@ type KeyMap = HashMap<Vec<Token>, usize, std::hash::BuildHasherDefault<KeyHasher
 struct RowClasses {
     keys: KeyMap,
     values: Vec<Vec<f64>>,
+    /// Every path's sum over the row (columns × channels).
+    all: Vec<f64>,
     ledger: Ledger,
     exit_weight: f64,
     rays: u64,
@@ -268,9 +274,14 @@ fn trace_sample(
                     k
                 }
             };
+            if rc.all.is_empty() {
+                rc.all = vec![0.0; w * nch];
+            }
             let row = &mut rc.values[k];
             for c in 0..nch {
-                row[col * nch + c] += base * cw[c] * inv;
+                let v = base * cw[c] * inv;
+                row[col * nch + c] += v;
+                rc.all[col * nch + c] += v;
             }
         },
     );
@@ -295,10 +306,18 @@ fn assemble(
     // Each class's per-row values, by name (BTreeMap: a fixed order for any thread count).
     let mut by_name: BTreeMap<String, (Labels, ClassRows)> = BTreeMap::new();
     let (mut ledger, mut exit_weight, mut rays) = (Ledger::default(), 0.0, 0u64);
+    let mut all_paths = vec![vec![0.0f32; w * h]; nch];
     for (r, rc) in rows.into_iter().enumerate() {
         ledger.merge(&rc.ledger);
         exit_weight += rc.exit_weight;
         rays += rc.rays;
+        if !rc.all.is_empty() {
+            for (c, img) in all_paths.iter_mut().enumerate() {
+                for col in 0..w {
+                    img[r * w + col] = rc.all[col * nch + c] as f32;
+                }
+            }
+        }
         let mut keyed: Vec<(Vec<Token>, usize)> = rc.keys.into_iter().collect();
         keyed.sort();
         let mut values: Vec<Option<Vec<f64>>> = rc.values.into_iter().map(Some).collect();
@@ -417,5 +436,6 @@ fn assemble(
         branches: ledger.branches,
         exit_weight,
         sinks,
+        all_paths,
     }
 }
