@@ -3,8 +3,8 @@
 # published: the top vHOE taped over), the same with the tape removed, the RGB multiplex film,
 # and the paper camera with the display behind the screen at full white (50 x 50 mm, 10 mm
 # behind the back face, centred on the bottom vHOE) with a white target in front and with the
-# letter F, and the paper camera with polished plate edges; each at 16 spp, seed 1, the default
-# roulette threshold (about 3 min on 2 cores).
+# letter F, the paper camera with polished plate edges, and with a film haze of 1 % (lobe g 0.9,
+# assumed); each at 16 spp, seed 1, the default roulette threshold (about 6 min on 2 cores).
 #   validation/stray/run.sh [STSCAM] [OUT]
 set -euo pipefail
 stscam=${1:-target/release/stscam}
@@ -28,3 +28,4 @@ run rgb-multiplex scenes/rgb-multiplex.toml
 run paper-display-behind --set behind_display.enabled=true --set display.image=white
 run paper-display-behind-target --set behind_display.enabled=true
 run paper-polished-edges --set plate.edges=polished
+run paper-haze --set hoe.haze_fraction=0.01

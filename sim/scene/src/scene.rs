@@ -207,6 +207,28 @@ pub struct HoeDesc {
     /// degrees inside the film. 0 = nominal.
     #[serde(default, skip_serializing_if = "is_zero_f64")]
     pub reference_angle_error_deg: f64,
+    /// Film haze: the fraction of the light crossing the film undiffracted that the film
+    /// scatters into a Henyey–Greenstein lobe (only `stscam stray` traces it). 0 = clear.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub haze_fraction: f64,
+    /// Asymmetry g of the haze lobe (mean cosine of the scattering angle).
+    #[serde(
+        default = "default_haze_asymmetry",
+        skip_serializing_if = "is_default_haze_asymmetry"
+    )]
+    pub haze_asymmetry: f64,
+}
+
+/// Default of `hoe.haze_asymmetry` (ASSUMPTION: a forward-peaked lobe, typical of polymer
+/// film haze; no datasheet value for Bayfol HX).
+pub const DEFAULT_HAZE_ASYMMETRY: f64 = 0.9;
+
+fn default_haze_asymmetry() -> f64 {
+    DEFAULT_HAZE_ASYMMETRY
+}
+
+fn is_default_haze_asymmetry(v: &f64) -> bool {
+    *v == DEFAULT_HAZE_ASYMMETRY
 }
 
 /// Default of `hoe.film_expansion_per_k` (ASSUMPTION, docs/keys.md: a typical acrylate

@@ -48,6 +48,7 @@ pub fn validate(ls: &LoadedScene) -> Result<(), SceneError> {
     validate_plate(ls)?;
     validate_hoe(ls)?;
     validate_hoe_areas(ls)?;
+    validate_haze(ls)?;
     validate_camera(ls)?;
     validate_sensor(ls)?;
     validate_display(ls)?;
@@ -202,6 +203,13 @@ fn validate_sensor(ls: &LoadedScene) -> Result<(), SceneError> {
         },
     )?;
     Ok(())
+}
+
+/// The film's haze lobe.
+fn validate_haze(ls: &LoadedScene) -> Result<(), SceneError> {
+    let h = &ls.scene.hoe;
+    in_range(ls, h.haze_fraction, 0.0, 0.5, "hoe.haze_fraction")?;
+    in_range(ls, h.haze_asymmetry, -0.99, 0.99, "hoe.haze_asymmetry")
 }
 
 /// `[behind_display]`: a finite plate behind the back face with a finite area and radiance.

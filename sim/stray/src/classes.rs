@@ -38,6 +38,7 @@ impl Token {
             Token::Event(Event::R(f)) => format!("R({})", f.name()),
             Token::Event(Event::Tir(f)) => format!("TIR({})", f.name()),
             Token::Event(Event::Edge(side)) => format!("edge({})", side.name()),
+            Token::Event(Event::Scatter(f)) => format!("S({})", f.film_name()),
             Token::Event(Event::D {
                 face,
                 grating,
@@ -72,6 +73,7 @@ impl Token {
             Token::Event(Event::R(f)) => format!("R{}", face(f)),
             Token::Event(Event::Tir(f)) => format!("I{}", face(f)),
             Token::Event(Event::Edge(side)) => format!("E{}", &side.name()[..1]),
+            Token::Event(Event::Scatter(f)) => format!("S{}", &f.film_name()[..1]),
             Token::Event(Event::D {
                 face: f,
                 grating,

@@ -18,7 +18,8 @@ use std::collections::{BTreeMap, HashMap};
 
 use crate::classes::{self, Token};
 use crate::paths::{
-    BehindPlane, Ledger, PathSettings, PlateEdges, SINKS, Sink, Source, Surround, trace_all_paths,
+    BehindPlane, Haze, Ledger, PathSettings, PlateEdges, SINKS, Sink, Source, Surround,
+    trace_all_paths,
 };
 use crate::sampler::PathRng;
 use crate::tracer::render::{
@@ -209,6 +210,10 @@ pub fn surround(sys: &System) -> Surround {
             polished: plate.edges == "polished",
         }),
         display_z_mm: sys.display.z_mm,
+        haze: (sys.scene.hoe.haze_fraction > 0.0).then(|| Haze {
+            fraction: sys.scene.hoe.haze_fraction,
+            asymmetry: sys.scene.hoe.haze_asymmetry,
+        }),
         behind: b.enabled.then(|| BehindPlane {
             distance_mm: b.distance_mm,
             area: crate::tracer::waveguide::Rect::centered(
