@@ -536,3 +536,83 @@ fn cycled_vary_values_take_turns() {
     let e = stscam::dataset::plan(&path).unwrap_err().to_string();
     assert!(e.contains("vary[0].cycle"), "{e}");
 }
+
+/// `paths = "all"` (render mode): each noiseless capture is every path through the plate, so it
+/// holds more light than the designed-path capture of the same sample and seed (the stray
+/// light adds, everywhere the signal is: each capture's sum is larger, the excess at most a
+/// few percent); a matrix-mode recipe with it is refused naming `paths`.
+#[test]
+fn all_paths_captures_carry_the_stray_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let make = |name: &str, extra: &str| {
+        let r = write(
+            dir.path(),
+            &format!("{name}.toml"),
+            &recipe(name, 5, "render", "none", extra),
+        );
+        let out = dir.path().join(name);
+        ok(&[
+            "dataset",
+            r.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        out
+    };
+    // `paths` is a top-level key: put it before the recipe's first table.
+    let all = {
+        let r = write(
+            dir.path(),
+            "all.toml",
+            &recipe("all", 5, "render", "none", "").replacen(
+                "noise = \"none\"",
+                "noise = \"none\"\npaths = \"all\"",
+                1,
+            ),
+        );
+        let out = dir.path().join("all");
+        ok(&[
+            "dataset",
+            r.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        out
+    };
+    let designed = make("designed", "");
+    let mut n = 0;
+    for split in ["train", "val", "test"] {
+        let meta = std::fs::read_to_string(designed.join(split).join("metadata.jsonl"))
+            .unwrap_or_default();
+        for line in meta.lines() {
+            let v: serde_json::Value = serde_json::from_str(line).unwrap();
+            let f = v["capture_npy"].as_str().unwrap();
+            let (_, d) = read_npy(&designed.join(split).join(f));
+            let (_, a) = read_npy(&all.join(split).join(f));
+            let (sd, sa): (f64, f64) = (
+                d.iter().map(|&x| f64::from(x)).sum(),
+                a.iter().map(|&x| f64::from(x)).sum(),
+            );
+            assert!(sa > sd && sa < 1.05 * sd, "{f}: all {sa} vs designed {sd}");
+            n += 1;
+        }
+    }
+    assert_eq!(n, 5);
+    let bad = write(
+        dir.path(),
+        "bad.toml",
+        &recipe("bad", 5, "matrix", "none", "").replacen(
+            "noise = \"none\"",
+            "noise = \"none\"\npaths = \"all\"",
+            1,
+        ),
+    );
+    let o = stscam(&[
+        "dataset",
+        bad.to_str().unwrap(),
+        "--out",
+        dir.path().join("b").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("paths"));
+}

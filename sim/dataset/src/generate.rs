@@ -17,7 +17,7 @@ use crate::folder::{RUN_MARKER, prepare_out, put};
 use crate::matrix::{SystemMatrix, compute_matrix};
 use crate::noise::{NoiseRng, SensorNoise};
 use crate::plan::{Plan, SampleSpec, WHITE_TAG, source_key};
-use crate::recipe::{self, CaptureMode, DEPTH_KEY, NoiseModel, SPLITS};
+use crate::recipe::{self, CaptureMode, DEPTH_KEY, NoiseModel, SPLITS, TracePaths};
 use crate::render::{RenderSettings, render};
 use crate::shard::Shard;
 use crate::sparse::CsrMatrix;
@@ -331,7 +331,7 @@ impl Generation<'_> {
             if recipe.is_meshes() {
                 flat.world = None;
             }
-            render_object(&flat, &white, recipe.spp, seed)
+            render_object(&flat, &white, recipe.spp, seed, recipe.paths)
                 .into_iter()
                 .fold(0.0f64, f64::max)
         };
@@ -417,7 +417,9 @@ impl Generation<'_> {
                     .map(|(a, &b)| a + f64::from(b))
                     .collect()
             }
-            CaptureMode::Render => render_object(sys, &f, plan.recipe.spp, s.seed),
+            CaptureMode::Render => {
+                render_object(sys, &f, plan.recipe.spp, s.seed, plan.recipe.paths)
+            }
         };
         self.check_cancel()?;
         let capture = exposure.measure(&clean, s.seed);
@@ -635,16 +637,25 @@ impl Generation<'_> {
     }
 }
 
-/// The capture of object `f` (linear intensities) rendered by the tracer, channel-major.
-fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64) -> Vec<f64> {
+/// The capture of object `f` (linear intensities) rendered by the tracer, channel-major: the
+/// designed path (`render`), or every path (`stscam_stray`'s all-paths image, the same
+/// samples).
+fn render_object(sys: &System, f: &[f64], spp: u32, seed: u64, paths: TracePaths) -> Vec<f64> {
     let mut s = sys.clone();
     s.display.set_intensity(f);
-    let cap = render(&s, &RenderSettings::lattice(spp, seed, false));
-    cap.channels
-        .iter()
-        .flatten()
-        .map(|&v| f64::from(v))
-        .collect()
+    let channels = match paths {
+        TracePaths::Designed => render(&s, &RenderSettings::lattice(spp, seed, false)).channels,
+        TracePaths::All => {
+            let set = stscam_stray::image::StraySettings {
+                spp,
+                seed,
+                paths: Default::default(),
+                progress: false,
+            };
+            stscam_stray::image::stray_images(&s, &set).all_paths
+        }
+    };
+    channels.iter().flatten().map(|&v| f64::from(v)).collect()
 }
 
 fn progress_bar(show: bool, len: usize) -> crate::progress::Progress {

@@ -52,6 +52,25 @@ pub enum CaptureMode {
     Render,
 }
 
+/// Which light paths a rendered capture holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TracePaths {
+    /// The designed path only (what H models; the default).
+    #[default]
+    Designed,
+    /// Every path through the plate (`stscam stray`'s `all_paths`): the designed path with
+    /// the plate's ghosts, every grating's stray orders, cross-coupling and, where the scene
+    /// has them, the display behind the screen, edges and haze. Render mode, display objects.
+    All,
+}
+
+impl TracePaths {
+    fn is_designed(&self) -> bool {
+        *self == TracePaths::Designed
+    }
+}
+
 /// Which noise the captures get.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -498,6 +517,10 @@ pub struct Recipe {
     /// Samples per pixel of H (matrix mode) or of each capture (render mode).
     #[serde(default = "default_spp")]
     pub spp: u32,
+    /// Render mode: the light paths a capture holds (left out of the card at the default, so
+    /// datasets without it keep their bytes).
+    #[serde(default, skip_serializing_if = "TracePaths::is_designed")]
+    pub paths: TracePaths,
     /// Sensor noise.
     #[serde(default = "default_noise")]
     pub noise: NoiseModel,
@@ -608,6 +631,12 @@ fn check(r: &Recipe) -> Result<(), (String, String)> {
                 return key_err(k, format!("must be 1..=1048576, got {v}"));
             }
         }
+    }
+    if r.paths == TracePaths::All && (r.mode != CaptureMode::Render || r.is_meshes()) {
+        return key_err(
+            "paths",
+            "\"all\" needs mode = \"render\" and display objects (a capture H·f holds the designed path only; the stray tracer does not follow a 3-D user side)".into(),
+        );
     }
     check_vary(r)
 }
