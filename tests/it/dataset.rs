@@ -544,11 +544,19 @@ fn cycled_vary_values_take_turns() {
 #[test]
 fn all_paths_captures_carry_the_stray_light() {
     let dir = tempfile::tempdir().unwrap();
-    let make = |name: &str, extra: &str| {
+    // `paths` is a top-level key: it goes before the recipe's first table.
+    let text = |name: &str, mode: &str, paths: &str| {
+        recipe(name, 5, mode, "none", "").replacen(
+            "noise = \"none\"",
+            &format!("noise = \"none\"\npaths = \"{paths}\""),
+            1,
+        )
+    };
+    let make = |name: &str, paths: &str| {
         let r = write(
             dir.path(),
             &format!("{name}.toml"),
-            &recipe(name, 5, "render", "none", extra),
+            &text(name, "render", paths),
         );
         let out = dir.path().join(name);
         ok(&[
@@ -559,27 +567,8 @@ fn all_paths_captures_carry_the_stray_light() {
         ]);
         out
     };
-    // `paths` is a top-level key: put it before the recipe's first table.
-    let all = {
-        let r = write(
-            dir.path(),
-            "all.toml",
-            &recipe("all", 5, "render", "none", "").replacen(
-                "noise = \"none\"",
-                "noise = \"none\"\npaths = \"all\"",
-                1,
-            ),
-        );
-        let out = dir.path().join("all");
-        ok(&[
-            "dataset",
-            r.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        out
-    };
-    let designed = make("designed", "");
+    let all = make("all", "all");
+    let designed = make("designed", "designed");
     let mut n = 0;
     for split in ["train", "val", "test"] {
         let meta = std::fs::read_to_string(designed.join(split).join("metadata.jsonl"))
@@ -598,15 +587,7 @@ fn all_paths_captures_carry_the_stray_light() {
         }
     }
     assert_eq!(n, 5);
-    let bad = write(
-        dir.path(),
-        "bad.toml",
-        &recipe("bad", 5, "matrix", "none", "").replacen(
-            "noise = \"none\"",
-            "noise = \"none\"\npaths = \"all\"",
-            1,
-        ),
-    );
+    let bad = write(dir.path(), "bad.toml", &text("bad", "matrix", "all"));
     let o = stscam(&[
         "dataset",
         bad.to_str().unwrap(),

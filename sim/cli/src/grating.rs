@@ -334,18 +334,7 @@ pub fn plot(r: &GratingReport) -> LinePlot {
 /// True if the fabricated film differs from the design (any fabrication key of the scene or
 /// any grating's own error is non-zero).
 fn fabricated(s: &crate::scene::Scene, gratings: &[GratingSpec]) -> bool {
-    let f = s.hoe.fabrication();
-    [
-        f.shrinkage,
-        f.mean_index_change,
-        f.thickness_error_um,
-        f.temperature_change_k,
-    ]
-    .iter()
-    .any(|&v| v != 0.0)
-        || gratings
-            .iter()
-            .any(|g| g.index_modulation_shortfall != 0.0 || g.reference_angle_error_deg != 0.0)
+    crate::optics::fabrication::is_fabricated(&s.hoe.fabrication(), gratings)
 }
 
 fn print_text(r: &GratingReport, con: &Console) {

@@ -208,16 +208,10 @@ struct Report {
 
 impl Report {
     fn new(st: &StrayImages) -> Self {
-        let signal = st.classes.iter().find(|c| c.name == SIGNAL);
         Report {
-            signal_total: signal.map_or(0.0, |c| c.total),
-            signal_peak: signal.map_or(0.0, |c| c.peak),
-            stray_total: st
-                .classes
-                .iter()
-                .filter(|c| c.name != SIGNAL)
-                .map(|c| c.total)
-                .sum(),
+            signal_total: st.signal_total(),
+            signal_peak: st.signal().map_or(0.0, |c| c.peak),
+            stray_total: st.stray_total(),
         }
     }
 
@@ -232,9 +226,7 @@ impl Report {
     /// The classes as JSON: name, events, fractions, row fractions, image file.
     fn classes_json(&self, st: &StrayImages) -> Vec<serde_json::Value> {
         let signal_rows = st
-            .classes
-            .iter()
-            .find(|c| c.name == SIGNAL)
+            .signal()
             .map(|c| c.row_sums.clone())
             .unwrap_or_else(|| vec![0.0; st.height]);
         st.classes

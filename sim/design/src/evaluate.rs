@@ -568,19 +568,7 @@ fn stray_percent(
                 progress: false,
             },
         );
-        let signal: f64 = st
-            .classes
-            .iter()
-            .filter(|c| c.name == stscam_stray::classes::SIGNAL)
-            .map(|c| c.total)
-            .sum();
-        let stray: f64 = st
-            .classes
-            .iter()
-            .filter(|c| c.name != stscam_stray::classes::SIGNAL)
-            .map(|c| c.total)
-            .sum();
-        xs.push(100.0 * stray / signal);
+        xs.push(100.0 * st.stray_total() / st.signal_total());
     }
     Ok(mean_and_error(&xs))
 }

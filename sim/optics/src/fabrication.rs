@@ -68,7 +68,7 @@ pub struct FilmFabrication {
 }
 
 /// One grating's recording and its own errors, as plain numbers (a scene's grating entry).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct GratingRecording {
     /// Recording wavelength in vacuum, nm.
     pub recording_wavelength_nm: f64,
@@ -82,6 +82,23 @@ pub struct GratingRecording {
     pub index_modulation_shortfall: f64,
     /// Error of the reference-beam angle at recording, degrees.
     pub reference_angle_error_deg: f64,
+}
+
+/// True if the film `h` or a grating of `gs` departs from its design (the film's shrinkage,
+/// mean-index change, thickness error or temperature change, a grating's index-modulation
+/// shortfall or angle error): the film traced then differs from the one designed.
+pub fn is_fabricated(h: &FilmFabrication, gs: &[GratingRecording]) -> bool {
+    [
+        h.shrinkage,
+        h.mean_index_change,
+        h.thickness_error_um,
+        h.temperature_change_k,
+    ]
+    .iter()
+    .any(|&v| v != 0.0)
+        || gs
+            .iter()
+            .any(|g| g.index_modulation_shortfall != 0.0 || g.reference_angle_error_deg != 0.0)
 }
 
 /// The grating `g` of the film `h` as fabricated (module notes): the recording with its angle

@@ -257,18 +257,8 @@ impl HoeDesc {
     /// change, thickness error or temperature change, or a grating's shortfall or angle
     /// error): the film traced then differs from the one designed.
     pub fn is_fabricated(&self) -> bool {
-        [
-            self.shrinkage,
-            self.mean_index_change,
-            self.thickness_error_um,
-            self.temperature_change_k,
-        ]
-        .iter()
-        .any(|&v| v != 0.0)
-            || self
-                .gratings()
-                .iter()
-                .any(|g| g.index_modulation_shortfall != 0.0 || g.reference_angle_error_deg != 0.0)
+        let gs: Vec<_> = self.gratings().iter().map(GratingDesc::recording).collect();
+        crate::optics::fabrication::is_fabricated(&self.fabrication(), &gs)
     }
 
     /// Every grating of the film as fabricated ([`crate::optics::fabrication`]), in scene

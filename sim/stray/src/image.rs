@@ -44,12 +44,12 @@ pub const OTHER: &str = "other";
 /// the memory to rows × `ROW_CLASSES` × columns × channels values ([`bytes_bound`]).
 pub const ROW_CLASSES: usize = 256;
 
-/// The most bytes [`stray_images`] holds for `sys`: every row's classes' values, the signal's
-/// and the leading classes' images.
+/// The most bytes [`stray_images`] holds for `sys`: every row's classes' values and every
+/// path's sum (f64), the signal's, the leading classes' and the all-paths images (f32).
 pub fn bytes_bound(sys: &System) -> u128 {
     let (w, h) = (sys.camera.width_px as u128, sys.camera.height_px as u128);
     let nch = sys.response.curves.len() as u128;
-    h * w * nch * (ROW_CLASSES as u128 * 8 + (IMAGED_CLASSES as u128 + 1) * 4)
+    h * w * nch * ((ROW_CLASSES as u128 + 1) * 8 + (IMAGED_CLASSES as u128 + 2) * 4)
 }
 
 /// One path class over the image.
@@ -99,6 +99,24 @@ pub struct StrayImages {
     /// camera records, signal and stray light (each pixel's classes summed in the order the
     /// samples met them).
     pub all_paths: Vec<Vec<f32>>,
+}
+
+impl StrayImages {
+    /// The signal class, if the image has one (it is first).
+    pub fn signal(&self) -> Option<&ClassImage> {
+        self.classes.first().filter(|c| c.name == classes::SIGNAL)
+    }
+
+    /// The signal's sum over the crop (0 without one).
+    pub fn signal_total(&self) -> f64 {
+        self.signal().map_or(0.0, |c| c.total)
+    }
+
+    /// Every other class's sum over the crop: the stray light.
+    pub fn stray_total(&self) -> f64 {
+        let skip = usize::from(self.signal().is_some());
+        self.classes[skip..].iter().map(|c| c.total).sum()
+    }
 }
 
 /// Settings of [`stray_images`].

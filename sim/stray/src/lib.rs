@@ -6,7 +6,7 @@
 //! the camera image split by class with `render`'s own samples ([`image`]), from which
 //! `stscam stray` writes its report.
 //!
-//! May depend on: stscam-base, stscam-optics, stscam-tracer (docs/design.md,
+//! May depend on: stscam-base, stscam-optics, stscam-world, stscam-tracer (docs/design.md,
 //! "Crates"; checked by `tests/it/layers.rs`). No I/O: the report's files are the CLI's.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -19,3 +19,4 @@ pub mod paths;
 use stscam_base::{cancel, rows, sampler};
 use stscam_optics as optics;
 use stscam_tracer as tracer;
+use stscam_world as world;

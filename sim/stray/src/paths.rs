@@ -931,13 +931,14 @@ pub fn sample_hg(g: f64, [u1, u2]: [f64; 2]) -> (f64, f64) {
     (cos_t, 2.0 * std::f64::consts::PI * u2)
 }
 
-/// The unit direction at angle acos(`cos_t`) from the unit `d`, at azimuth `phi` about it.
+/// The unit direction at angle acos(`cos_t`) from the unit `d`, at azimuth `phi` about it (in
+/// the user side's orthonormal frame around `d`, `world::bsdf::Frame`).
 fn rotate_about(d: DVec3, cos_t: f64, phi: f64) -> DVec3 {
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-    let helper = if d.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
-    let t1 = d.cross(helper).normalize();
-    let t2 = d.cross(t1);
-    (d * cos_t + (t1 * phi.cos() + t2 * phi.sin()) * sin_t).normalize()
+    let local = DVec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t);
+    crate::world::bsdf::Frame::from_normal(d)
+        .to_world(local)
+        .normalize()
 }
 
 #[cfg(test)]

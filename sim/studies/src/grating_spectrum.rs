@@ -20,27 +20,14 @@
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
-use crate::optics::fabrication::{GratingRecording, fabricated_grating};
+use crate::optics::fabrication::{GratingRecording, fabricated_gratings};
 use crate::optics::grating::VolumeGrating;
 use crate::optics::rcwa::{self, Film, RcwaError, Settings, Stack};
 use crate::scene::Scene;
 
-/// One grating of a vHOE as recorded.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct GratingSpec {
-    /// Recording wavelength in nm.
-    pub recording_wavelength_nm: f64,
-    /// Reference-beam angle inside the film, degrees from −z.
-    pub reference_angle_deg: f64,
-    /// Object-beam angle inside the film, degrees from +z (0: normal to the film).
-    pub object_angle_deg: f64,
-    /// Index modulation n1 of this grating (as designed).
-    pub index_modulation: f64,
-    /// Relative shortfall of the index modulation (fabrication; 0 as designed).
-    pub index_modulation_shortfall: f64,
-    /// Error of the reference-beam angle at recording, degrees (fabrication; 0 as designed).
-    pub reference_angle_error_deg: f64,
-}
+/// One grating of a vHOE as recorded, with its own fabrication errors (the optics' recording;
+/// serialised in the grating report).
+pub type GratingSpec = GratingRecording;
 
 /// The grating list of a scene: its `[[hoe.grating]]` entries, or the one grating of the
 /// single-grating `[hoe]` keys.
@@ -48,14 +35,7 @@ pub fn scene_gratings(s: &Scene) -> Vec<GratingSpec> {
     s.hoe
         .gratings()
         .iter()
-        .map(|g| GratingSpec {
-            recording_wavelength_nm: g.recording_wavelength_nm,
-            reference_angle_deg: g.reference_angle_deg,
-            object_angle_deg: g.object_angle_deg,
-            index_modulation: g.index_modulation,
-            index_modulation_shortfall: g.index_modulation_shortfall,
-            reference_angle_error_deg: g.reference_angle_error_deg,
-        })
+        .map(crate::scene::GratingDesc::recording)
         .collect()
 }
 
@@ -63,25 +43,7 @@ pub fn scene_gratings(s: &Scene) -> Vec<GratingSpec> {
 /// fabrication keys of the scene and each entry's own errors, `optics::fabrication`; every key 0
 /// gives the recorded design bit for bit), as the tracer builds them.
 pub fn volume_gratings(s: &Scene, gratings: &[GratingSpec]) -> Vec<VolumeGrating> {
-    let film = s.hoe.fabrication();
-    gratings
-        .iter()
-        .map(|g| fabricated_grating(&film, &g.recording()))
-        .collect()
-}
-
-impl GratingSpec {
-    /// The recording this grating is, as the optics take it.
-    pub fn recording(&self) -> GratingRecording {
-        GratingRecording {
-            recording_wavelength_nm: self.recording_wavelength_nm,
-            reference_angle_deg: self.reference_angle_deg,
-            object_angle_deg: self.object_angle_deg,
-            index_modulation: self.index_modulation,
-            index_modulation_shortfall: self.index_modulation_shortfall,
-            reference_angle_error_deg: self.reference_angle_error_deg,
-        }
-    }
+    fabricated_gratings(&s.hoe.fabrication(), gratings)
 }
 
 /// The mean index of the scene's film as fabricated (n + δn + (dn/dT)·ΔT).
