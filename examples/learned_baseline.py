@@ -150,17 +150,17 @@ def main() -> int:
         return float(np.mean([psnr(a, b) for a, b in zip(x, f)]))
 
     cg_iters = max([5, 10, 20, 30, 50], key=lambda k: mean_psnr(
-        op.reconstruct(train_g[pick], method="cg", iters=k), train_f[pick]))
+        op.reconstruct(train_g[pick], method="cg", iters=k, regularisation="fixed"), train_f[pick]))
     tau = max([1e-4, 3e-4, 1e-3, 3e-3, 1e-2], key=lambda t: mean_psnr(
-        op.reconstruct(train_g[pick], method="admm-tv", tau=t), train_f[pick]))
+        op.reconstruct(train_g[pick], method="admm-tv", tau=t, regularisation="fixed"), train_f[pick]))
     t_tune = time.time() - t0
     t0 = time.time()
-    test_cg = op.reconstruct(test_g, method="cg", iters=cg_iters)
+    test_cg = op.reconstruct(test_g, method="cg", iters=cg_iters, regularisation="fixed")
     t_cg = (time.time() - t0) / len(test_g)
     t0 = time.time()
-    test_admm = op.reconstruct(test_g, method="admm-tv", tau=tau)
+    test_admm = op.reconstruct(test_g, method="admm-tv", tau=tau, regularisation="fixed")
     t_admm = (time.time() - t0) / len(test_g)
-    train_cg = op.reconstruct(train_g, method="cg", iters=cg_iters)
+    train_cg = op.reconstruct(train_g, method="cg", iters=cg_iters, regularisation="fixed")
 
     # 5. The network.
     A = op.torch()

@@ -800,7 +800,7 @@ fn decode<const N: usize, T>(b: &[u8], what: &str, f: impl Fn([u8; N]) -> T) -> 
 /// Reconstructs the object from a capture (as `stscam reconstruct`); H's arrays as bytes
 /// (indptr int64, indices int64, data float32), the capture as float64, the offset as float32.
 #[pyfunction]
-#[pyo3(signature = (rows, cols, indptr, indices, data, object, capture, offset, method, iters, tau, tv, threads))]
+#[pyo3(signature = (rows, cols, indptr, indices, data, object, capture, offset, method, iters, tau, tv, threads, sensor=None, white_peak=None))]
 #[allow(clippy::too_many_arguments)]
 fn reconstruct<'py>(
     py: Python<'py>,
@@ -817,6 +817,8 @@ fn reconstruct<'py>(
     tau: f64,
     tv: &str,
     threads: Option<usize>,
+    sensor: Option<SceneArg>,
+    white_peak: Option<f64>,
 ) -> PyResult<(Bound<'py, PyBytes>, String)> {
     use stscam::recon::Problem;
     let opts = solve_options(method, iters, tau, tv)?;
@@ -841,23 +843,19 @@ fn reconstruct<'py>(
             "capture: value {i} is not a finite number"
         )));
     }
-    if let Some(o) = offset {
-        let o: Vec<f32> = decode(o, "offset", f32::from_le_bytes)?;
-        if o.len() != rows {
-            return Err(value_error(format!(
-                "offset: {} values but H has {rows} rows",
-                o.len()
-            )));
-        }
-        if let Some(i) = o.iter().position(|v| !v.is_finite()) {
-            return Err(value_error(format!(
-                "offset: value {i} is not a finite number"
-            )));
-        }
-        for (x, &v) in g.iter_mut().zip(&o) {
-            *x -= f64::from(v);
-        }
+    let offset = match offset {
+        Some(o) => decode_offset(o, rows)?,
+        None => vec![0.0f32; rows],
+    };
+    for (x, &v) in g.iter_mut().zip(&offset) {
+        *x -= f64::from(v);
     }
+    let noise = sensor
+        .map(|s| {
+            let h_ones = h.mul_vec(&vec![1.0; h.cols]);
+            discrepancy_sensor(py, &s, white_peak, &h_ones, &offset)
+        })
+        .transpose()?;
     stscam::limits::check_bytes(
         "H",
         "the reconstruction set-up (H transposed and the Gram matrix HᵀH)",
@@ -866,9 +864,68 @@ fn reconstruct<'py>(
     .map_err(value_error)?;
     let sol = run_job(py, threads, || {
         let problem = Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current());
-        stscam::recon::solve(&problem, &g, &opts)
+        solve_one(&problem, &g, &opts, noise.as_ref(), &offset)
     })?;
     Ok((f64_bytes(py, &sol.f), json(&sol.info)?))
+}
+
+/// One capture's reconstruction: by the discrepancy principle on `noise` (the black level
+/// `offset`, no dark frame subtracted) when given, else with the fixed `opts`.
+fn solve_one(
+    problem: &stscam::recon::Problem,
+    g: &[f64],
+    opts: &stscam::recon::SolveOptions,
+    noise: Option<&stscam::noise::SensorNoise>,
+    offset: &[f32],
+) -> stscam::recon::Solution {
+    match noise {
+        None => stscam::recon::solve(problem, g, opts),
+        Some(noise) => stscam::recon::discrepancy::solve_discrepancy(
+            problem,
+            1,
+            g,
+            opts,
+            &stscam::recon::discrepancy::Sensor {
+                noise,
+                offset,
+                dark_subtracted: false,
+            },
+        ),
+    }
+}
+
+/// An offset (float32 bytes) of `rows` finite values.
+fn decode_offset(o: &[u8], rows: usize) -> PyResult<Vec<f32>> {
+    let o: Vec<f32> = decode(o, "offset", f32::from_le_bytes)?;
+    if o.len() != rows {
+        return Err(value_error(format!(
+            "offset: {} values but H has {rows} rows",
+            o.len()
+        )));
+    }
+    if let Some(i) = o.iter().position(|v| !v.is_finite()) {
+        return Err(value_error(format!(
+            "offset: value {i} is not a finite number"
+        )));
+    }
+    Ok(o)
+}
+
+/// The discrepancy principle's sensor model: `scene`'s `[noise]` with the exposure from
+/// `white_peak`, else from the all-white capture max(H·1 + offset) (as `stscam reconstruct`).
+fn discrepancy_sensor(
+    py: Python<'_>,
+    scene: &SceneArg,
+    white_peak: Option<f64>,
+    h_ones: &[f64],
+    offset: &[f32],
+) -> PyResult<stscam::noise::SensorNoise> {
+    let sys = load_job(py, scene)?;
+    let peak = white_peak
+        .unwrap_or_else(|| stscam::recon::discrepancy::white_peak_of_sums(h_ones, offset));
+    stscam::noise::SensorNoise::check_white_peak(&sys.scene.noise, peak)
+        .map_err(|e| value_error(format!("white_peak: {e}")))?;
+    Ok(stscam::noise::SensorNoise::new(&sys.scene.noise, peak))
 }
 
 /// A reconstruction problem set up once (Hᵀ and the Gram matrix HᵀH, as `stscam reconstruct`
@@ -879,6 +936,8 @@ struct Solver {
     /// the set-up's job is never set again, so a solve with it could not be interrupted).
     problem: std::sync::Mutex<stscam::recon::Problem>,
     rows: usize,
+    /// H·1 (row sums), for the default exposure of the discrepancy principle.
+    h_ones: Vec<f64>,
 }
 
 #[pymethods]
@@ -919,13 +978,14 @@ impl Solver {
         Ok(Solver {
             problem: std::sync::Mutex::new(problem),
             rows,
+            h_ones: h.mul_vec(&vec![1.0; h.cols]),
         })
     }
 
     /// Solves for each of `frames` captures (float64 bytes, frame-major, the offset already
     /// subtracted) as `stscam reconstruct` does: the objects (float64 bytes, frame-major) and
     /// each frame's solver report (JSON).
-    #[pyo3(signature = (capture, frames, method, iters, tau, tv, threads))]
+    #[pyo3(signature = (capture, frames, method, iters, tau, tv, threads, offset=None, sensor=None, white_peak=None))]
     #[allow(clippy::too_many_arguments)]
     fn solve<'py>(
         &self,
@@ -937,8 +997,18 @@ impl Solver {
         tau: f64,
         tv: &str,
         threads: Option<usize>,
+        offset: Option<&[u8]>,
+        sensor: Option<SceneArg>,
+        white_peak: Option<f64>,
     ) -> PyResult<(Bound<'py, PyBytes>, Vec<String>)> {
         let opts = solve_options(method, iters, tau, tv)?;
+        let offset = match offset {
+            Some(o) => decode_offset(o, self.rows)?,
+            None => vec![0.0f32; self.rows],
+        };
+        let noise = sensor
+            .map(|s| discrepancy_sensor(py, &s, white_peak, &self.h_ones, &offset))
+            .transpose()?;
         let g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
         if Some(g.len()) != frames.checked_mul(self.rows) || frames == 0 {
             return Err(value_error(format!(
@@ -959,7 +1029,7 @@ impl Solver {
             problem.cancel = stscam::cancel::current();
             let sols = g
                 .chunks_exact(rows)
-                .map(|gi| stscam::recon::solve(&problem, gi, &opts))
+                .map(|gi| solve_one(&problem, gi, &opts, noise.as_ref(), &offset))
                 .collect::<Vec<_>>();
             problem.cancel = stscam::cancel::Token::default();
             sols

@@ -573,13 +573,22 @@ def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dic
 def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None,
                 tau: Optional[float] = None, offset=None, tv: str = "iso",
                 object_shape: Optional[tuple[int, int]] = None,
-                threads: Optional[int] = None, return_info: bool = False):
+                threads: Optional[int] = None, return_info: bool = False,
+                regularisation: str = "discrepancy", sensor: Optional[Scene] = None,
+                white_peak: Optional[float] = None):
     """Reconstructs the object from ``capture`` (any shape, flattened in H's row order) with
     CG (``method="cg"``) or ADMM-TV, as ``stscam reconstruct``. ``H`` is any scipy sparse
     matrix (stored as float32, like ``H.npz``); ``offset`` (float32, like ``offset.npy``) is
-    subtracted first; ``tau`` is relative to ‖Hᵀg‖∞ (default 0.001). Returns the object as a
-    float64 array [h, w] (``object_shape=(h, w)``, numpy's order; default: square), and with
-    ``return_info=True`` also the solver's report (``recon.json``'s ``solver``)."""
+    subtracted first. ``regularisation="discrepancy"`` (the default, as the CLI and the demo)
+    chooses ADMM-TV's τ and CGM's stopping iteration (at most ``iters``, default 100) from
+    the noise of ``sensor``'s ``[noise]`` model (default: the default scene's) at the exposure
+    ``white_peak`` (default: max(H·1 + offset)); the capture is taken as measured with the
+    mean dark offset removed (:func:`sensor_noise`, datasets). ``regularisation="fixed"``
+    uses ``tau`` (relative to ‖Hᵀg‖∞, default 0.001) and ``iters`` (CG: 30) as given.
+    Returns the object as a float64 array [h, w] (``object_shape=(h, w)``, numpy's order;
+    default: square), and with ``return_info=True`` also the solver's report
+    (``recon.json``'s ``solver``)."""
+    rule = _rule_args(regularisation, tau, sensor, white_peak)
     if not scipy.sparse.issparse(H):
         raise ValueError(f"H: expected a scipy sparse matrix, got {type(H).__name__}")
     h = scipy.sparse.csr_matrix(H, dtype=np.float32, copy=True)
@@ -594,9 +603,29 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
         rows, cols, h.indptr.astype("<i8").tobytes(), h.indices.astype("<i8").tobytes(),
         h.data.astype("<f4").tobytes(), (w, hh), g.astype("<f8").tobytes(), off, method,
         None if iters is None else _uint(iters, "--iters <ITERS>", _U64),
-        0.001 if tau is None else float(tau), tv, _threads(threads))
+        0.001 if tau is None else float(tau), tv, _threads(threads), *rule)
     obj = np.frombuffer(f, dtype="<f8").reshape(hh, w).astype(np.float64)
     return (obj, json.loads(solver)) if return_info else obj
+
+
+def _rule_args(regularisation: str, tau: Optional[float], sensor: Any,
+               white_peak: Optional[float]) -> tuple[Any, Optional[float]]:
+    """The native sensor arguments (scene, white peak) of a ``regularisation`` choice, or
+    (None, None) for fixed parameters; the CLI's refusals as ``ValueError``."""
+    if regularisation == "fixed":
+        for name, v in (("sensor", sensor), ("white_peak", white_peak)):
+            if v is not None:
+                raise ValueError(f"{name}: sets the discrepancy principle's sensor model; "
+                                 "regularisation=\"fixed\" does not use it")
+        return None, None
+    if regularisation != "discrepancy":
+        raise ValueError(f"regularisation {regularisation!r}: expected \"discrepancy\" or \"fixed\"")
+    if tau is not None:
+        raise ValueError("tau: sets tau of regularisation=\"fixed\"; the default, the discrepancy "
+                         "principle, chooses tau from the sensor noise")
+    if white_peak is not None:
+        white_peak = float(white_peak)
+    return _scene(sensor)._arg, white_peak
 
 
 def reconstruct_stack(stack, capture, method: str = "joint", iters: Optional[int] = None,

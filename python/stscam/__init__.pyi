@@ -98,7 +98,8 @@ def probe(scene: Optional[Scene] = None, pixel: tuple[int, int] = (0, 0)) -> dic
 def reconstruct(H: Any, capture: Any, method: str = "admm-tv", iters: Optional[int] = None,
                 tau: Optional[float] = None, offset: Any = None, tv: str = "iso",
                 object_shape: Optional[tuple[int, int]] = None, threads: Optional[int] = None,
-                return_info: bool = False) -> Any: ...
+                return_info: bool = False, regularisation: str = "discrepancy",
+                sensor: Optional[Scene] = None, white_peak: Optional[float] = None) -> Any: ...
 def reconstruct_stack(stack: Sequence[tuple[float, Any, Any]], capture: Any, method: str = "joint",
                       iters: Optional[int] = None, tau: Optional[float] = None,
                       mu: Optional[float] = None, offset: Any = None, tv: str = "iso",

@@ -105,12 +105,17 @@ class Operator:
     # --- reconstruction ---
     def reconstruct(self, capture: Any, method: str = "admm-tv", iters: Optional[int] = None,
                     tau: Optional[float] = None, tv: str = "iso", subtract_offset: bool = True,
-                    return_info: bool = False) -> Any:
+                    return_info: bool = False, regularisation: str = "discrepancy",
+                    sensor: Any = None, white_peak: Optional[float] = None) -> Any:
         """Reconstructs each capture (..., *capture_shape) with CG (``method="cg"``) or
         ADMM-TV, exactly as :func:`stscam.reconstruct` (and ``stscam reconstruct``) does, the
         set-up made once per operator: float64 objects (..., h, w); with ``return_info`` also
-        the solver reports (a list, one per capture)."""
-        from . import _threads, _uint
+        the solver reports (a list, one per capture). ``regularisation``, ``sensor`` and
+        ``white_peak`` as :func:`stscam.reconstruct` (default: the discrepancy principle on
+        the default scene's sensor, the exposure from max(H·1 + offset)); the black level is
+        the operator's offset either way."""
+        from . import _rule_args, _threads, _uint
+        rule = _rule_args(regularisation, tau, sensor, white_peak)
         g = np.asarray(capture, dtype=np.float64)
         lead = self._lead(g, self.capture_shape, "capture")
         g = g.reshape(-1, self.shape[0])
@@ -125,7 +130,8 @@ class Operator:
         f, infos = self._solver.solve(
             np.ascontiguousarray(g, dtype="<f8").tobytes(), g.shape[0], method,
             None if iters is None else _uint(iters, "--iters <ITERS>", 2**64 - 1),
-            0.001 if tau is None else float(tau), tv, _threads(self.threads))
+            0.001 if tau is None else float(tau), tv, _threads(self.threads),
+            self.offset.astype("<f4").tobytes(), *rule)
         obj = np.frombuffer(f, dtype="<f8").reshape(lead + self.object_shape).astype(np.float64)
         return (obj, [json.loads(i) for i in infos]) if return_info else obj
 

@@ -239,6 +239,20 @@ fn cli_writes_then_reads_the_table() {
         let a: Vec<&str> = a.iter().map(String::as_str).collect();
         stscam(&a)
     };
+    // A table whose drawing would gather 10⁹ samples of a pixel per thread (issue 45: an
+    // abort at 4.3 GB): refused in one line naming the flag, before anything is written.
+    let mut a = args("h");
+    let at = a.iter().position(|s| s == "--table-spp").unwrap() + 1;
+    a[at] = "1000000000".into();
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    let huge = stscam(&a);
+    assert_eq!(huge.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&huge.stderr);
+    assert!(
+        err.contains("--table-spp") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert!(!dir.path().join("cache").exists() && !dir.path().join("h").exists());
     let spectral = run("s", &["--spectral"]);
     assert_eq!(spectral.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&spectral.stderr).contains("--spectral"));

@@ -55,10 +55,10 @@ def main():
     print(f"adjoint, 1 frame:   Operator {median_time(lambda: op.adjoint(G[0]), r) * ms:.3f} ms, scipy H.T @ g {median_time(lambda: HT64 @ G[0], r) * ms:.3f} ms")
     print(f"adjoint, batch {a.batch}, per frame: Operator {median_time(lambda: op.adjoint(G), r) / a.batch * ms:.3f} ms")
     t0 = time.perf_counter()
-    op.reconstruct(G[:1], method="cg", iters=1)
+    op.reconstruct(G[:1], method="cg", iters=1, regularisation="fixed")
     print(f"set-up (Hᵀ, HᵀH) once: {(time.perf_counter() - t0) * ms:.1f} ms")
-    per = median_time(lambda: op.reconstruct(G, method="cg"), max(1, r // 2)) / a.batch
-    one = median_time(lambda: stscam.reconstruct(H, G[0], method="cg", offset=off), max(1, r // 2))
+    per = median_time(lambda: op.reconstruct(G, method="cg", regularisation="fixed"), max(1, r // 2)) / a.batch
+    one = median_time(lambda: stscam.reconstruct(H, G[0], method="cg", offset=off, regularisation="fixed"), max(1, r // 2))
     print(f"CG (default iterations), per frame: Operator batch {per * ms:.1f} ms, stscam.reconstruct per call (set-up each time) {one * ms:.1f} ms")
     try:
         import torch

@@ -212,20 +212,63 @@ def test_info_and_probe_equal_cli_json(scene):
 
 
 @pytest.mark.parametrize("method", ["admm-tv", "cg"])
-def test_reconstruct_equals_cli(scene, tmp_path, method):
-    cli("matrix", "--out", tmp_path / "m", "--spp", SPP, *set_args(SETS))
-    cli("render", "--out", tmp_path / "r", "--spp", SPP, "--seed", 9, *set_args(SETS))
-    cli("reconstruct", "--matrix", tmp_path / "m" / "H.npz", "--capture",
-        tmp_path / "r" / "capture.exr", "--method", method, "--iters", 12, "--out", tmp_path / "o")
+@pytest.mark.parametrize("rule", ["discrepancy", "fixed"])
+def test_reconstruct_equals_cli(scene, tmp_path, method, rule):
+    # A sensor quieter than the default 8-bit one, so that this small H (4 spp, a crop that
+    # sees part of the object) has signal above the noise in its range; H.json carries it to
+    # the CLI, `sensor=` to Python.
+    quiet = {"noise.full_well_e": 1e6, "noise.bit_depth": 16}
+    # CGM's iterations: 12 fixed, or a cap of 100 the discrepancy principle stops it within.
+    it = 100 if (rule, method) == ("discrepancy", "cg") else 12
+    sets = set_args({**SETS, **quiet})
+    cli("matrix", "--out", tmp_path / "m", "--spp", SPP, *sets)
     h = scipy.sparse.load_npz(tmp_path / "m" / "H.npz")
-    g = stscam.read_exr(tmp_path / "r" / "capture.exr")["Y"]
     off = np.load(tmp_path / "m" / "offset.npy")
+    # A capture measured by the scene's sensor (the discrepancy principle's model), the
+    # exposure of the all-white capture H·1 + offset given.
+    peak = float((h @ np.ones(h.shape[1]) + off).max())
+    cli("render", "--out", tmp_path / "r", "--spp", SPP, "--seed", 9, *sets,
+        *(("--noise", "sensor", "--white-peak", peak) if rule == "discrepancy" else ()))
+    cli("reconstruct", "--matrix", tmp_path / "m" / "H.npz", "--capture",
+        tmp_path / "r" / "capture.exr", "--method", method, "--iters", it, "--out", tmp_path / "o",
+        "--regularisation", rule)
+    g = stscam.read_exr(tmp_path / "r" / "capture.exr")["Y"]
+    kw = {"white_peak": peak, "sensor": stscam.Scene(overrides=quiet)} if rule == "discrepancy" else {}
     # Any scipy sparse format is accepted.
-    f = stscam.reconstruct(h.tocoo(), g, method=method, iters=12, offset=off)
+    f = stscam.reconstruct(h.tocoo(), g, method=method, iters=it, offset=off,
+                           regularisation=rule, **kw)
     assert f.shape == (32, 32) and f.dtype == np.float64
     want = stscam.read_exr(tmp_path / "o" / "recon.exr")["Y"]
     assert same_bits(f.astype(np.float32), want)
-    assert not same_bits(stscam.reconstruct(h, g, method=method, iters=12).astype(np.float32), want)
+    assert not same_bits(stscam.reconstruct(h, g, method=method, iters=it, regularisation=rule,
+                                            **kw).astype(np.float32), want)
+    if rule == "discrepancy" and method == "admm-tv":
+        # The rule's inputs matter: another exposure is another noise level, another τ. (This
+        # 4-spp H's own error keeps CGM from the budget within its cap, whatever the noise.)
+        other = stscam.reconstruct(h, g, method=method, iters=it, offset=off, white_peak=peak / 4,
+                                   sensor=kw["sensor"])
+        assert not same_bits(other.astype(np.float32), want)
+        # ... and so is another sensor (the default 8-bit one).
+        other = stscam.reconstruct(h, g, method=method, iters=it, offset=off, white_peak=peak)
+        assert not same_bits(other.astype(np.float32), want)
+        rec = json.loads((tmp_path / "o" / "recon.json").read_text())
+        assert rec["regularisation"]["white_peak"] == peak
+        assert np.abs(f).max() > 0.1  # a reconstruction, not the zero a budget above |g|² gives
+        assert rec["regularisation"]["white_peak_source"].endswith("(noise.white_peak)")
+
+
+def test_reconstruct_rule_refusals(small_h):
+    h, off = small_h
+    g = np.zeros(h.shape[0])
+    with pytest.raises(ValueError, match="tau: sets tau of regularisation=\"fixed\""):
+        stscam.reconstruct(h, g, tau=0.01)
+    with pytest.raises(ValueError, match="regularisation 'tikhonov': expected"):
+        stscam.reconstruct(h, g, regularisation="tikhonov")
+    with pytest.raises(ValueError, match="white_peak: sets the discrepancy"):
+        stscam.Operator(h, off, object_shape=(32, 32)).reconstruct(
+            g, regularisation="fixed", white_peak=1.0)
+    with pytest.raises(ValueError, match="white_peak: white peak"):
+        stscam.reconstruct(h, g, white_peak=1e300)
 
 
 def test_calibrate_equals_cli(scene, tmp_path):
@@ -466,9 +509,9 @@ def test_ctrl_c_stops_a_long_reconstruction(small_h):
     h, off = small_h
     op = stscam.Operator(h, off, object_shape=(32, 32))
     g = op.capture(np.full((32, 32), 0.5))
-    op.reconstruct(g, method="admm-tv", iters=1)  # the set-up, once
+    op.reconstruct(g, method="admm-tv", iters=1, regularisation="fixed")  # the set-up, once
     t0 = time.monotonic()
-    op.reconstruct(g, method="admm-tv", iters=200)
+    op.reconstruct(g, method="admm-tv", iters=200, regularisation="fixed")
     per_iter = (time.monotonic() - t0) / 200
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.5, _thread.interrupt_main)
@@ -476,7 +519,7 @@ def test_ctrl_c_stops_a_long_reconstruction(small_h):
         timer.start()
         t0 = time.monotonic()
         with pytest.raises(KeyboardInterrupt):
-            op.reconstruct(g, method="admm-tv", iters=10**9)
+            op.reconstruct(g, method="admm-tv", iters=10**9, regularisation="fixed")
         elapsed = time.monotonic() - t0
     finally:
         timer.cancel()
@@ -498,7 +541,7 @@ def test_ctrl_c_stops_a_long_set_up():
     h = scipy.sparse.csr_matrix((data, indices.ravel(), indptr), shape=(rows, cols))
     t0 = time.monotonic()
     stscam.Operator(h[: rows // 8], None, object_shape=(32, 64)).reconstruct(
-        np.zeros(rows // 8), method="cg", iters=1
+        np.zeros(rows // 8), method="cg", iters=1, regularisation="fixed"
     )
     full = 8 * (time.monotonic() - t0)
     if full < 1.5:
@@ -513,7 +556,7 @@ def test_ctrl_c_stops_a_long_set_up():
         t0 = time.monotonic()
         with pytest.raises(KeyboardInterrupt):
             stscam.Operator(h, None, object_shape=(32, 64)).reconstruct(
-                np.zeros(rows), method="cg", iters=10**9
+                np.zeros(rows), method="cg", iters=10**9, regularisation="fixed"
             )
         elapsed = time.monotonic() - t0
     finally:

@@ -30,6 +30,7 @@ pub mod sweep;
 pub mod tolerance;
 pub mod validate;
 // The layers below, under the names this crate's modules use (`crate::io::…`).
+use stscam_base::noise;
 #[cfg(test)]
 use stscam_base::options;
 use stscam_base::{VERSION, limits, numfmt, sampler, sparse, spectra, targets};
@@ -38,7 +39,7 @@ use stscam_io::{plot, stack};
 use stscam_optics as optics;
 use stscam_recon as recon;
 use stscam_scene as scene;
-use stscam_studies::{analytic, colour_demo, grating_spectrum, hadamard};
+use stscam_studies::{analytic, capture, colour_demo, grating_spectrum, hadamard};
 use stscam_tracer::{analysis, colour, output, system};
 use stscam_world as world;
 use stscam_world::display;

@@ -18,12 +18,33 @@ pub struct ReconstructOptions {
     /// Method (default: admm-tv with one H, joint with a depth stack).
     #[arg(long, value_enum)]
     pub method: Option<MethodArg>,
-    /// Iterations (default: 50 for ADMM-TV, the paper's count; for CG see docs/validation.md).
+    /// How the regularisation is chosen: `discrepancy` (the default with one H: ADMM-TV's τ
+    /// and CGM's stopping iteration from the sensor model's noise, as the demo) or `fixed`
+    /// (`--tau`, `--iters`; the default with a depth stack).
+    #[arg(long, value_enum)]
+    pub regularisation: Option<Regularisation>,
+    /// Iterations: ADMM-TV's per solve (default 50, the paper's count); CGM's cap with the
+    /// discrepancy principle (default 100) or its count with `fixed` (default 30).
     #[arg(long)]
     pub iters: Option<usize>,
-    /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free).
-    #[arg(long, default_value_t = crate::recon::admm::DEFAULT_TAU_REL)]
-    pub tau: f64,
+    /// ADMM-TV weight τ relative to ‖Hᵀg‖_∞ (scale-free) with `--regularisation fixed`
+    /// (default 0.001).
+    #[arg(long)]
+    pub tau: Option<f64>,
+    /// The discrepancy principle's sensor: a scene whose `[noise]` measured the capture
+    /// (default: the scene recorded in the matrix's .json, else the default scene).
+    #[arg(long, value_name = "SCENE")]
+    pub sensor: Option<PathBuf>,
+    /// The discrepancy principle's exposure: the brightest value of the all-white capture
+    /// (default: the capture's sidecar `noise.white_peak`, as `render --noise sensor` writes
+    /// it, else max(H·1 + offset)).
+    #[arg(long, value_name = "X")]
+    pub white_peak: Option<f64>,
+    /// A measured dark frame (capture units with the sensor's dark offset, as `demo` writes
+    /// `dark.npy`) subtracted from the capture instead of the offset; its noise counts in the
+    /// discrepancy principle.
+    #[arg(long, value_name = "FILE")]
+    pub dark_frame: Option<PathBuf>,
     /// Joint: weight μ of the group sparsity across depth, relative to ‖Hᵀg‖_∞.
     #[arg(long, default_value_t = crate::recon::joint::DEFAULT_MU_REL)]
     pub mu: f64,
@@ -49,6 +70,15 @@ pub struct ReconstructOptions {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+}
+
+/// How `reconstruct` chooses its regularisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Regularisation {
+    /// From the sensor model's noise (Morozov's discrepancy principle).
+    Discrepancy,
+    /// `--tau` and `--iters` as given.
+    Fixed,
 }
 
 /// Method of `reconstruct --method`: a solver of one H ([`crate::recon::Method`]) or of a depth
@@ -98,8 +128,12 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         matrix,
         capture,
         method,
+        regularisation,
         iters,
         tau,
+        sensor,
+        white_peak,
+        dark_frame,
         mu,
         tv,
         object,
@@ -110,13 +144,15 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         threads,
     } = a;
     let (matrix, capture, out) = (matrix.as_path(), capture.as_path(), out.as_path());
-    let (iters, tau, gamma) = (*iters, *tau, *gamma);
+    let (iters, gamma) = (*iters, *gamma);
+    let tau = tau.unwrap_or(crate::recon::admm::DEFAULT_TAU_REL);
     let (object, offset, truth) = (object.as_deref(), offset.as_deref(), truth.as_deref());
     check_numbers(a)?;
     let method = resolve_method(*method, matrix)?;
     let tv = *tv;
     let method = match method {
         MethodArg::Stack(method) => {
+            check_stack_rule(a)?;
             let opts = crate::recon::layered::StackOptions {
                 method,
                 iters,
@@ -132,10 +168,37 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         }
         MethodArg::One(method) => method,
     };
+    let rule = regularisation.unwrap_or(Regularisation::Discrepancy);
+    check_rule(a, rule)?;
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
     let pool = thread_pool(*threads)?;
-    let (lm, g) = load_problem(matrix, capture, object, offset)?;
+    let (lm, mut g) = load_problem(matrix, capture, object, offset)?;
+    let dark = dark_frame
+        .as_deref()
+        .map(|d| load_dark(d, &lm, &mut g))
+        .transpose()?;
+    // Warnings are printed once the reconstruction is written (a refusal stays one line).
+    let mut warnings = Vec::new();
+    let (sensor_model, fallback) = match rule {
+        Regularisation::Discrepancy => {
+            match sensor_of(
+                matrix,
+                capture,
+                sensor.as_deref(),
+                *white_peak,
+                &lm,
+                &mut warnings,
+            )? {
+                Ok(m) => (Some(m), None),
+                Err(reason) => {
+                    warnings.push(format!("warning: {reason}"));
+                    (None, Some(reason))
+                }
+            }
+        }
+        Regularisation::Fixed => (None, None),
+    };
     let (w, h) = lm.object;
     let planes = lm.planes;
     let truth_v = truth
@@ -158,8 +221,34 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         tau_rel: tau,
         tv,
     };
-    let Solution { f, info } =
-        pool.install(|| crate::recon::solve_planes(&problem, planes, &g, &opts));
+    let Solution { f, info } = pool.install(|| match &sensor_model {
+        None => crate::recon::solve_planes(&problem, planes, &g, &opts),
+        Some(sm) => {
+            let (zeros, black);
+            let offset: &[f32] = match (&dark, &lm.offset) {
+                (Some(d), _) => {
+                    // The black level: the dark frame less the sensor's dark offset.
+                    let dark_units = sm.noise.dark_offset_units();
+                    black = d
+                        .iter()
+                        .map(|&v| (f64::from(v) - dark_units) as f32)
+                        .collect::<Vec<f32>>();
+                    &black
+                }
+                (None, Some(o)) => o,
+                (None, None) => {
+                    zeros = vec![0.0f32; g.len()];
+                    &zeros
+                }
+            };
+            let sensor = crate::recon::discrepancy::Sensor {
+                noise: &sm.noise,
+                offset,
+                dark_subtracted: dark.is_some(),
+            };
+            crate::recon::discrepancy::solve_discrepancy(&problem, planes, &g, &opts, &sensor)
+        }
+    });
     let solve_s = t0.elapsed().as_secs_f64();
     // Computed in f64; stored as float32, which must hold every value.
     check_f32_range(&f, capture, matrix)?;
@@ -175,13 +264,22 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
         "object_px": [w, h],
         "object_planes": planes,
         "solver": info,
+        "regularisation": match &sensor_model {
+            None => serde_json::json!({"rule": "fixed", "tau_rel": tau, "iters": iters, "instead_of_discrepancy": fallback}),
+            Some(sm) => sm.json(dark_frame.as_deref()),
+        },
         "gram_layout": problem.gram_layout(),
         "setup_time_s": setup_s,
         "frame_time_s": solve_s,
         "metrics": metrics,
         "units": "linear object intensity (0 = black, 1 = white display pixel)",
+        "png_scale": preview_scale(w, h),
+        "files": {"recon.exr": "the object, linear float32, one pixel per object pixel", "recon.png": "preview in display code values, each object pixel a png_scale x png_scale block (nearest neighbour)"},
     });
     write_recon(out, &f, (w, h, planes), gamma, &json)?;
+    for w in &warnings {
+        con.err(format_args!("{w}"));
+    }
     let m = metrics
         .map(|m| {
             format!(
@@ -202,9 +300,203 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     Ok(())
 }
 
+/// The discrepancy principle's sensor model with where each part came from.
+struct SensorModel {
+    /// The model with its exposure.
+    noise: crate::noise::SensorNoise,
+    /// The `[noise]` it was made from.
+    desc: crate::scene::NoiseDesc,
+    /// Where `desc` came from.
+    desc_source: String,
+    /// The exposure's white peak and where it came from.
+    white_peak: (f64, String),
+}
+
+impl SensorModel {
+    /// recon.json's `regularisation` entry.
+    fn json(&self, dark_frame: Option<&std::path::Path>) -> serde_json::Value {
+        serde_json::json!({
+            "rule": "discrepancy",
+            "sensor": self.desc,
+            "sensor_source": self.desc_source,
+            "white_peak": self.white_peak.0,
+            "white_peak_source": self.white_peak.1,
+            "black_level": match dark_frame {
+                Some(d) => format!("the measured dark frame {} less the sensor's dark offset (its noise counted)", d.display()),
+                None => "the matrix's offset (the capture taken as measured with the mean dark offset removed, as datasets and render --noise sensor store it)".into(),
+            },
+        })
+    }
+}
+
+/// The sensor model of the discrepancy principle: `[noise]` from `--sensor`, else the scene
+/// recorded in the matrix's sidecar, else the default scene; the exposure from
+/// `--white-peak`, else the capture's sidecar, else max(H·1 + offset). `Ok(Err(reason))`
+/// where that last default cannot set an exposure (the caller keeps fixed parameters).
+fn sensor_of(
+    matrix: &std::path::Path,
+    capture: &std::path::Path,
+    sensor: Option<&std::path::Path>,
+    white_peak: Option<f64>,
+    lm: &stscam_tracer::matrix::LoadedMatrix,
+    warnings: &mut Vec<String>,
+) -> Result<Result<SensorModel, String>, Failure> {
+    let sidecar = |p: &std::path::Path| -> Option<serde_json::Value> {
+        let j = p.with_extension("json");
+        let text = crate::io::input::read_text(&j).ok()?;
+        serde_json::from_str(&text).ok()
+    };
+    let (desc, desc_source) = match sensor {
+        Some(p) => {
+            let ls = load_scene(Some(p), &[]).map_err(|e| bad_input(format!("--sensor: {e}")))?;
+            (ls.scene.noise, format!("--sensor {}", p.display()))
+        }
+        None => match sidecar(matrix).and_then(|j| j.get("scene")?.get("noise").cloned()) {
+            Some(v) => {
+                let hj = matrix.with_extension("json");
+                let desc: crate::scene::NoiseDesc = serde_json::from_value(v)
+                    .map_err(|e| bad_input(format!("{}: scene.noise: {e}", hj.display())))?;
+                let mut ls = load_scene(None, &[]).map_err(|e| bad_input(e.to_string()))?;
+                ls.scene.noise = desc;
+                crate::scene::validate(&ls)
+                    .map_err(|e| bad_input(format!("{}: scene.{e}", hj.display())))?;
+                (ls.scene.noise, format!("{} (scene.noise)", hj.display()))
+            }
+            None => {
+                let ls = load_scene(None, &[]).map_err(|e| bad_input(e.to_string()))?;
+                (ls.scene.noise, "the default scene's [noise]".to_string())
+            }
+        },
+    };
+    let cap_json = sidecar(capture);
+    if let Some(j) = &cap_json
+        && j.get("noise").and_then(|n| n.as_str()) == Some("none")
+    {
+        warnings.push(format!(
+            "warning: {}: the capture carries no sensor noise (its sidecar says \"noise\": \"none\"); the discrepancy principle assumes the sensor measured it and will over-smooth: render with --noise sensor, or pass --regularisation fixed",
+            capture.display()
+        ));
+    }
+    let white_peak = match white_peak {
+        Some(w) => (w, "--white-peak".to_string()),
+        None => match cap_json
+            .as_ref()
+            .and_then(|j| j.get("noise")?.get("white_peak")?.as_f64())
+        {
+            Some(w) => (
+                w,
+                format!(
+                    "{} (noise.white_peak)",
+                    capture.with_extension("json").display()
+                ),
+            ),
+            None => {
+                let zeros = vec![0.0f32; lm.h.rows];
+                let o = lm.offset.as_deref().unwrap_or(&zeros);
+                let w = crate::recon::discrepancy::white_peak(&lm.h, o);
+                if let Err(e) = crate::noise::SensorNoise::check_white_peak(&desc, w) {
+                    // A matrix that cannot set a sensor's exposure (no light, or a scale
+                    // float32 captures cannot hold) keeps the fixed parameters.
+                    return Ok(Err(format!(
+                        "{}: the all-white capture max(H·1 + offset) cannot set the sensor's exposure ({e}); fixed tau and iterations used (pass --white-peak, or --regularisation fixed)",
+                        matrix.display()
+                    )));
+                }
+                (w, "max(H·1 + offset), the all-white capture".to_string())
+            }
+        },
+    };
+    crate::noise::SensorNoise::check_white_peak(&desc, white_peak.0)
+        .map_err(|e| bad_input(format!("--white-peak ({}): {e}", white_peak.1)))?;
+    Ok(Ok(SensorModel {
+        noise: crate::noise::SensorNoise::new(&desc, white_peak.0),
+        desc,
+        desc_source,
+        white_peak,
+    }))
+}
+
+/// `--dark-frame`: the measured dark frame subtracted from `g` (in place of the offset, which
+/// `load_problem` subtracted); returns the dark frame as read.
+fn load_dark(
+    path: &std::path::Path,
+    lm: &stscam_tracer::matrix::LoadedMatrix,
+    g: &mut [f64],
+) -> Result<Vec<f32>, Failure> {
+    let dark = load_capture(path)?;
+    if dark.len() != g.len() {
+        return Err(bad_input(format!(
+            "{}: --dark-frame has {} values but the capture has {}; they must match",
+            path.display(),
+            dark.len(),
+            g.len()
+        )));
+    }
+    for (i, (x, d)) in g.iter_mut().zip(&dark).enumerate() {
+        // Undo the offset load_problem subtracted, then subtract the dark frame.
+        let o = lm.offset.as_ref().map_or(0.0, |o| f64::from(o[i]));
+        *x += o - d;
+    }
+    Ok(dark.iter().map(|&d| d as f32).collect())
+}
+
+/// The options that belong to one regularisation rule, checked against `rule`.
+fn check_rule(a: &ReconstructOptions, rule: Regularisation) -> Result<(), Failure> {
+    if a.dark_frame.is_some() && a.offset.is_some() {
+        return Err(bad_input(
+            "--dark-frame: is subtracted instead of the offset; give --dark-frame or --offset, not both",
+        ));
+    }
+    match rule {
+        Regularisation::Discrepancy if a.tau.is_some() => Err(bad_input(
+            "--tau: sets tau of --regularisation fixed; the default, the discrepancy principle, chooses tau from the sensor noise",
+        )),
+        Regularisation::Fixed => {
+            for (flag, given) in [
+                ("--sensor", a.sensor.is_some()),
+                ("--white-peak", a.white_peak.is_some()),
+            ] {
+                if given {
+                    return Err(bad_input(format!(
+                        "{flag}: sets the discrepancy principle's sensor model; --regularisation fixed does not use it"
+                    )));
+                }
+            }
+            Ok(())
+        }
+        Regularisation::Discrepancy => Ok(()),
+    }
+}
+
+/// A depth stack's methods take fixed parameters (the discrepancy principle is for one H).
+fn check_stack_rule(a: &ReconstructOptions) -> Result<(), Failure> {
+    if a.regularisation == Some(Regularisation::Discrepancy) {
+        return Err(bad_input(
+            "--regularisation discrepancy: is for one H; a depth stack's joint and depth methods take --tau and --mu (--regularisation fixed)",
+        ));
+    }
+    for (flag, given) in [
+        ("--sensor", a.sensor.is_some()),
+        ("--white-peak", a.white_peak.is_some()),
+        ("--dark-frame", a.dark_frame.is_some()),
+    ] {
+        if given {
+            return Err(bad_input(format!(
+                "{flag}: is for the discrepancy principle with one H, not a depth stack"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Checks `--tau`, `--mu`, `--gamma` and `--iters`.
 fn check_numbers(a: &ReconstructOptions) -> Result<(), Failure> {
-    let (tau, mu, gamma, iters) = (a.tau, &a.mu, a.gamma, a.iters);
+    let (tau, mu, gamma, iters) = (
+        a.tau.unwrap_or(crate::recon::admm::DEFAULT_TAU_REL),
+        &a.mu,
+        a.gamma,
+        a.iters,
+    );
     if !(tau.is_finite() && tau >= 0.0) {
         return Err(bad_input(format!(
             "--tau {tau}: must be a non-negative number"
@@ -319,15 +611,19 @@ fn write_recon(
     gamma: f64,
     json: &serde_json::Value,
 ) -> Result<(), Failure> {
+    // The PNG is a preview: each object pixel a k × k block, so a 64-pixel object is 512
+    // pixels wide (`png_scale` in recon.json); the EXR holds the object itself.
+    let k = preview_scale(w, h);
+    let (fu, wu, hu) = (upscale_planes(f, w, h, planes, k), w * k, h * k);
     let (exr, png) = if planes == 3 {
         (
             crate::output::encode_colour_object_exr(f, w, h).map_err(write_failure)?,
-            crate::output::encode_colour_object_png(f, w, h, gamma).map_err(write_failure)?,
+            crate::output::encode_colour_object_png(&fu, wu, hu, gamma).map_err(write_failure)?,
         )
     } else {
         (
             crate::output::encode_object_exr(f, w, h, &[]).map_err(write_failure)?,
-            crate::output::encode_object_png(f, w, h, gamma).map_err(write_failure)?,
+            crate::output::encode_object_png(&fu, wu, hu, gamma).map_err(write_failure)?,
         )
     };
     let jb = serde_json::to_vec_pretty(json).map_err(write_failure)?;
@@ -340,6 +636,30 @@ fn write_recon(
         ],
     )
     .map_err(write_failure)
+}
+
+/// The preview PNG's integer scale: the smallest k ≥ 1 with k·max(w, h) ≥ 512 (1 from 512
+/// pixels on).
+fn preview_scale(w: usize, h: usize) -> usize {
+    const PREVIEW_PX: usize = 512;
+    PREVIEW_PX.div_ceil(w.max(h).max(1)).max(1)
+}
+
+/// `planes` row-major w × h planes, each pixel repeated as a k × k block (nearest neighbour).
+fn upscale_planes(f: &[f64], w: usize, h: usize, planes: usize, k: usize) -> Vec<f64> {
+    if k == 1 {
+        return f.to_vec();
+    }
+    let mut out = Vec::with_capacity(f.len() * k * k);
+    for p in 0..planes {
+        for y in 0..h * k {
+            let row = &f[p * w * h + (y / k) * w..][..w];
+            for &v in row {
+                out.extend(std::iter::repeat_n(v, k));
+            }
+        }
+    }
+    out
 }
 
 /// The XYZ matrix of the colour display a colour H was made for: the default scene's LCD

@@ -52,6 +52,16 @@ pub struct RenderOptions {
     /// --spp of at least 16.
     #[arg(long)]
     pub adaptive: bool,
+    /// Sensor noise on the capture: `none` (the light the sensor receives, the Monte Carlo
+    /// estimate) or `sensor` (measured by the scene's `[noise]` model from the stream of
+    /// `--seed`; capture units with the mean dark offset removed, as datasets store captures).
+    #[arg(long, value_enum, default_value = "none")]
+    pub noise: crate::hadamard::CaptureNoise,
+    /// With `--noise sensor`: the exposure, the brightest value of the all-white capture
+    /// (capture units; default: from a 16-spp render of the scene with a white display, as
+    /// Python's `sensor_noise`).
+    #[arg(long, value_name = "X")]
+    pub white_peak: Option<f64>,
 }
 
 /// The camera side paid once per design.
@@ -108,9 +118,15 @@ fn cmd_render(
     (frontal_px, frontal_spp): (Option<&str>, Option<u32>),
     frontal_space: crate::world::colour::FrontalSpace,
     (table, adaptive): (&TableArgs, bool),
+    (noise, white_peak): (crate::hadamard::CaptureNoise, Option<f64>),
     con: &Console,
 ) -> Result<stscam_tracer::render::Capture, Failure> {
     let (spp, seed, threads) = run.checked()?;
+    if white_peak.is_some() && noise != crate::hadamard::CaptureNoise::Sensor {
+        return Err(bad_input(
+            "--white-peak: sets the exposure of --noise sensor; add --noise sensor".to_string(),
+        ));
+    }
     let frontal_size = frontal_px.map(parse_frontal_px).transpose()?;
     if frontal_spp == Some(0) {
         return Err(bad_input("--frontal-spp: must be at least 1".to_string()));
@@ -126,6 +142,10 @@ fn cmd_render(
     }
     let pool = thread_pool(threads)?;
     let (ls, sys) = pool.install(|| load(scene))?;
+    if let Some(w) = white_peak {
+        crate::noise::SensorNoise::check_white_peak(&sys.scene.noise, w)
+            .map_err(|e| bad_input(format!("--white-peak: {e}")))?;
+    }
     let bins = spectral.then(|| stscam_tracer::render::spectral_bins(&sys.scene.sampling));
     let settings = RenderSettings {
         spp,
@@ -142,11 +162,17 @@ fn cmd_render(
         .map_err(|e| bad_input(e.to_string()))?;
     check_frontal_paths(&sys, frontal_size, frontal_spp, frontal_spp_given).map_err(limit)?;
     let t0 = Instant::now();
-    let (cap, table_info) = match &table.camera_table {
+    let (mut cap, table_info) = match &table.camera_table {
         None => (pool.install(|| render(&sys, &settings)), None),
         Some(dir) => pool.install(|| render_tabled(&sys, &settings, table, dir, con))?,
     };
     let render_s = t0.elapsed().as_secs_f64();
+    let noise_info = match noise {
+        crate::hadamard::CaptureNoise::None => serde_json::Value::String("none".into()),
+        crate::hadamard::CaptureNoise::Sensor => {
+            pool.install(|| measure_render(&sys, &mut cap, seed, white_peak, con))?
+        }
+    };
     let t1 = Instant::now();
     let (fw, fh) = frontal_size.unwrap_or((cap.width, cap.height));
     check_frontal_space(&sys, frontal_space)?;
@@ -177,6 +203,7 @@ fn cmd_render(
         "wall_time_s": start.elapsed().as_secs_f64(),
         "paths_per_second": cap.stats.camera_paths as f64 / render_s,
         "stats": cap.stats,
+        "noise": noise_info,
     });
     let mut sidecar = sidecar;
     if let Some(info) = table_info {
@@ -383,8 +410,59 @@ pub fn run(o: &RenderOptions, con: &Console) -> Result<stscam_tracer::render::Ca
         (o.frontal_px.as_deref(), o.frontal_spp),
         o.frontal_space,
         (&o.table, o.adaptive),
+        (o.noise, o.white_peak),
         con,
     )
+}
+
+/// `render --noise sensor`: the capture `cap` measured by the scene's sensor model from the
+/// stream of `seed` (`noise::measure_capture`, as datasets and Python's `sensor_noise`), the
+/// exposure from `white_peak` or a white render; returns the sidecar's `noise` entry.
+fn measure_render(
+    sys: &System,
+    cap: &mut stscam_tracer::render::Capture,
+    seed: u64,
+    white_peak: Option<f64>,
+    con: &Console,
+) -> Result<serde_json::Value, Failure> {
+    let desc = &sys.scene.noise;
+    let (peak, source) = match white_peak {
+        Some(w) => (w, "--white-peak"),
+        None => {
+            con.err(format_args!(
+                "--noise sensor: the exposure from a {}-spp render of a white display",
+                crate::capture::WHITE_PEAK_SPP
+            ));
+            (
+                crate::capture::white_peak_of_render(sys),
+                "a 16-spp render (seed 1) of the scene with a white display",
+            )
+        }
+    };
+    crate::noise::SensorNoise::check_white_peak(desc, peak)
+        .map_err(|e| bad_input(format!("--white-peak: {e}")))?;
+    let noise = crate::noise::SensorNoise::new(desc, peak);
+    let clean: Vec<f64> = cap
+        .channels
+        .iter()
+        .flatten()
+        .map(|&v| f64::from(v))
+        .collect();
+    let mut noisy = crate::noise::measure_capture(&noise, &clean, seed).into_iter();
+    for c in cap.channels.iter_mut() {
+        for v in c.iter_mut() {
+            *v = noisy.next().unwrap_or(0.0);
+        }
+    }
+    Ok(serde_json::json!({
+        "model": "sensor",
+        "sensor": desc,
+        "white_peak": peak,
+        "white_peak_source": source,
+        "seed": seed,
+        "streams": "value i draws from NoiseRng([seed, 0x4E4F4953, i]) (noise::measure_capture)",
+        "units": "capture units with the mean dark offset removed, as datasets store captures",
+    }))
 }
 
 /// A render with the camera side from the design's table in `dir` (read, or drawn and

@@ -13,29 +13,42 @@
 //! and the temporary file is renamed over the target.
 //!
 //! A set of files ([`write_all_atomic`]: capture, frontal, depth, mask and sidecars; H and its
-//! siblings; the members of a depth stack) goes through a per-run staging folder
-//! `.stscam-stage-<pid>-<n>` inside the output folder, created exclusively with `mkdir` (which
-//! never follows a link). Every file is written and fsynced there first; then, under the
-//! folder's commit lock `.stscam-commit` (created with `O_EXCL`; a second writer waits for it,
-//! a lock whose process is gone is taken over), a marker `.commit` is written into the
-//! staging folder and the files are renamed into place one by one, after which the staging
-//! folder and the lock are removed. So two runs writing into one folder commit one after the
-//! other: the folder ends with the complete set of the run that committed last, never a mix.
-//! A failure before the marker (full disk, read-only folder) removes the staging folder and
-//! leaves the output folder as it was (exit 1 in the CLI).
+//! siblings; the members of a depth stack) is written and fsynced into unnamed files in the
+//! output folder first (or, without them, into a per-run staging folder
+//! `.stscam-stage-<pid>-<n>` created exclusively with `mkdir`, which never follows a link).
+//! Then, under the folder's commit lock `.stscam-commit` (created with `O_EXCL`; a second
+//! writer waits for it, a lock whose process is gone is taken over), the set is committed:
 //!
-//! With unnamed files, the staging folder is created, and the files linked into it, only under
-//! the commit lock, just before the marker: a run killed (SIGKILL) at any point before its
-//! commit leaves the folder exactly as it was, with no temporary name. Without them, such a
-//! run leaves the previous set untouched and only its hidden staging folder. A run killed
-//! during its commit (microseconds: links, the marker and renames) leaves the marker. Whoever next
-//! writes a set into the folder first repairs it under the lock ([`recover_folder`]): a
-//! staging folder of a dead process with a marker is rolled forward (its remaining files
-//! renamed into place, completing that run's set), one without a marker is deleted.
+//! - **By one exchange** (Linux, the usual case): a sibling folder
+//!   `.<NAME>.stscam-swap-<pid>-<n>` beside the output folder gets a hard link of every other
+//!   file of the folder, a copy of every symbolic link and the set's files, is fsynced, and
+//!   one `renameat2(RENAME_EXCHANGE)` swaps it with the output folder; the old folder (now
+//!   under the sibling's name, with the lock inside) is removed. A reader who opens a file of
+//!   the folder at any instant, a SIGKILL at any instant included, sees the old set or the new
+//!   one, never a mix, with no repair. A killed run leaves at most a hidden sibling folder,
+//!   which the next writer of the folder (or [`recover_folder`]) deletes. The folder's
+//!   identity changes (its inode; a shell whose working directory it is keeps the old one);
+//!   its permission bits are kept, extended attributes and ACLs are not.
+//! - **File by file**, where the exchange cannot keep the folder's other entries whole (a
+//!   sub-folder or a special file in it, the output folder itself a link, a parent folder that
+//!   cannot be written, no hard links or no `RENAME_EXCHANGE` on the file system): the files
+//!   are linked into a staging folder, a marker `.commit` is written into it and the files are
+//!   renamed into place one by one, after which the staging folder and the lock are removed.
+//!   A run killed during those renames (microseconds) leaves the marker; whoever next writes a
+//!   set into the folder first repairs it under the lock: a staging folder of a dead process
+//!   with a marker is rolled forward (its remaining files renamed into place, completing that
+//!   run's set), one without is deleted.
+//!
+//! Either way two runs writing into one folder commit one after the other: the folder ends
+//! with the complete set of the run that committed last, never a mix. A failure before the
+//! commit (full disk, read-only folder) leaves the output folder as it was (exit 1 in the CLI).
+//! With unnamed files a run killed at any point before its commit leaves the folder exactly
+//! as it was, with no temporary name.
 //!
 //! Testing hook: `STSCAM_TEST_COMMIT_DELAY_MS=N` makes a set's writer sleep N ms once its data
-//! are written (before it takes the lock) and before each rename, to widen the windows the
-//! concurrency and SIGKILL tests aim at. It changes no output.
+//! are written (before it takes the lock), before each link into the exchange's sibling and
+//! before the exchange (or before each rename of a file-by-file commit), to widen the windows
+//! the concurrency and SIGKILL tests aim at. It changes no output.
 //!
 //! Assumptions: one local file system (rename within a folder is atomic); Linux-style `/proc`
 //! to tell a dead lock owner (elsewhere a stale lock must be removed by hand, as the error says).
@@ -300,6 +313,18 @@ pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoErr
         drop(lock);
         return fail(staged_early.as_deref(), e);
     }
+    match swap_in(dir, files, &unnamed, staged_early.as_deref(), delay) {
+        Ok(true) => {
+            // The old folder, the lock and any early staging folder in it, are gone.
+            lock.disarm();
+            return Ok(());
+        }
+        Ok(false) => {}
+        Err(e) => {
+            drop(lock);
+            return fail(staged_early.as_deref(), e);
+        }
+    }
     let stage = match staged_early {
         Some(stage) => stage,
         None => match stage_unnamed(dir, files, &unnamed) {
@@ -321,6 +346,185 @@ pub fn write_all_atomic(dir: &Path, files: &[(&str, &[u8])]) -> Result<(), IoErr
     let result = roll_forward(&stage, dir, delay);
     drop(lock);
     result
+}
+
+/// Prefix (after `.<folder name>`) of the sibling folder an exchange commit builds.
+const SWAP_INFIX: &str = ".stscam-swap-";
+
+/// The exchange commit (see the module comment), under the commit lock: a sibling folder
+/// `.<NAME>.stscam-swap-<pid>-<n>` beside `dir` gets a hard link of every other file of
+/// `dir`, a copy of every symbolic link, and the set's files (linked from their unnamed files
+/// or from the early staging folder `staged`); then one `renameat2(RENAME_EXCHANGE)` swaps it
+/// with `dir`, and the old folder (now under the sibling's name) is removed. `Ok(false)`, with
+/// nothing changed, where the exchange cannot keep the folder's other entries whole (a
+/// sub-folder or a special file in it, `dir` itself a link, a parent that cannot be written,
+/// no hard links or no `RENAME_EXCHANGE` on this file system): the caller then renames the
+/// files one by one.
+#[cfg(target_os = "linux")]
+fn swap_in(
+    dir: &Path,
+    files: &[(&str, &[u8])],
+    unnamed: &[File],
+    staged: Option<&Path>,
+    delay: Option<Duration>,
+) -> Result<bool, IoError> {
+    use std::os::unix::fs::PermissionsExt;
+    let Ok(meta) = fs::symlink_metadata(dir) else {
+        return Ok(false);
+    };
+    if !meta.is_dir() || (staged.is_none() && unnamed.len() != files.len()) {
+        return Ok(false);
+    }
+    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+        return Ok(false);
+    };
+    let parent = if parent.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        parent
+    };
+    let is_set = |n: &std::ffi::OsStr| files.iter().any(|(f, _)| std::ffi::OsStr::new(f) == n);
+    // The folder's other entries: plain files are linked, links copied; anything else keeps
+    // the one-by-one commit.
+    let mut keep: Vec<(std::ffi::OsString, bool)> = Vec::new();
+    for entry in fs::read_dir(dir).map_err(|e| IoError::io(dir, e))? {
+        let entry = entry.map_err(|e| IoError::io(dir, e))?;
+        let n = entry.file_name();
+        let n_str = n.to_string_lossy();
+        if n == COMMIT_LOCK || n_str.starts_with(STAGE_PREFIX) || is_set(&n) {
+            continue;
+        }
+        let t = entry
+            .file_type()
+            .map_err(|e| IoError::io(&entry.path(), e))?;
+        if t.is_file() {
+            keep.push((n, false));
+        } else if t.is_symlink() {
+            keep.push((n, true));
+        } else {
+            return Ok(false);
+        }
+    }
+    let mut sib_name = std::ffi::OsString::from(".");
+    sib_name.push(name);
+    sib_name.push(format!(
+        "{SWAP_INFIX}{}-{}",
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed)
+    ));
+    let sib = parent.join(&sib_name);
+    if fs::create_dir(&sib).is_err() {
+        return Ok(false);
+    }
+    let give_up = |sib: &Path| {
+        let _ = remove_swapped(sib);
+        Ok(false)
+    };
+    if fs::set_permissions(&sib, fs::Permissions::from_mode(meta.permissions().mode())).is_err() {
+        return give_up(&sib);
+    }
+    for (n, link) in &keep {
+        if let Some(d) = delay {
+            std::thread::sleep(d);
+        }
+        let (from, to) = (dir.join(n), sib.join(n));
+        let ok = if *link {
+            fs::read_link(&from).and_then(|t| std::os::unix::fs::symlink(t, &to))
+        } else {
+            fs::hard_link(&from, &to)
+        };
+        if ok.is_err() {
+            return give_up(&sib);
+        }
+    }
+    for (i, (n, _)) in files.iter().enumerate() {
+        if let Some(d) = delay {
+            std::thread::sleep(d);
+        }
+        let to = sib.join(n);
+        let r = match staged {
+            Some(stage) => fs::hard_link(stage.join(n), &to),
+            None => link_anonymous(&unnamed[i], &to),
+        };
+        if let Err(e) = r {
+            let _ = remove_swapped(&sib);
+            return Err(IoError::io(&dir.join(n), e));
+        }
+    }
+    if let Err(e) = File::open(&sib).and_then(|d| d.sync_all()) {
+        let _ = remove_swapped(&sib);
+        return Err(IoError::io(&sib, e));
+    }
+    if let Some(d) = delay {
+        std::thread::sleep(d);
+    }
+    use rustix::fs::{CWD, RenameFlags, renameat_with};
+    if renameat_with(CWD, &sib, CWD, dir, RenameFlags::EXCHANGE).is_err() {
+        return give_up(&sib);
+    }
+    if let Ok(d) = File::open(parent) {
+        let _ = d.sync_all();
+    }
+    // The old folder now has the sibling's name: its files, links, lock and staging folders go.
+    let _ = remove_swapped(&sib);
+    Ok(true)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn swap_in(
+    _dir: &Path,
+    _files: &[(&str, &[u8])],
+    _unnamed: &[File],
+    _staged: Option<&Path>,
+    _delay: Option<Duration>,
+) -> Result<bool, IoError> {
+    Ok(false)
+}
+
+/// Removes a folder an exchange left (or an unfinished sibling): its files and links, the
+/// staging folders in it, then the folder; never follows a link.
+fn remove_swapped(dir: &Path) -> std::io::Result<()> {
+    for entry in fs::read_dir(dir)?.flatten() {
+        let p = entry.path();
+        if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            let _ = remove_tree(&p);
+        } else {
+            let _ = fs::remove_file(&p);
+        }
+    }
+    fs::remove_dir(dir)
+}
+
+/// Removes the exchange siblings of `dir` left by dead runs (killed before or just after
+/// their exchange: an unfinished new folder or an old one; neither is ever visible as `dir`).
+fn remove_dead_swaps(dir: &Path) {
+    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+        return;
+    };
+    let parent = if parent.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        parent
+    };
+    let mut prefix = String::from(".");
+    prefix.push_str(&name.to_string_lossy());
+    prefix.push_str(SWAP_INFIX);
+    let Ok(entries) = fs::read_dir(parent) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let n = entry.file_name();
+        let Some(rest) = n.to_str().and_then(|n| n.strip_prefix(&prefix)) else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+        if pid.is_none_or(|p| p == std::process::id() || process_alive(p)) {
+            continue;
+        }
+        if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            let _ = remove_swapped(&entry.path());
+        }
+    }
 }
 
 /// Under the commit lock: a staging folder holding `files`' names linked to their unnamed
@@ -391,6 +595,7 @@ pub fn recover_folder(dir: &Path) -> Result<(usize, usize), IoError> {
 }
 
 fn recover_locked(dir: &Path) -> Result<(usize, usize), IoError> {
+    remove_dead_swaps(dir);
     let (mut done, mut removed) = (0, 0);
     let entries = fs::read_dir(dir).map_err(|e| IoError::io(dir, e))?;
     for entry in entries.flatten() {
@@ -431,9 +636,11 @@ fn process_alive(pid: u32) -> bool {
     !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
 }
 
-/// The folder's commit lock: `.stscam-commit` holding the owner's pid, removed on drop.
+/// The folder's commit lock: `.stscam-commit` holding the owner's pid, removed on drop
+/// (unless disarmed: after an exchange the lock file sits in the old folder, removed with it,
+/// and the name in the new folder may already be another run's lock).
 struct CommitLock {
-    file: PathBuf,
+    file: Option<PathBuf>,
 }
 
 impl CommitLock {
@@ -443,7 +650,9 @@ impl CommitLock {
         loop {
             match OpenOptions::new().write(true).create_new(true).open(&file) {
                 Ok(mut f) => {
-                    let lock = CommitLock { file: file.clone() };
+                    let lock = CommitLock {
+                        file: Some(file.clone()),
+                    };
                     f.write_all(format!("{}\n", std::process::id()).as_bytes())
                         .map_err(|e| IoError::io(&file, e))?;
                     return Ok(lock);
@@ -485,9 +694,18 @@ impl CommitLock {
     }
 }
 
+impl CommitLock {
+    /// Forgets the lock without removing anything (see the type's comment).
+    fn disarm(mut self) {
+        self.file = None;
+    }
+}
+
 impl Drop for CommitLock {
     fn drop(&mut self) {
-        let _ = fs::remove_file(&self.file);
+        if let Some(f) = &self.file {
+            let _ = fs::remove_file(f);
+        }
     }
 }
 

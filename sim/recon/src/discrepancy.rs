@@ -123,6 +123,20 @@ impl NoiseLevel {
     }
 }
 
+/// The brightest value of the all-white capture H·1 + `offset` (every object pixel of every
+/// primary white): what fixes the exposure of the sensor model (docs/physics.md §7.3).
+pub fn white_peak(h: &crate::sparse::CsrMatrix, offset: &[f32]) -> f64 {
+    white_peak_of_sums(&h.mul_vec(&vec![1.0; h.cols]), offset)
+}
+
+/// [`white_peak`] from H's row sums H·1.
+pub fn white_peak_of_sums(h_ones: &[f64], offset: &[f32]) -> f64 {
+    h_ones
+        .iter()
+        .zip(offset)
+        .fold(0.0f64, |a, (&v, &o)| a.max(v + f64::from(o)))
+}
+
 /// Random probes of the trace estimate in [`NoiseLevel::of_capture`].
 pub const TRACE_PROBES: usize = 2;
 
@@ -205,7 +219,7 @@ pub fn admm_tv_discrepancy(
     level: &NoiseLevel,
     set: &AdmmSettings,
 ) -> TauChoice {
-    let solve = |tau_rel: f64| {
+    let (result, choice) = choose_tau(level.budget, |tau_rel| {
         let r = admm_tv_from(
             p,
             htg,
@@ -214,46 +228,174 @@ pub fn admm_tv_discrepancy(
         );
         let res = residual_norm2(p, htg, level.g_norm2, &r.f);
         (r, res)
+    });
+    TauChoice {
+        result,
+        tau_rel: choice.tau_rel,
+        residual: choice.residual,
+        reached: choice.reached,
+        solves: choice.solves,
+    }
+}
+
+/// Where the τ search of [`choose_tau`] ended.
+#[derive(Clone, Copy, Debug)]
+pub struct TauSearch {
+    /// The chosen τ_rel.
+    pub tau_rel: f64,
+    /// Its residual ‖H f − g‖².
+    pub residual: f64,
+    /// False if the budget lies outside the residuals at the bracket's ends.
+    pub reached: bool,
+    /// Solves done.
+    pub solves: usize,
+}
+
+/// Morozov's rule for any solver whose residual grows with τ: `solve(τ_rel)` returns a
+/// reconstruction and its residual ‖H f − g‖²; the largest τ_rel (within the bisection's
+/// resolution, in log τ_rel on [`TAU_REL_MIN`, `TAU_REL_MAX`]) whose residual stays within
+/// `budget` is chosen. A budget below the residual at [`TAU_REL_MIN`] or above the one at
+/// [`TAU_REL_MAX`] returns that end, `reached = false`.
+pub fn choose_tau<R>(budget: f64, mut solve: impl FnMut(f64) -> (R, f64)) -> (R, TauSearch) {
+    let end = |r: R, tau_rel: f64, residual: f64, solves: usize| {
+        (
+            r,
+            TauSearch {
+                tau_rel,
+                residual,
+                reached: false,
+                solves,
+            },
+        )
     };
     let (mut lo, mut hi) = (TAU_REL_MIN.ln(), TAU_REL_MAX.ln());
     let (r_lo, res_lo) = solve(TAU_REL_MIN);
-    if res_lo >= level.budget {
-        return TauChoice {
-            result: r_lo,
-            tau_rel: TAU_REL_MIN,
-            residual: res_lo,
-            reached: false,
-            solves: 1,
-        };
+    if res_lo >= budget {
+        return end(r_lo, TAU_REL_MIN, res_lo, 1);
     }
     let (r_hi, res_hi) = solve(TAU_REL_MAX);
-    if res_hi <= level.budget {
-        return TauChoice {
-            result: r_hi,
-            tau_rel: TAU_REL_MAX,
-            residual: res_hi,
-            reached: false,
-            solves: 2,
-        };
+    if res_hi <= budget {
+        return end(r_hi, TAU_REL_MAX, res_hi, 2);
     }
     // Keep the end whose residual is below the budget (the less regularised side).
     let mut best = (r_lo, res_lo, TAU_REL_MIN);
     for _ in 0..TAU_BISECTIONS {
         let mid = 0.5 * (lo + hi);
         let (r, res) = solve(mid.exp());
-        if res <= level.budget {
+        if res <= budget {
             lo = mid;
             best = (r, res, mid.exp());
         } else {
             hi = mid;
         }
     }
-    TauChoice {
-        result: best.0,
-        tau_rel: best.2,
-        residual: best.1,
-        reached: true,
-        solves: 2 + TAU_BISECTIONS,
+    (
+        best.0,
+        TauSearch {
+            tau_rel: best.2,
+            residual: best.1,
+            reached: true,
+            solves: 2 + TAU_BISECTIONS,
+        },
+    )
+}
+
+/// CGM's iteration cap when the discrepancy principle stops it (the demo's table and every
+/// entry point's default; the principle stops it far earlier at the paper's noise).
+pub const CG_MAX_ITERS: usize = 100;
+
+/// The sensor a capture was measured with, as the discrepancy principle needs it.
+#[derive(Clone, Copy, Debug)]
+pub struct Sensor<'a> {
+    /// The sensor model with its exposure.
+    pub noise: &'a SensorNoise,
+    /// The black level each capture value sits at (capture units, the sensor's dark offset
+    /// removed): the matrix's offset, or a measured dark frame's.
+    pub offset: &'a [f32],
+    /// Whether a measured (noisy) dark frame was subtracted from the capture (its noise then
+    /// counts too).
+    pub dark_subtracted: bool,
+}
+
+/// Reconstructs the object from `g` (black level already subtracted) for a set-up `problem`
+/// with the regularisation chosen by the discrepancy principle on `sensor`: CGM stopped at
+/// the budget (at most `opts.iters`, default [`CG_MAX_ITERS`]), ADMM-TV with τ_rel chosen by
+/// [`choose_tau`] (`opts.iters` iterations per solve, default 50; `opts.tau_rel` ignored; a
+/// colour object of `planes` planes by the joint solver with TV per plane). What the demo's
+/// table, `stscam reconstruct` and the Python module's `reconstruct` and `Operator` call.
+pub fn solve_discrepancy(
+    p: &Problem,
+    planes: usize,
+    g: &[f64],
+    opts: &super::SolveOptions,
+    sensor: &Sensor,
+) -> super::Solution {
+    let level = NoiseLevel::of_capture(p, g, sensor.offset, sensor.dark_subtracted, sensor.noise);
+    let htg = p.back_project(g);
+    let rule = serde_json::json!({
+        "name": "discrepancy principle",
+        "budget": level.budget,
+        "g_norm2": level.g_norm2,
+        "dark_subtracted": sensor.dark_subtracted,
+        "note": "the residual |Hf - g|^2 meets the sensor model's noise in the range of H (recon::discrepancy)",
+    });
+    match opts.method {
+        super::Method::Cg => {
+            let cap = opts.iters.unwrap_or(CG_MAX_ITERS);
+            let r = cg_discrepancy(p, &htg, &level, cap);
+            let residual = residual_norm2(p, &htg, level.g_norm2, &r.f);
+            let info = serde_json::json!({
+                "method": "cg", "rule": rule, "iterations": r.iterations, "max_iters": cap,
+                "reached": r.iterations < cap, "residual_norm2": residual,
+                "relative_residual": r.relative_residual,
+            });
+            super::Solution { f: r.f, info }
+        }
+        super::Method::AdmmTv if planes <= 1 => {
+            let set = AdmmSettings {
+                iters: opts.iters.unwrap_or(50),
+                tv: opts.tv,
+                ..Default::default()
+            };
+            let c = admm_tv_discrepancy(p, &htg, &level, &set);
+            let info = serde_json::json!({
+                "method": "admm-tv", "rule": rule, "iterations": set.iters, "tau_rel": c.tau_rel,
+                "tau": c.result.tau, "rho": c.result.rho, "tv": set.tv, "inner_cg_iterations": set.inner_iters,
+                "reached": c.reached, "solves": c.solves, "residual_norm2": c.residual,
+                "tau_rel_bracket": [TAU_REL_MIN, TAU_REL_MAX],
+            });
+            super::Solution {
+                f: c.result.f,
+                info,
+            }
+        }
+        super::Method::AdmmTv => {
+            let set = super::joint::JointSettings {
+                iters: opts.iters.unwrap_or(50),
+                mu_rel: 0.0,
+                tv: opts.tv,
+                ..Default::default()
+            };
+            let (r, c) = choose_tau(level.budget, |tau_rel| {
+                let r = super::joint::joint_admm_tv(
+                    p,
+                    planes,
+                    &htg,
+                    &super::joint::JointSettings { tau_rel, ..set },
+                );
+                let f = r.planes.concat();
+                let res = residual_norm2(p, &htg, level.g_norm2, &f);
+                ((r, f), res)
+            });
+            let info = serde_json::json!({
+                "method": "admm-tv", "rule": rule, "planes": planes, "iterations": set.iters,
+                "tau_rel": c.tau_rel, "tau": r.0.tau, "rho": r.0.rho, "tv": set.tv,
+                "inner_cg_iterations": set.inner_iters, "reached": c.reached, "solves": c.solves,
+                "residual_norm2": c.residual, "tau_rel_bracket": [TAU_REL_MIN, TAU_REL_MAX],
+                "prior": "TV per plane, non-negative (joint ADMM, no cross-plane term)",
+            });
+            super::Solution { f: r.1, info }
+        }
     }
 }
 

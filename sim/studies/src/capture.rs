@@ -73,8 +73,23 @@ pub fn exposure_and_dark(sys: &System, m: &SystemMatrix, seed: u64) -> (SensorNo
 /// The brightest value of the all-white capture H·1 + o of `m` (every object pixel of every
 /// primary white): what fixes the exposure.
 pub fn white_peak_of(m: &SystemMatrix) -> f64 {
-    let white = m.capture_of(&vec![1.0; m.h.cols]);
-    white.iter().flatten().fold(0.0f64, |a, &v| a.max(v))
+    crate::recon::discrepancy::white_peak(&m.h, &m.offset)
+}
+
+/// Samples per pixel of [`white_peak_of_render`].
+pub const WHITE_PEAK_SPP: u32 = 16;
+
+/// The exposure of a rendered capture's sensor noise when no matrix is at hand (`render
+/// --noise sensor`, Python's `sensor_noise`): the brightest value of a [`WHITE_PEAK_SPP`]-spp
+/// render (lattice, seed 1) of `sys` with every display pixel white.
+pub fn white_peak_of_render(sys: &System) -> f64 {
+    let mut s = sys.clone();
+    s.display.set_intensity(&vec![1.0; s.display.object_len()]);
+    let cap = render(&s, &RenderSettings::lattice(WHITE_PEAK_SPP, 1, false));
+    cap.channels
+        .iter()
+        .flatten()
+        .fold(0.0f64, |a, &v| a.max(f64::from(v)))
 }
 
 /// A noisy dark frame (the capture of an all-black display, `m`'s offset) measured by `noise`

@@ -9,7 +9,9 @@
 //!    the noise model, a noisy dark frame subtracted (as `demo`);
 //! 3. the colour Hadamard calibration (`hadamard::calibrate_colour`: N patterns per primary,
 //!    dark frame subtracted), giving H_est, with the per-primary noise prediction;
-//! 4. CGM and colour ADMM-TV (TV per plane, `recon::solve_planes`) with H and H_est; colour
+//! 4. CGM and colour ADMM-TV (TV per plane) with H and H_est, both regularised by the
+//!    discrepancy principle on the sensor model (`recon::discrepancy::solve_discrepancy`, as
+//!    the mono demo's table); colour
 //!    PSNR, CIEDE2000 (mean and 95th percentile over pixels, `recon::colour`) and the share of
 //!    the reconstruction's energy in each primary;
 //! 5. the colour bands per field row (`colour::field_bands`: which field rows have no band of a
@@ -19,11 +21,15 @@
 
 use serde::Serialize;
 
-use crate::capture::{DemoSettings, exposure_and_dark, measured_capture, planes_of_spec};
+use crate::capture::{
+    DemoSettings, black_level_of, exposure_and_dark, measured_capture, planes_of_spec,
+};
 use crate::colour::{FieldBands, field_bands, primaries_of};
+use crate::demo::DEMO_CG_MAX_ITERS;
 use crate::hadamard::{CalibrationReport, CalibrationSettings, calibrate_colour};
 use crate::recon::colour::{colour_errors, primaries_to_xyz};
-use crate::recon::{Method, Problem, SolveOptions, solve_planes};
+use crate::recon::discrepancy::{Sensor, solve_discrepancy};
+use crate::recon::{Method, Problem, SolveOptions};
 use crate::render::RenderSettings;
 use crate::system::System;
 
@@ -269,6 +275,7 @@ fn colour_design(
     );
     let matrix_s = t0.elapsed().as_secs_f64();
     let (noise, dark) = exposure_and_dark(sys, &m, set.seed);
+    let black = black_level_of(&dark, &noise);
     let (h_est, calibration) = calibrate_colour(
         &m.h,
         &m.offset,
@@ -293,10 +300,16 @@ fn colour_design(
         let spec = sized(spec, ow);
         let (_, _, truth) = planes_of_spec(&spec, gamma, 3)?;
         let (noisy, g) = measured_capture(sys, &truth, set, &noise, &dark, ti as u64);
+        let sensor = Sensor {
+            noise: &noise,
+            offset: &black,
+            dark_subtracted: true,
+        };
         fig.push(colour_target(
             name,
             short,
             (tname, &spec),
+            &sensor,
             truth,
             noisy,
             &g,
@@ -345,6 +358,7 @@ fn colour_target(
     design: &str,
     short: &str,
     (tname, spec): (&str, &str),
+    sensor: &Sensor,
     truth: Vec<f64>,
     noisy: Vec<f64>,
     g: &[f64],
@@ -356,27 +370,19 @@ fn colour_target(
     let mut recs = Vec::new();
     let mut caps = Vec::new();
     for (mname, p) in [("true", p_true), ("calibrated", p_est)] {
-        for (method, opts) in [
-            (
-                "cgm",
-                SolveOptions {
-                    method: Method::Cg,
-                    iters: Some(set.cg.iters),
-                    tau_rel: set.admm.tau_rel,
-                    tv: set.admm.tv,
-                },
-            ),
-            (
-                "admm-tv",
-                SolveOptions {
-                    method: Method::AdmmTv,
-                    iters: Some(set.admm.iters),
-                    tau_rel: set.admm.tau_rel,
-                    tv: set.admm.tv,
-                },
-            ),
-        ] {
-            let f = solve_planes(p, 3, g, &opts).f;
+        for (method, m) in [("cgm", Method::Cg), ("admm-tv", Method::AdmmTv)] {
+            // The discrepancy principle on the sensor model, as the mono demo's table.
+            let opts = SolveOptions {
+                method: m,
+                iters: Some(if m == Method::Cg {
+                    DEMO_CG_MAX_ITERS
+                } else {
+                    set.admm.iters
+                }),
+                tau_rel: set.admm.tau_rel,
+                tv: set.admm.tv,
+            };
+            let f = solve_discrepancy(p, 3, g, &opts, sensor).f;
             let e = colour_errors(&f, &truth, xyz);
             caps.push(format!("{:.1} DB {:.1}", e.psnr_db, e.ciede2000_mean));
             rows.push(ColourRow {
@@ -615,7 +621,7 @@ mod tests {
             tau_rel: 0.0,
             tv: crate::recon::admm::TvKind::Iso,
         };
-        shares(&solve_planes(&p, 3, &g, &opts).f)
+        shares(&crate::recon::solve_planes(&p, 3, &g, &opts).f)
     }
 
     #[test]

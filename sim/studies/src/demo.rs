@@ -36,8 +36,6 @@ use crate::hadamard::{CalibrationReport, CalibrationSettings, FrameSource, calib
 use crate::matrix::{SystemMatrix, compute_matrix_stack};
 use crate::noise::SensorNoise;
 use crate::recon::Problem;
-use crate::recon::admm::admm_tv;
-use crate::recon::cg::cg_normal;
 use crate::recon::discrepancy::{NoiseLevel, admm_tv_discrepancy, cg_discrepancy};
 use crate::recon::metrics::{psnr, ssim};
 use crate::render::RenderSettings;
@@ -81,7 +79,7 @@ pub struct DemoRow {
 }
 
 /// CGM's iteration cap in the demo's table (the discrepancy principle stops it earlier).
-pub const DEMO_CG_MAX_ITERS: usize = 100;
+pub const DEMO_CG_MAX_ITERS: usize = crate::recon::discrepancy::CG_MAX_ITERS;
 
 /// One target of the demo's several-depths part.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -436,11 +434,17 @@ impl DemoRun<'_> {
             &[near],
         )
         .swap_remove(0);
+        // Measured frames with the sensor's mean dark offset removed (the black level left is
+        // the optics' offset of the object's depth, which each depth's H brings along).
+        let dark_units = self.noise.dark_offset_units();
         let frames: Vec<Vec<f64>> = shots
             .iter()
             .enumerate()
             .map(|(ti, shot)| {
                 noisy_capture_of(&near_m, &shot.truth, &self.noise, set.seed, 16 + ti as u64)
+                    .into_iter()
+                    .map(|v| v - dark_units)
+                    .collect()
             })
             .collect();
         let blocks: Vec<&crate::sparse::CsrMatrix> = self.stack.iter().map(|m| &m.h).collect();
@@ -470,10 +474,12 @@ impl DemoRun<'_> {
                     .map(|(a, &o)| a - f64::from(o))
                     .collect();
                 let htg = p.back_project(&g);
-                for (j, f) in [cg_normal(p, &htg, &set.cg).f, admm_tv(p, &htg, &set.admm).f]
-                    .into_iter()
-                    .enumerate()
-                {
+                // The discrepancy principle on the sensor model, as the table.
+                let level =
+                    NoiseLevel::of_capture(p, &g, &self.stack[d].offset, false, &self.noise);
+                let cg = cg_discrepancy(p, &htg, &level, DEMO_CG_MAX_ITERS).f;
+                let admm = admm_tv_discrepancy(p, &htg, &level, &set.admm).result.f;
+                for (j, f) in [cg, admm].into_iter().enumerate() {
                     scores[k][j] = (psnr(&f, &shot.truth), ssim(&f, &shot.truth, ow, oh));
                     if j == 1 {
                         per.push(f);
@@ -601,8 +607,8 @@ impl DemoRun<'_> {
             "targets": DEMO_TARGETS.iter().map(|t| format!("{}@{ow}", t.2)).collect::<Vec<_>>(),
             "noise": sys.scene.noise,
             "exposure_electrons_per_unit": self.noise.electrons_per_unit,
-            "cgm": {"table": {"stopping": "discrepancy principle in the range of H (recon::discrepancy)", "max_iters": DEMO_CG_MAX_ITERS}, "several_depths": {"iters": set.cg.iters, "tol": set.cg.tol}},
-            "admm_tv": {"iters": set.admm.iters, "table": {"tau": "discrepancy principle in the range of H (recon::discrepancy), bisection in log tau_rel", "tau_rel_bracket": [crate::recon::discrepancy::TAU_REL_MIN, crate::recon::discrepancy::TAU_REL_MAX]}, "several_depths": {"tau_rel": set.admm.tau_rel}, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
+            "cgm": {"table": {"stopping": "discrepancy principle in the range of H (recon::discrepancy)", "max_iters": DEMO_CG_MAX_ITERS}, "several_depths": {"stopping": "discrepancy principle in the range of H (recon::discrepancy), the black level the depth's offset", "max_iters": DEMO_CG_MAX_ITERS}},
+            "admm_tv": {"iters": set.admm.iters, "table": {"tau": "discrepancy principle in the range of H (recon::discrepancy), bisection in log tau_rel", "tau_rel_bracket": [crate::recon::discrepancy::TAU_REL_MIN, crate::recon::discrepancy::TAU_REL_MAX]}, "several_depths": {"tau": "discrepancy principle, as the table"}, "rho_rel": set.admm.rho_rel, "tv": set.admm.tv, "inner_iters": set.admm.inner_iters},
             "noise_conditions": noise_conditions(&sys.scene.noise, &self.noise),
             "metrics": "linear object intensity in [0,1] (display gamma removed), reconstruction clipped to [0,1], not rescaled; PSNR peak 1; SSIM of Wang et al. 2004 (Gaussian sigma 1.5, 11x11, K1 0.01, K2 0.03), mean over the pixels where the window fits",
             "matrix_nnz": m.h.nnz(),
@@ -610,12 +616,12 @@ impl DemoRun<'_> {
             "gram_layout": {"true": p_true.gram_layout(), "calibrated": p_est.gram_layout()},
             "timings_s": null,
             "calibration": cal.report,
-            "several_depths": {"grid_mm": self.grid, "nominal_mm": self.d0, "object_mm": depth.near, "capture_seed": set.seed.wrapping_add(1), "noise_streams": "16 + target index", "criterion": "smallest relative residual after a short CGM per depth (recon::depth)", "cg_iterations": crate::recon::depth::DEFAULT_DEPTH_CG_ITERS, "object_coverage_at_object_mm": coverage},
+            "several_depths": {"grid_mm": self.grid, "nominal_mm": self.d0, "object_mm": depth.near, "capture_seed": set.seed.wrapping_add(1), "noise_streams": "16 + target index", "black_level": "the sensor's mean dark offset and the depth's offset subtracted", "criterion": "smallest relative residual after a short CGM per depth (recon::depth)", "cg_iterations": crate::recon::depth::DEFAULT_DEPTH_CG_ITERS, "object_coverage_at_object_mm": coverage},
         })
     }
 
-    /// The data files: the calibration report, H and H_est with their sidecars, the dark
-    /// frame and the captures (float32 .npy).
+    /// The data files: the calibration report, H (with its offset) and H_est with their
+    /// sidecars (the scene included), the dark frame and the captures (float32 .npy).
     fn data_files(
         &self,
         files: &mut Vec<(String, Vec<u8>)>,
@@ -633,6 +639,13 @@ impl DemoRun<'_> {
                 .map_err(|e| e.to_string())
         };
         files.push(("dark.npy".to_string(), npy("dark.npy", &self.dark)?));
+        let offset = crate::io::npz::encode_npy_f32(
+            std::path::Path::new("offset.npy"),
+            &[m.offset.len()],
+            &m.offset,
+        )
+        .map_err(|e| e.to_string())?;
+        files.push(("offset.npy".to_string(), offset));
         for shot in shots {
             let name = format!("capture_{}.npy", shot.name);
             files.push((name.clone(), npy(&name, &shot.noisy)?));
@@ -640,7 +653,8 @@ impl DemoRun<'_> {
         let est = crate::io::npz::encode_csr(&cal.h_est, std::path::Path::new("H_est.npz"))
             .map_err(|e| e.to_string())?;
         files.push(("H_est.npz".to_string(), est));
-        let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS});
+        // The scene rides along so that `stscam reconstruct` finds its sensor model.
+        let sidecar = serde_json::json!({"object_px": [ow, oh], "crop_px": [m.crop.0, m.crop.1], "units": crate::matrix::MATRIX_UNITS, "scene": self.sys.scene});
         let sc = json_bytes(&sidecar)?;
         files.push(("H.json".to_string(), sc.clone()));
         files.push(("H_est.json".to_string(), sc));

@@ -163,6 +163,11 @@ impl CameraTable {
     }
 }
 
+/// Branches per camera sample the memory check of a table's drawing allows for (the
+/// paper's camera: 3-6 replicas with a weight; a design with many more weak replicas can pass
+/// it and still reach the job's memory limit).
+const GATHER_BRANCHES_PER_SAMPLE: usize = 16;
+
 /// Checks a table's settings and size against [`crate::limits`] before it is drawn.
 pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableError> {
     let pixels = (sys.camera.width_px * sys.camera.height_px) as u128;
@@ -173,6 +178,15 @@ pub fn check_table_limits(sys: &System, ts: &TableSettings) -> Result<(), TableE
         )));
     }
     check_table_spp(sys, ts)?;
+    // Drawing a pixel gathers all its camera samples with their branches (and a sorted copy
+    // of the branches) before the representatives are chosen, in every worker thread.
+    let per_sample = std::mem::size_of::<CameraSample>()
+        + 2 * GATHER_BRANCHES_PER_SAMPLE * std::mem::size_of::<super::user_side::PendingBranch>();
+    crate::limits::check_bytes(
+        "--table-spp",
+        "one pixel's camera samples and their branches, gathered in each worker thread while the table is drawn",
+        rayon::current_num_threads() as u128 * u128::from(ts.spp) * per_sample as u128,
+    )?;
     // A pixel holds about R representatives (rounding and the one-per-replica floor add up to
     // one per replica: 33.2 on average for R = 32 in the eye-contact scene); the estimate
     // allows 2R + 64.
