@@ -800,7 +800,7 @@ fn decode<const N: usize, T>(b: &[u8], what: &str, f: impl Fn([u8; N]) -> T) -> 
 /// Reconstructs the object from a capture (as `stscam reconstruct`); H's arrays as bytes
 /// (indptr int64, indices int64, data float32), the capture as float64, the offset as float32.
 #[pyfunction]
-#[pyo3(signature = (rows, cols, indptr, indices, data, object, capture, offset, method, iters, tau, tv, threads, sensor=None, white_peak=None))]
+#[pyo3(signature = (rows, cols, indptr, indices, data, object, capture, offset, method, iters, tau, tv, threads, sensor=None, white_peak=None, planes=1))]
 #[allow(clippy::too_many_arguments)]
 fn reconstruct<'py>(
     py: Python<'py>,
@@ -819,18 +819,12 @@ fn reconstruct<'py>(
     threads: Option<usize>,
     sensor: Option<SceneArg>,
     white_peak: Option<f64>,
+    planes: usize,
 ) -> PyResult<(Bound<'py, PyBytes>, String)> {
     use stscam::recon::Problem;
     let opts = solve_options(method, iters, tau, tv)?;
     let h = csr_from(rows, cols, indptr, indices, data, "H")?;
-    if object.0.checked_mul(object.1) != Some(cols) {
-        return Err(value_error(format!(
-            "the object {}x{} has {} pixels but H has {cols} columns",
-            object.0,
-            object.1,
-            object.0.saturating_mul(object.1)
-        )));
-    }
+    check_object(object, planes, cols)?;
     let mut g: Vec<f64> = decode(capture, "capture", f64::from_le_bytes)?;
     if g.len() != rows {
         return Err(value_error(format!(
@@ -863,8 +857,9 @@ fn reconstruct<'py>(
     )
     .map_err(value_error)?;
     let sol = run_job(py, threads, || {
-        let problem = Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current());
-        solve_one(&problem, &g, &opts, noise.as_ref(), &offset)
+        let problem =
+            Problem::with_cancel(&h, object.0, planes * object.1, stscam::cancel::current());
+        solve_one(&problem, planes, &g, &opts, noise.as_ref(), &offset)
     })?;
     Ok((f64_bytes(py, &sol.f), json(&sol.info)?))
 }
@@ -873,16 +868,17 @@ fn reconstruct<'py>(
 /// `offset`, no dark frame subtracted) when given, else with the fixed `opts`.
 fn solve_one(
     problem: &stscam::recon::Problem,
+    planes: usize,
     g: &[f64],
     opts: &stscam::recon::SolveOptions,
     noise: Option<&stscam::noise::SensorNoise>,
     offset: &[f32],
 ) -> stscam::recon::Solution {
     match noise {
-        None => stscam::recon::solve(problem, g, opts),
+        None => stscam::recon::solve_planes(problem, planes, g, opts),
         Some(noise) => stscam::recon::discrepancy::solve_discrepancy(
             problem,
-            1,
+            planes,
             g,
             opts,
             &stscam::recon::discrepancy::Sensor {
@@ -892,6 +888,28 @@ fn solve_one(
             },
         ),
     }
+}
+
+/// That an object of `object` = (width, height) pixels and `planes` planes (1, or 3 for a
+/// colour H) matches H's `cols` columns.
+fn check_object(object: (usize, usize), planes: usize, cols: usize) -> PyResult<()> {
+    if !(planes == 1 || planes == 3) {
+        return Err(value_error(format!("planes {planes}: expected 1 or 3")));
+    }
+    let n = object
+        .0
+        .checked_mul(object.1)
+        .and_then(|n| n.checked_mul(planes));
+    if n != Some(cols) {
+        return Err(value_error(format!(
+            "the object {}x{}{} has {} values but H has {cols} columns",
+            object.0,
+            object.1,
+            if planes == 3 { "x3" } else { "" },
+            object.0.saturating_mul(object.1).saturating_mul(planes)
+        )));
+    }
+    Ok(())
 }
 
 /// An offset (float32 bytes) of `rows` finite values.
@@ -936,6 +954,8 @@ struct Solver {
     /// the set-up's job is never set again, so a solve with it could not be interrupted).
     problem: std::sync::Mutex<stscam::recon::Problem>,
     rows: usize,
+    /// Object planes: 1, or 3 for a colour H.
+    planes: usize,
     /// H·1 (row sums), for the default exposure of the discrepancy principle.
     h_ones: Vec<f64>,
 }
@@ -944,7 +964,7 @@ struct Solver {
 impl Solver {
     /// Sets up H (arrays as for `reconstruct`) for an object of `object` = (width, height).
     #[new]
-    #[pyo3(signature = (rows, cols, indptr, indices, data, object, threads))]
+    #[pyo3(signature = (rows, cols, indptr, indices, data, object, threads, planes=1))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -955,16 +975,10 @@ impl Solver {
         data: &[u8],
         object: (usize, usize),
         threads: Option<usize>,
+        planes: usize,
     ) -> PyResult<Self> {
         let h = csr_from(rows, cols, indptr, indices, data, "H")?;
-        if object.0.checked_mul(object.1) != Some(cols) {
-            return Err(value_error(format!(
-                "the object {}x{} has {} pixels but H has {cols} columns",
-                object.1,
-                object.0,
-                object.0.saturating_mul(object.1)
-            )));
-        }
+        check_object(object, planes, cols)?;
         let threads_n = threads.unwrap_or_else(rayon::current_num_threads);
         stscam::limits::check_bytes(
             "H",
@@ -973,11 +987,17 @@ impl Solver {
         )
         .map_err(value_error)?;
         let problem = run_job(py, threads, || {
-            stscam::recon::Problem::with_cancel(&h, object.0, object.1, stscam::cancel::current())
+            stscam::recon::Problem::with_cancel(
+                &h,
+                object.0,
+                planes * object.1,
+                stscam::cancel::current(),
+            )
         })?;
         Ok(Solver {
             problem: std::sync::Mutex::new(problem),
             rows,
+            planes,
             h_ones: h.mul_vec(&vec![1.0; h.cols]),
         })
     }
@@ -1029,7 +1049,7 @@ impl Solver {
             problem.cancel = stscam::cancel::current();
             let sols = g
                 .chunks_exact(rows)
-                .map(|gi| solve_one(&problem, gi, &opts, noise.as_ref(), &offset))
+                .map(|gi| solve_one(&problem, self.planes, gi, &opts, noise.as_ref(), &offset))
                 .collect::<Vec<_>>();
             problem.cancel = stscam::cancel::Token::default();
             sols

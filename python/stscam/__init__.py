@@ -21,7 +21,7 @@ import scipy.sparse
 
 from . import _native
 from .dataset import Dataset, load_dataset, load_splits
-from .operators import Operator, _object_shape_of
+from .operators import Operator, _object_shape_of, _planes_of
 
 __all__ = [
     "Scene", "Render", "Frontal", "render", "render_batch", "matrix", "matrix_stack",
@@ -586,8 +586,9 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     mean dark offset removed (:func:`sensor_noise`, datasets). ``regularisation="fixed"``
     uses ``tau`` (relative to ‖Hᵀg‖∞, default 0.001) and ``iters`` (CG: 30) as given.
     Returns the object as a float64 array [h, w] (``object_shape=(h, w)``, numpy's order;
-    default: square), and with ``return_info=True`` also the solver's report
-    (``recon.json``'s ``solver``)."""
+    default: square), or [3, h, w] for a colour H (3·h·w columns, blocks R, G, B: CGM on the
+    whole vector, ADMM-TV with TV per plane, as the CLI), and with ``return_info=True`` also
+    the solver's report (``recon.json``'s ``solver``)."""
     rule = _rule_args(regularisation, tau, sensor, white_peak)
     if not scipy.sparse.issparse(H):
         raise ValueError(f"H: expected a scipy sparse matrix, got {type(H).__name__}")
@@ -596,6 +597,7 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
     h.sort_indices()
     rows, cols = h.shape
     hh, w = _object_shape_of(cols, object_shape)
+    planes = _planes_of(cols, (hh, w))
     g = np.ascontiguousarray(np.asarray(capture, dtype=np.float64).reshape(-1))
     off = None if offset is None else np.ascontiguousarray(
         np.asarray(offset, dtype=np.float32).reshape(-1)).astype("<f4").tobytes()
@@ -603,8 +605,9 @@ def reconstruct(H, capture, method: str = "admm-tv", iters: Optional[int] = None
         rows, cols, h.indptr.astype("<i8").tobytes(), h.indices.astype("<i8").tobytes(),
         h.data.astype("<f4").tobytes(), (w, hh), g.astype("<f8").tobytes(), off, method,
         None if iters is None else _uint(iters, "--iters <ITERS>", _U64),
-        0.001 if tau is None else float(tau), tv, _threads(threads), *rule)
-    obj = np.frombuffer(f, dtype="<f8").reshape(hh, w).astype(np.float64)
+        0.001 if tau is None else float(tau), tv, _threads(threads), *rule, planes)
+    shape = (hh, w) if planes == 1 else (3, hh, w)
+    obj = np.frombuffer(f, dtype="<f8").reshape(shape).astype(np.float64)
     return (obj, json.loads(solver)) if return_info else obj
 
 

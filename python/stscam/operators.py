@@ -24,19 +24,35 @@ from . import _native
 
 
 def _object_shape_of(cols: int, object_shape: Optional[Any]) -> tuple[int, int]:
-    """The object's (h, w) for H with `cols` columns: `object_shape`, or the square side."""
+    """The object's (h, w) for H with `cols` columns: `object_shape`, or the square side (of
+    `cols`, else of a colour H's `cols` / 3)."""
     if object_shape is None:
-        side = int(round(cols ** 0.5))
-        if side * side != cols:
-            raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
-        object_shape = (side, side)
+        for planes in (1, 3):
+            side = int(round((cols // planes) ** 0.5))
+            if cols % planes == 0 and side * side * planes == cols:
+                return (side, side)
+        raise ValueError(f"{cols} columns are not a square object; pass object_shape=(h, w)")
     return tuple(int(v) for v in object_shape)  # type: ignore[return-value]
+
+
+def _planes_of(cols: int, shape: tuple[int, int]) -> int:
+    """1 for an H of h·w columns, 3 for a colour H (column blocks R, G, B of h·w each, as
+    ``stscam matrix`` makes with a colour display); anything else is a ValueError."""
+    n = shape[0] * shape[1]
+    if n == cols:
+        return 1
+    if 3 * n == cols:
+        return 3
+    raise ValueError(f"object_shape {shape} has {n} pixels but H has {cols} columns "
+                     f"(a colour H has 3·{n} = {3 * n})")
 
 
 class Operator:
     """The linear forward model H (rows: capture values, columns: object pixels) with its
     offset (the capture of a black object). ``object_shape`` is (h, w) (default: square);
-    ``capture_shape`` optionally shapes the captures ((h, w) or (c, h, w))."""
+    ``capture_shape`` optionally shapes the captures ((h, w) or (c, h, w)). A colour H (3·h·w
+    columns: blocks R, G, B) takes objects (..., 3, h, w), channel first: ``planes`` is 3 and
+    ``object_dims`` (3, h, w)."""
 
     def __init__(self, H: Any, offset: Any = None, object_shape: Optional[tuple[int, int]] = None,
                  capture_shape: Optional[tuple[int, ...]] = None, threads: Optional[int] = None):
@@ -49,8 +65,7 @@ class Operator:
             raise ValueError("H: an entry is not a finite number")
         rows, cols = h.shape
         oh, ow = _object_shape_of(cols, object_shape)
-        if oh * ow != cols:
-            raise ValueError(f"object_shape {(oh, ow)} has {oh * ow} pixels but H has {cols} columns")
+        planes = _planes_of(cols, (oh, ow))
         if capture_shape is not None and int(np.prod(capture_shape)) != rows:
             raise ValueError(f"capture_shape {tuple(capture_shape)} has {int(np.prod(capture_shape))} values but H has {rows} rows")
         self.H: scipy.sparse.csr_matrix = h  #: float32 CSR, as H.npz
@@ -66,6 +81,9 @@ class Operator:
                 i = int(np.flatnonzero(~np.isfinite(self.offset))[0])
                 raise ValueError(f"offset: value {i} is not a finite number")
         self.object_shape: tuple[int, int] = (oh, ow)
+        self.planes: int = planes  #: 1, or 3 for a colour H
+        #: The shape of one object: (h, w), or (3, h, w) for a colour H.
+        self.object_dims: tuple[int, ...] = (oh, ow) if planes == 1 else (3, oh, ow)
         self.capture_shape: tuple[int, ...] = (rows,) if capture_shape is None else tuple(int(v) for v in capture_shape)
         self.shape: tuple[int, int] = (rows, cols)
         self.threads = threads
@@ -76,7 +94,7 @@ class Operator:
         """H f for objects (..., h, w) (or (..., h·w)): float64 captures (..., *capture_shape),
         without the offset (see :meth:`capture`)."""
         x = np.asarray(f, dtype=np.float64)
-        lead = self._lead(x, self.object_shape, "object")
+        lead = self._lead(x, self.object_dims, "object")
         flat = x.reshape(-1, self.shape[1])
         # One frame: scipy's matrix-vector product (faster than a one-column product, same sums).
         y = (self._h64 @ flat[0])[None] if flat.shape[0] == 1 else (self._h64 @ flat.T).T
@@ -92,7 +110,7 @@ class Operator:
         lead = self._lead(y, self.capture_shape, "capture")
         flat = y.reshape(-1, self.shape[0])
         x = (self._ht64 @ flat[0])[None] if flat.shape[0] == 1 else (self._ht64 @ flat.T).T
-        return x.reshape(lead + self.object_shape)
+        return x.reshape(lead + self.object_dims)
 
     def _lead(self, a: np.ndarray, shape: tuple[int, ...], what: str) -> tuple[int, ...]:
         n = int(np.prod(shape))
@@ -126,13 +144,14 @@ class Operator:
             self._solver = _native.Solver(
                 h.shape[0], h.shape[1], h.indptr.astype("<i8").tobytes(),
                 h.indices.astype("<i8").tobytes(), h.data.astype("<f4").tobytes(),
-                (self.object_shape[1], self.object_shape[0]), _threads(self.threads))
+                (self.object_shape[1], self.object_shape[0]), _threads(self.threads),
+                self.planes)
         f, infos = self._solver.solve(
             np.ascontiguousarray(g, dtype="<f8").tobytes(), g.shape[0], method,
             None if iters is None else _uint(iters, "--iters <ITERS>", 2**64 - 1),
             0.001 if tau is None else float(tau), tv, _threads(self.threads),
             self.offset.astype("<f4").tobytes(), *rule)
-        obj = np.frombuffer(f, dtype="<f8").reshape(lead + self.object_shape).astype(np.float64)
+        obj = np.frombuffer(f, dtype="<f8").reshape(lead + self.object_dims).astype(np.float64)
         return (obj, [json.loads(i) for i in infos]) if return_info else obj
 
     # --- adapters ---
@@ -157,7 +176,8 @@ class Operator:
     def deepinv(self, noise_model: Any = None, sensor: Any = None, seed: int = 1,
                 white_peak: Optional[float] = None) -> Any:
         """A ``deepinv.physics.LinearPhysics`` with A = H (the offset subtracted from
-        measurements first) and A_adjoint = Hᵀ, on tensors (B, 1, h, w) → (B, 1, rows).
+        measurements first) and A_adjoint = Hᵀ, on tensors (B, C, h, w) → (B, 1, rows) (C = 1, or
+        3 for a colour H).
 
         ``sensor=scene`` gives it the scene's sensor noise (shot, read, dark, bit depth,
         saturation, exposure: :func:`stscam.sensor_noise`) as its noise model: a measurement
@@ -174,9 +194,10 @@ class Operator:
         kw = {} if noise_model is None else {"noise_model": noise_model}
         rows = self.shape[0]
         oh, ow = self.object_shape
+        c = self.planes
         return deepinv.physics.LinearPhysics(
-            A=lambda x: A(x).reshape(x.shape[0], 1, rows),
-            A_adjoint=lambda y: A.adjoint(y.reshape(y.shape[0], rows)).reshape(y.shape[0], 1, oh, ow),
+            A=lambda x: A(x.reshape((x.shape[0],) + self.object_dims)).reshape(x.shape[0], 1, rows),
+            A_adjoint=lambda y: A.adjoint(y.reshape(y.shape[0], rows)).reshape(y.shape[0], c, oh, ow),
             **kw)
 
     def __repr__(self) -> str:
@@ -225,10 +246,10 @@ def _torch_operator(op: Operator, torch: Any) -> Any:
 
     def apply(x: Any, transpose: bool) -> Any:
         n_in = op.shape[0] if transpose else op.shape[1]
-        out_shape = op.object_shape if transpose else op.capture_shape
-        lead = x.shape[:-len(op.capture_shape if transpose else op.object_shape)] \
-            if tuple(x.shape[-len(op.capture_shape if transpose else op.object_shape):]) == \
-            tuple(op.capture_shape if transpose else op.object_shape) else x.shape[:-1]
+        out_shape = op.object_dims if transpose else op.capture_shape
+        in_shape = op.capture_shape if transpose else op.object_dims
+        lead = x.shape[:-len(in_shape)] if tuple(x.shape[-len(in_shape):]) == tuple(in_shape) \
+            else x.shape[:-1]
         flat = x.reshape(-1, n_in)
         if x.device.type == "cpu":
             m = op._ht64 if transpose else op._h64

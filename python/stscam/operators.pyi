@@ -8,6 +8,8 @@ class Operator:
     H: scipy.sparse.csr_matrix
     offset: np.ndarray
     object_shape: tuple[int, int]
+    planes: int
+    object_dims: tuple[int, ...]
     capture_shape: tuple[int, ...]
     shape: tuple[int, int]
     threads: Optional[int]

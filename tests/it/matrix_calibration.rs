@@ -122,6 +122,7 @@ fn noiseless_calibration_recovers_h_and_offsets_land_in_column_zero() {
         seed: 1,
         dark_frame,
         threshold_sigma: 0.0,
+        progress: false,
     };
     // No noise, dark frame: H_est = H to 1e-6 relative (dense estimate and stored file).
     let c = calibrate(&m.h, &m.offset, FrameSource::Matrix, &ideal(true)).unwrap();
@@ -172,6 +173,7 @@ fn noisy_calibration_puts_the_dark_offset_in_column_zero() {
                 seed: 4,
                 dark_frame,
                 threshold_sigma,
+                progress: false,
             },
         )
         .unwrap()
@@ -239,6 +241,7 @@ fn rendered_frames_give_the_same_estimate_as_frames_from_h() {
         seed: 1,
         dark_frame: true,
         threshold_sigma: 0.0,
+        progress: false,
     };
     let from_render = calibrate(&m.h, &m.offset, FrameSource::Rendered(&frames), &ideal).unwrap();
     let from_h = calibrate(&m.h, &m.offset, FrameSource::Matrix, &ideal).unwrap();
@@ -263,6 +266,7 @@ fn non_power_of_two_object_is_refused() {
             seed: 1,
             dark_frame: true,
             threshold_sigma: 0.0,
+            progress: false,
         },
     )
     .err()

@@ -229,6 +229,7 @@ fn bench_calibration(
                     seed: 1,
                     dark_frame: true,
                     threshold_sigma: 0.0,
+                    progress: false,
                 },
             )
             .ok()

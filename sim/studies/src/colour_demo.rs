@@ -28,7 +28,7 @@ use crate::colour::{FieldBands, field_bands, primaries_of};
 use crate::demo::DEMO_CG_MAX_ITERS;
 use crate::hadamard::{CalibrationReport, CalibrationSettings, calibrate_colour};
 use crate::recon::colour::{colour_errors, primaries_to_xyz};
-use crate::recon::discrepancy::{Sensor, solve_discrepancy};
+use crate::recon::discrepancy::{NoiseLevel, Sensor, solve_at_level};
 use crate::recon::{Method, Problem, SolveOptions};
 use crate::render::RenderSettings;
 use crate::system::System;
@@ -285,6 +285,7 @@ fn colour_design(
             seed: set.seed,
             dark_frame: true,
             threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
+            progress: set.progress,
         },
     )
     .map_err(|e| format!("{name}: display.image: {e}"))?;
@@ -296,6 +297,11 @@ fn colour_design(
     } else {
         "1G"
     };
+    let pb = crate::progress::Progress::new(
+        set.progress,
+        4 * COLOUR_TARGETS.len() as u64,
+        &format!("{name}: colour reconstructions"),
+    );
     for (ti, (tname, spec)) in COLOUR_TARGETS.iter().enumerate() {
         let spec = sized(spec, ow);
         let (_, _, truth) = planes_of_spec(&spec, gamma, 3)?;
@@ -309,7 +315,7 @@ fn colour_design(
             name,
             short,
             (tname, &spec),
-            &sensor,
+            (&sensor, &pb),
             truth,
             noisy,
             &g,
@@ -358,7 +364,7 @@ fn colour_target(
     design: &str,
     short: &str,
     (tname, spec): (&str, &str),
-    sensor: &Sensor,
+    (sensor, pb): (&Sensor, &crate::progress::Progress),
     truth: Vec<f64>,
     noisy: Vec<f64>,
     g: &[f64],
@@ -370,6 +376,9 @@ fn colour_target(
     let mut recs = Vec::new();
     let mut caps = Vec::new();
     for (mname, p) in [("true", p_true), ("calibrated", p_est)] {
+        // One noise level per capture and H serves both methods.
+        let level =
+            NoiseLevel::of_capture(p, g, sensor.offset, sensor.dark_subtracted, sensor.noise);
         for (method, m) in [("cgm", Method::Cg), ("admm-tv", Method::AdmmTv)] {
             // The discrepancy principle on the sensor model, as the mono demo's table.
             let opts = SolveOptions {
@@ -382,7 +391,8 @@ fn colour_target(
                 tau_rel: set.admm.tau_rel,
                 tv: set.admm.tv,
             };
-            let f = solve_discrepancy(p, 3, g, &opts, sensor).f;
+            let f = solve_at_level(p, 3, g, &opts, &level).f;
+            pb.inc(1);
             let e = colour_errors(&f, &truth, xyz);
             caps.push(format!("{:.1} DB {:.1}", e.psnr_db, e.ciede2000_mean));
             rows.push(ColourRow {

@@ -345,6 +345,7 @@ impl DemoRun<'_> {
                 seed: self.set.seed,
                 dark_frame: true,
                 threshold_sigma: crate::hadamard::DEFAULT_THRESHOLD_SIGMA,
+                progress: self.set.progress,
             },
         )
         .map_err(|e| format!("display.image: {e}"))
@@ -365,6 +366,11 @@ impl DemoRun<'_> {
         let mut table = Vec::new();
         let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
         let dark_level = black_level_of(&self.dark, &self.noise);
+        let pb = crate::progress::Progress::new(
+            self.set.progress,
+            4 * shots.len() as u64,
+            "demo reconstructions",
+        );
         for shot in shots {
             let mut per = Vec::new();
             for (mname, p) in [("true", p_true), ("calibrated", p_est)] {
@@ -373,6 +379,7 @@ impl DemoRun<'_> {
                 let level_ms = 1e3 * t_level.elapsed().as_secs_f64();
                 for method in ["cgm", "admm-tv"] {
                     let (row, f) = self.table_cell(shot, p, &level, method, level_ms);
+                    pb.inc(1);
                     table.push(DemoRow {
                         matrix: mname.to_string(),
                         ..row
@@ -461,6 +468,11 @@ impl DemoRun<'_> {
         let mut rows = Vec::new();
         let mut recons: Vec<Vec<Vec<f64>>> = Vec::new();
         let mut problems: Vec<Option<Problem>> = vec![None; grid.len()];
+        let pb = crate::progress::Progress::new(
+            set.progress,
+            2 * shots.len() as u64,
+            "demo several-depths reconstructions",
+        );
         for ((shot, frame), est) in shots.iter().zip(&frames).zip(estimates) {
             let mut scores = [[(0.0, 0.0); 2]; 2];
             let mut per = Vec::new();
@@ -479,6 +491,7 @@ impl DemoRun<'_> {
                     NoiseLevel::of_capture(p, &g, &self.stack[d].offset, false, &self.noise);
                 let cg = cg_discrepancy(p, &htg, &level, DEMO_CG_MAX_ITERS).f;
                 let admm = admm_tv_discrepancy(p, &htg, &level, &set.admm).result.f;
+                pb.inc(1);
                 for (j, f) in [cg, admm].into_iter().enumerate() {
                     scores[k][j] = (psnr(&f, &shot.truth), ssim(&f, &shot.truth, ow, oh));
                     if j == 1 {

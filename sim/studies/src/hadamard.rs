@@ -161,6 +161,8 @@ pub struct CalibrationSettings {
     /// Keep stored entries above this many predicted noise standard deviations (0 keeps all
     /// entries above the rounding floor).
     pub threshold_sigma: f64,
+    /// Show progress (rows of H estimated) on stderr.
+    pub progress: bool,
 }
 
 /// Relative Frobenius errors ‖H_est − H_true‖/‖H_true‖ of one variant.
@@ -272,6 +274,7 @@ pub fn calibrate(
             got: fr.len(),
         });
     }
+    let pb = crate::progress::Progress::new(set.progress, h_true.rows as u64, "calibration rows");
     let rows: Vec<RowOut> = (0..h_true.rows)
         .into_par_iter()
         .with_min_len(CHUNK)
@@ -282,10 +285,13 @@ pub fn calibrate(
                 let o = f64::from(offset[m]);
                 let mut d = row_frames(truth, v, o, m, &source);
                 let noise = measure_row(v, &mut d, set, m);
-                estimate_row(truth, v, d, o, &noise, set)
+                let r = estimate_row(truth, v, d, o, &noise, set);
+                pb.inc(1);
+                r
             },
         )
         .collect();
+    pb.finish_and_clear();
     Ok(assemble(&rows, h_true.rows, n))
 }
 
@@ -554,6 +560,7 @@ mod tests {
             seed: 7,
             dark_frame: false,
             threshold_sigma: 0.0,
+            progress: false,
         };
         let (h_est, reports) = calibrate_colour(&m.h, &m.offset, 3, &set).unwrap();
         assert_eq!((h_est.rows, h_est.cols), (m.h.rows, m.h.cols));
@@ -845,6 +852,7 @@ pub fn calibrate_scene(
         seed: job.seed,
         dark_frame: job.dark_frame,
         threshold_sigma: job.threshold_sigma,
+        progress: job.progress,
     };
     let t0 = Instant::now();
     let calibration =
