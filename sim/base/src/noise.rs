@@ -491,9 +491,14 @@ impl SensorNoise {
         let lo = (mu - 10.0 * s - 1.0).floor().max(0.0) as i64;
         let hi = (mu + 10.0 * s + 1.0).ceil().min(self.full_scale_dn) as i64;
         let mut acc = 0.0;
+        // Each code's upper edge is the next one's lower edge (k + 0.5 = (k + 1) − 0.5 exactly
+        // in f64): one Φ per edge.
+        let mut below = normal_cdf((lo as f64 - 0.5 - mu) / s);
         for k in lo..=hi {
             let k = k as f64;
-            let p = normal_cdf((k + 0.5 - mu) / s) - normal_cdf((k - 0.5 - mu) / s);
+            let above = normal_cdf((k + 0.5 - mu) / s);
+            let p = above - below;
+            below = above;
             acc += p * (k - mu) * (k - mu);
         }
         acc * to_units
