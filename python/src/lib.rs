@@ -1142,9 +1142,19 @@ fn calibrate<'py>(
         calibrate_scene(&sys, &job)
     })?
     .map_err(value_error)?;
-    let d = csr_dict(py, &run.calibration.h_est)?;
+    let d = csr_dict(py, &run.h_est)?;
     d.set_item("object", run.object)?;
-    d.set_item("report", json(&run.calibration.report)?)?;
+    d.set_item("planes", run.planes)?;
+    if run.planes == 1 {
+        d.set_item("report", json(&run.reports[0])?)?;
+    } else {
+        let per: serde_json::Map<String, serde_json::Value> = stscam::matrix::PRIMARY_NAMES
+            .iter()
+            .zip(&run.reports)
+            .map(|(n, r)| (n.to_string(), serde_json::to_value(r).unwrap_or_default()))
+            .collect();
+        d.set_item("report", json(&per)?)?;
+    }
     Ok(d)
 }
 

@@ -273,3 +273,75 @@ fn non_power_of_two_object_is_refused() {
     .expect("144 is not a power of two");
     assert!(e.to_string().contains("144"));
 }
+
+/// `stscam calibrate` with a colour display (issue 43, item 2): N patterns per primary, the
+/// colour calibration of `demo --colour` (`hadamard::calibrate_colour` of the same H, exposure
+/// and seed, bit for bit), each primary's error with the dark frame at its noise prediction
+/// (within 15 %), and an H_est.json that marks the matrix as colour. Failing input: the same
+/// calibration with another seed differs.
+#[test]
+fn colour_calibrate_equals_the_colour_demo_calibration() {
+    let ov: Vec<String> = [
+        "sensor.crop_px=[40,64]",
+        "sensor.pitch_um=30",
+        "sensor.crop_offset_px=[0,-10]",
+        "sensor.response=rgb-bayer",
+        "display.primaries=lcd",
+        "display.image=rgb:letter:F@8+black@8+black@8",
+        "display.lcd_pixels_per_image_pixel=40",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rgb-multiplex.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cal");
+    let mut args: Vec<String> = vec![
+        "calibrate".into(),
+        scene.to_string_lossy().into_owned(),
+        "--spp".into(),
+        "4".into(),
+        "--seed".into(),
+        "5".into(),
+        "--dark-frame".into(),
+        "--out".into(),
+        out.to_string_lossy().into_owned(),
+    ];
+    for s in &ov {
+        args.extend(["--set".to_string(), s.clone()]);
+    }
+    let a: Vec<&str> = args.iter().map(String::as_str).collect();
+    crate::common::stscam_ok(&a);
+    let sys = System::build(&load_scene(Some(&scene), &ov).unwrap()).unwrap();
+    let m = compute_matrix(&sys, &RenderSettings::lattice(4, 5, false));
+    assert_eq!(m.planes, 3);
+    let noise = SensorNoise::new(&sys.scene.noise, stscam::capture::white_peak_of(&m));
+    let set = |seed| CalibrationSettings {
+        noise: Some(noise.clone()),
+        seed,
+        dark_frame: true,
+        threshold_sigma: stscam::hadamard::DEFAULT_THRESHOLD_SIGMA,
+        progress: false,
+    };
+    let (h_est, reports) = stscam::hadamard::calibrate_colour(&m.h, &m.offset, 3, &set(5)).unwrap();
+    let cli = stscam::matrix::read_checked_csr(&out.join("H_est.npz")).unwrap();
+    assert_eq!((cli.rows, cli.cols), (h_est.rows, h_est.cols));
+    assert_eq!(cli.indptr, h_est.indptr);
+    assert_eq!(cli.indices, h_est.indices);
+    assert_eq!(cli.data, h_est.data);
+    let (other, _) = stscam::hadamard::calibrate_colour(&m.h, &m.offset, 3, &set(6)).unwrap();
+    assert_ne!(other.data, h_est.data);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("calibration.json")).unwrap()).unwrap();
+    for (k, name) in ["R", "G", "B"].iter().enumerate() {
+        let r = &report["report_per_primary"][name];
+        let got = r["with_dark_frame"]["other_columns"].as_f64().unwrap();
+        let predicted = r["predicted_noise_other_columns"].as_f64().unwrap();
+        eprintln!("{name}: error {got:.4} against the prediction {predicted:.4}");
+        assert!((got / predicted - 1.0).abs() < 0.15, "{name}: {got} vs {predicted}");
+        assert_eq!(got, reports[k].with_dark_frame.other_columns);
+    }
+    let side: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("H_est.json")).unwrap()).unwrap();
+    assert_eq!(side["object_primaries"], serde_json::json!(["R", "G", "B"]));
+}

@@ -91,11 +91,11 @@ fn cmd_calibrate(
     let run = pool
         .install(|| calibrate_scene(&sys, &job))
         .map_err(bad_input)?;
-    let (cal, object, source_desc, sensor_noise) =
-        (&run.calibration, run.object, &run.source, &run.noise);
+    let (object, source_desc, sensor_noise) = (run.object, &run.source, &run.noise);
     let (matrix_s, render_s, calibrate_s) = (run.matrix_s, run.render_s, run.calibrate_s);
     let npz =
-        crate::io::npz::encode_csr(&cal.h_est, &out.join("H_est.npz")).map_err(write_failure)?;
+        crate::io::npz::encode_csr(&run.h_est, &out.join("H_est.npz")).map_err(write_failure)?;
+    let names = stscam_tracer::matrix::PRIMARY_NAMES;
     let report = serde_json::json!({
         "stscam_version": crate::VERSION,
         "command": "calibrate",
@@ -110,11 +110,19 @@ fn cmd_calibrate(
         "stored_variant": if dark_frame { "dark frame subtracted" } else { "no dark frame (the paper's procedure)" },
         "threshold_sigma": threshold_sigma,
         "errors": "relative Frobenius norm ||H_est - H_true|| / ||H_true|| of the full (dense) estimate; column0 relative to ||H_true[:,0]||; stored_overall is the thresholded estimate written to H_est.npz",
-        "report": cal.report,
+        "report": if run.planes == 1 { serde_json::to_value(&run.reports[0]).unwrap_or_default() } else { serde_json::Value::Null },
+        "report_per_primary": if run.planes == 1 { serde_json::Value::Null } else {
+            serde_json::Value::Object(names.iter().zip(&run.reports).map(|(n, r)| (n.to_string(), serde_json::to_value(r).unwrap_or_default())).collect())
+        },
+        "object_primaries": if run.planes == 1 { serde_json::Value::Null } else { serde_json::json!(names) },
         "timings_s": {"matrix": matrix_s, "render_frames": render_s, "calibration": calibrate_s, "wall": start.elapsed().as_secs_f64()},
         "threads": pool.current_num_threads(),
     });
-    let sidecar = serde_json::json!({"object_px": [object.0, object.1], "units": stscam_tracer::matrix::MATRIX_UNITS, "from": "stscam calibrate"});
+    let mut sidecar = serde_json::json!({"object_px": [object.0, object.1], "units": stscam_tracer::matrix::MATRIX_UNITS, "from": "stscam calibrate"});
+    if run.planes == 3 {
+        sidecar["object_primaries"] = serde_json::json!(names);
+        sidecar["columns"] = stscam_tracer::matrix::COLOUR_COLUMNS.into();
+    }
     let report_bytes = serde_json::to_vec_pretty(&report).map_err(write_failure)?;
     let sidecar_bytes = serde_json::to_vec_pretty(&sidecar).map_err(write_failure)?;
     crate::io::write_all_atomic(
@@ -126,22 +134,31 @@ fn cmd_calibrate(
         ],
     )
     .map_err(write_failure)?;
-    let r = &cal.report;
     con.err(format_args!(
-        "wrote {}/H_est.npz ({} entries) and calibration.json: relative error {:.3e} without dark frame (column 0: {:.3e}), {:.3e} with (column 0: {:.3e}); {:.2} s calibration",
+        "wrote {}/H_est.npz ({} entries) and calibration.json; {:.2} s calibration",
         out.display(),
-        r.stored_nnz,
-        r.without_dark_frame.overall,
-        r.without_dark_frame.column0,
-        r.with_dark_frame.overall,
-        r.with_dark_frame.column0,
+        run.h_est.nnz(),
         calibrate_s
     ));
-    if r.saturated_rows > 0 {
+    for (i, r) in run.reports.iter().enumerate() {
+        let who = if run.planes == 1 {
+            String::new()
+        } else {
+            format!("primary {}: ", names[i])
+        };
         con.err(format_args!(
-            "warning: {} rows had a saturated frame; lower noise.exposure_fraction",
-            r.saturated_rows
+            "{who}relative error {:.3e} without dark frame (column 0: {:.3e}), {:.3e} with (column 0: {:.3e})",
+            r.without_dark_frame.overall,
+            r.without_dark_frame.column0,
+            r.with_dark_frame.overall,
+            r.with_dark_frame.column0,
         ));
+        if r.saturated_rows > 0 {
+            con.err(format_args!(
+                "warning: {who}{} rows had a saturated frame; lower noise.exposure_fraction",
+                r.saturated_rows
+            ));
+        }
     }
     Ok(())
 }

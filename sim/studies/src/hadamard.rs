@@ -658,6 +658,8 @@ pub struct TrueMatrix {
     pub offset: Vec<f32>,
     /// Object size (width, height).
     pub object: (usize, usize),
+    /// Object planes: 1, or 3 for a colour H (column blocks R, G, B).
+    pub planes: usize,
     /// Where it came from (a path), named in error messages.
     pub source: String,
 }
@@ -676,6 +678,7 @@ impl TrueMatrix {
             h: lm.h,
             offset,
             object: lm.object,
+            planes: lm.planes,
             source: path.display().to_string(),
         };
         Ok((m, found))
@@ -716,8 +719,12 @@ pub struct CalibrationJob {
 
 /// What [`calibrate_scene`] made.
 pub struct CalibrationRun {
-    /// H_est and the report.
-    pub calibration: Calibration,
+    /// H_est (thresholded), the shape of H_true (a colour H: blocks R, G, B).
+    pub h_est: CsrMatrix,
+    /// The report: one, or one per primary (R, G, B) for a colour H.
+    pub reports: Vec<CalibrationReport>,
+    /// Object planes: 1, or 3 for a colour H.
+    pub planes: usize,
     /// Object size (width, height).
     pub object: (usize, usize),
     /// Where H_true came from: a path, or "computed".
@@ -734,7 +741,9 @@ pub struct CalibrationRun {
 
 /// Runs a calibration job on `sys` (the CLI's `calibrate` and the Python module call this):
 /// H_true (loaded or computed), the exposure from its all-white frame, the frames (from H_true
-/// or rendered) and [`calibrate`]. Errors are the user's to fix (one line).
+/// or rendered) and [`calibrate`]; a colour H (a colour display, or a loaded H with three
+/// column blocks) by [`calibrate_colour`], N patterns per primary from H_true, as `demo
+/// --colour` calibrates. Errors are the user's to fix (one line).
 pub fn calibrate_scene(
     sys: &crate::system::System,
     job: &CalibrationJob,
@@ -748,9 +757,9 @@ pub fn calibrate_scene(
     let tm = match &job.matrix {
         Some(m) => m,
         None => {
-            if sys.display.primaries.is_some() {
+            if sys.display.primaries.is_some() && job.render_frames {
                 return Err(
-                    "display.primaries: `calibrate` shows monochrome patterns; a colour display is calibrated per primary by `stscam demo --colour` (hadamard::calibrate_colour)".into(),
+                    "--render: a colour display is calibrated per primary from its H (hadamard::calibrate_colour); rendered colour frames are not simulated, leave out --render".into(),
                 );
             }
             if !n_obj.is_power_of_two() {
@@ -771,6 +780,7 @@ pub fn calibrate_scene(
                 h: m.h,
                 offset: m.offset,
                 object: m.object,
+                planes: m.planes,
                 source: "computed".to_string(),
             };
             &computed
@@ -780,11 +790,18 @@ pub fn calibrate_scene(
         h: h_true,
         offset,
         object,
+        planes,
         source: source_desc,
     } = tm;
-    let object = *object;
+    let (object, planes) = (*object, (*planes).max(1));
     let matrix_s = t0.elapsed().as_secs_f64();
-    let n = h_true.cols;
+    if planes > 1 && job.render_frames {
+        return Err(format!(
+            "--render: {source_desc} is a colour H, calibrated per primary from its H; leave out --render"
+        ));
+    }
+    // The patterns of one primary (a colour H is calibrated a primary at a time).
+    let n = h_true.cols / planes;
     // The calibration forms every frame value (rows x patterns) in f64, row by row.
     crate::limits::check_bytes(
         "--matrix",
@@ -798,11 +815,8 @@ pub fn calibrate_scene(
         ));
     }
     let sensor_noise = if job.noise == CaptureNoise::Sensor {
-        let white = h_true.mul_vec(&vec![1.0; n]);
-        let peak = white
-            .iter()
-            .zip(offset)
-            .fold(0.0f64, |a, (w, o)| a.max(w + f64::from(*o)));
+        // The exposure from the all-white frame (every primary white for a colour display).
+        let peak = crate::recon::discrepancy::white_peak(h_true, offset);
         if !(peak > 0.0 && peak.is_finite()) {
             return Err(format!(
                 "{source_desc}: an all-white object gives no light on the sensor, so the exposure cannot be set (use --noise none)"
@@ -855,10 +869,18 @@ pub fn calibrate_scene(
         progress: job.progress,
     };
     let t0 = Instant::now();
-    let calibration =
-        calibrate(h_true, offset, source, &settings).map_err(|e| format!("{source_desc}: {e}"))?;
+    let (h_est, reports) = if planes > 1 {
+        calibrate_colour(h_true, offset, planes, &settings)
+            .map_err(|e| format!("{source_desc}: {e}"))?
+    } else {
+        let c = calibrate(h_true, offset, source, &settings)
+            .map_err(|e| format!("{source_desc}: {e}"))?;
+        (c.h_est, vec![c.report])
+    };
     Ok(CalibrationRun {
-        calibration,
+        h_est,
+        reports,
+        planes,
         object,
         source: source_desc.clone(),
         noise: sensor_noise,
