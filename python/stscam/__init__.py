@@ -688,9 +688,11 @@ def calibrate(scene: Optional[Scene] = None, spp: int = 64, seed: int = 1,
               threads: Optional[int] = None,
               progress: Optional[Callable[[int, int, str], Any]] = None) -> tuple[scipy.sparse.csr_matrix, dict]:
     """The paper's Hadamard calibration, simulated (``stscam calibrate``): returns H_est (as
-    ``H_est.npz``) and the report (``calibration.json``'s ``report``). ``matrix`` is an
-    ``H.npz`` path (default: H computed from the scene) and ``object_shape`` its object (h, w)
-    where no ``H.json`` beside it says; a scene holding an array target calibrates that."""
+    ``H_est.npz``) and the report (``calibration.json``'s ``report``; for a colour display,
+    calibrated per primary as ``stscam demo --colour`` does, a dict of the reports of ``"R"``,
+    ``"G"`` and ``"B"``, its ``report_per_primary``). ``matrix`` is an ``H.npz`` path
+    (default: H computed from the scene) and ``object_shape`` its object (h, w) where no
+    ``H.json`` beside it says; a scene holding an array target calibrates that."""
     if noise not in ("sensor", "none"):
         raise ValueError(f"noise {noise!r}: expected \"sensor\" or \"none\"")
     s = _scene(scene)

@@ -1129,3 +1129,14 @@ def test_colour_operator_and_reconstruct_equal_the_cli(tmp_path):
     assert share[0] > 0.8, share
     with pytest.raises(ValueError, match="a colour H has 3·48 = 144"):
         stscam.Operator(h, off, object_shape=(6, 8))
+
+
+def test_colour_calibrate_equals_the_cli(tmp_path):
+    scene = ROOT / "scenes" / "rgb-multiplex.toml"
+    cli("calibrate", scene, "--out", tmp_path, "--spp", SPP, "--dark-frame", *set_args(RGB))
+    h_est, report = stscam.calibrate(stscam.Scene(scene, RGB), spp=SPP, dark_frame=True)
+    want = scipy.sparse.load_npz(tmp_path / "H_est.npz")
+    assert h_est.shape == want.shape == (64 * 40 * 3, 3 * 64)
+    assert same_bits(h_est.data, want.data) and np.array_equal(h_est.indices, want.indices)
+    cal = json.loads((tmp_path / "calibration.json").read_text())
+    assert sorted(report) == ["B", "G", "R"] and report == cal["report_per_primary"]
