@@ -83,6 +83,7 @@ fn main() {
                     seed: 1,
                     dark_frame,
                     threshold_sigma: thr,
+                    progress: false,
                 },
             )
             .unwrap();

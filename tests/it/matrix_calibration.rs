@@ -338,7 +338,10 @@ fn colour_calibrate_equals_the_colour_demo_calibration() {
         let got = r["with_dark_frame"]["other_columns"].as_f64().unwrap();
         let predicted = r["predicted_noise_other_columns"].as_f64().unwrap();
         eprintln!("{name}: error {got:.4} against the prediction {predicted:.4}");
-        assert!((got / predicted - 1.0).abs() < 0.15, "{name}: {got} vs {predicted}");
+        assert!(
+            (got / predicted - 1.0).abs() < 0.15,
+            "{name}: {got} vs {predicted}"
+        );
         assert_eq!(got, reports[k].with_dark_frame.other_columns);
     }
     let side: serde_json::Value =

@@ -375,13 +375,8 @@ fn swap_in(
     if !meta.is_dir() || (staged.is_none() && unnamed.len() != files.len()) {
         return Ok(false);
     }
-    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+    let Some((parent, name)) = parent_and_name(dir) else {
         return Ok(false);
-    };
-    let parent = if parent.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        parent
     };
     let is_set = |n: &std::ffi::OsStr| files.iter().any(|(f, _)| std::ffi::OsStr::new(f) == n);
     // The folder's other entries: plain files are linked, links copied; anything else keeps
@@ -481,6 +476,18 @@ fn swap_in(
     Ok(false)
 }
 
+/// The folder holding `dir` (`.` for a bare name) and `dir`'s own name; `None` for `.`, `..`
+/// or a root.
+fn parent_and_name(dir: &Path) -> Option<(&Path, &std::ffi::OsStr)> {
+    let (parent, name) = (dir.parent()?, dir.file_name()?);
+    let parent = if parent.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        parent
+    };
+    Some((parent, name))
+}
+
 /// Removes a folder an exchange left (or an unfinished sibling): its files and links, the
 /// staging folders in it, then the folder; never follows a link.
 fn remove_swapped(dir: &Path) -> std::io::Result<()> {
@@ -498,13 +505,8 @@ fn remove_swapped(dir: &Path) -> std::io::Result<()> {
 /// Removes the exchange siblings of `dir` left by dead runs (killed before or just after
 /// their exchange: an unfinished new folder or an old one; neither is ever visible as `dir`).
 fn remove_dead_swaps(dir: &Path) {
-    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+    let Some((parent, name)) = parent_and_name(dir) else {
         return;
-    };
-    let parent = if parent.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        parent
     };
     let mut prefix = String::from(".");
     prefix.push_str(&name.to_string_lossy());
