@@ -284,3 +284,67 @@ fn two_gratings_render_their_replicas_where_probe_predicts_in_their_own_bands() 
     let rows = predicted(&wrong, 1);
     assert!(!ok(&bands[1], &rows), "{:?}", peaks_at(&bands[1], &rows));
 }
+
+/// `demo --colour SCENE` with the user's own multiplexed film (issue 43, item 5): compared with
+/// the paper's single grating, the design named after the scene file; with the paper scene the
+/// comparison stays the single grating against the built-in RGB multiplex.
+#[test]
+fn colour_demo_compares_the_users_film_with_the_single_grating() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/rgb-multiplex.toml"),
+    )
+    .unwrap();
+    let mine = write(dir.path(), "my-film.toml", &text);
+    let small = [
+        "display.image=white@16",
+        "display.lcd_pixels_per_image_pixel=40",
+        "sensor.crop_px=64",
+        "sensor.pitch_um=30",
+    ];
+    let run = |scene: Option<&str>, out: &str| -> Vec<(String, u64)> {
+        let o = dir.path().join(out);
+        let mut a = vec![
+            "demo",
+            "--colour",
+            "--spp",
+            "2",
+            "--out",
+            o.to_str().unwrap(),
+        ];
+        if let Some(s) = scene {
+            a.insert(2, s);
+        }
+        for s in &small {
+            a.extend(["--set", s]);
+        }
+        stscam_ok(&a);
+        let t: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(o.join("table.json")).unwrap()).unwrap();
+        t["designs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|d| {
+                (
+                    d["design"].as_str().unwrap().to_string(),
+                    d["gratings"].as_u64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(
+        run(Some(mine.to_str().unwrap()), "mine"),
+        [
+            ("single-grating".to_string(), 1),
+            ("my-film".to_string(), 3)
+        ]
+    );
+    assert_eq!(
+        run(None, "paper"),
+        [
+            ("single-grating".to_string(), 1),
+            ("rgb-multiplex".to_string(), 3)
+        ]
+    );
+}

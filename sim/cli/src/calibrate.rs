@@ -118,7 +118,8 @@ fn cmd_calibrate(
         "timings_s": {"matrix": matrix_s, "render_frames": render_s, "calibration": calibrate_s, "wall": start.elapsed().as_secs_f64()},
         "threads": pool.current_num_threads(),
     });
-    let mut sidecar = serde_json::json!({"object_px": [object.0, object.1], "units": stscam_tracer::matrix::MATRIX_UNITS, "from": "stscam calibrate"});
+    // The scene rides along so that `stscam reconstruct` finds the sensor the frames had.
+    let mut sidecar = serde_json::json!({"object_px": [object.0, object.1], "units": stscam_tracer::matrix::MATRIX_UNITS, "from": "stscam calibrate", "scene": sys.scene});
     if run.planes == 3 {
         sidecar["object_primaries"] = serde_json::json!(names);
         sidecar["columns"] = stscam_tracer::matrix::COLOUR_COLUMNS.into();

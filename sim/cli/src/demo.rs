@@ -20,7 +20,8 @@ pub struct DemoOptions {
     #[command(flatten)]
     pub run: RunArgs,
     /// The full-colour camera instead: the scene's film (the paper's single grating) against
-    /// the three-grating film of scenes/rgb-multiplex.toml, both with the colour LCD
+    /// the three-grating film of scenes/rgb-multiplex.toml (a scene whose film multiplexes
+    /// several gratings: the paper's single grating against it), both with the colour LCD
     /// (`display.primaries = "lcd"`) and the rgb-bayer sensor, on colour targets: colour H,
     /// colour Hadamard calibration, CGM and colour ADMM-TV, colour PSNR and CIEDE2000, colour
     /// bands and the cross-talk between gratings (table.md, table.json, figure.png).
@@ -101,7 +102,9 @@ pub fn run(o: &DemoOptions, con: &Console) -> Result<(), JobError> {
     cmd_demo(&o.scene, &o.out, &o.run, con)
 }
 
-/// `demo --colour`: the two designs, each framed on the object as `demo` frames its scene.
+/// `demo --colour`: the two designs, each framed on the object as `demo` frames its scene: the
+/// scene's film against the built-in RGB multiplex, or, when the scene's film multiplexes
+/// several gratings, the paper's single grating against the scene's film.
 fn cmd_colour_demo(
     scene: &SceneArgs,
     out: &std::path::Path,
@@ -123,15 +126,44 @@ fn cmd_colour_demo(
             .chain(scene.set.iter().cloned())
             .collect(),
     };
+    // The user's film against the paper's single grating when it multiplexes several
+    // gratings; else the scene's (single) grating against the built-in RGB multiplex.
+    let user_gratings = pool
+        .install(|| {
+            crate::scene::load_scene(paper_args.scene.as_deref(), &paper_args.set)
+                .map_err(|e| bad_input(e.to_string()))
+                .and_then(|ls| {
+                    crate::system::System::build(&ls).map_err(|e| bad_input(e.to_string()))
+                })
+        })?
+        .waveguide
+        .gratings
+        .len();
+    let user_name = scene
+        .scene
+        .as_deref()
+        .and_then(|p| std::path::Path::new(p).file_stem())
+        .map_or("scene".to_string(), |s| s.to_string_lossy().into_owned());
+    // (name, source): None the user's scene, Some(None) the paper's, Some(Some(t)) TOML text.
+    let sources: [(String, Option<Option<&str>>); 2] = if user_gratings > 1 {
+        [("single-grating".into(), Some(None)), (user_name, None)]
+    } else {
+        [
+            ("single-grating".into(), None),
+            (
+                "rgb-multiplex".into(),
+                Some(Some(crate::scene::RGB_MULTIPLEX_TOML)),
+            ),
+        ]
+    };
     let mut designs = Vec::new();
-    for (name, text) in [
-        ("single-grating", None),
-        ("rgb-multiplex", Some(crate::scene::RGB_MULTIPLEX_TOML)),
-    ] {
+    for (name, source) in sources {
+        let name = name.as_str();
         let build = |set: &[String]| -> Result<crate::system::System, Failure> {
-            let ls = match text {
+            let ls = match source {
                 None => crate::scene::load_scene(paper_args.scene.as_deref(), set),
-                Some(t) => crate::scene::load_scene_text(
+                Some(None) => crate::scene::load_scene(None, set),
+                Some(Some(t)) => crate::scene::load_scene_text(
                     Some((
                         t,
                         crate::scene::RGB_MULTIPLEX_NAME,
@@ -143,10 +175,16 @@ fn cmd_colour_demo(
             .map_err(|e| bad_input(e.to_string()))?;
             crate::system::System::build(&ls).map_err(|e| bad_input(e.to_string()))
         };
-        let mut set = if text.is_none() {
-            paper_args.set.clone()
-        } else {
-            scene.set.clone()
+        let mut set = match source {
+            None => paper_args.set.clone(),
+            // The paper's grating with the colour display and the user's keys but the film's.
+            Some(None) => paper_args
+                .set
+                .iter()
+                .filter(|k| !k.starts_with("hoe."))
+                .cloned()
+                .collect(),
+            Some(Some(_)) => scene.set.clone(),
         };
         let mut sys = pool.install(|| build(&set))?;
         if let Some(off) = analysis::framing_offset_px(&sys) {
