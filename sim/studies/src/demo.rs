@@ -892,7 +892,8 @@ fn figure(
 }
 
 /// The figure's canvas (width, height, display code values in [0, 1]) of [`figure`]; each
-/// capture is scaled by `capture_peaks[row]` if given, else by its own 99.9th percentile.
+/// capture is scaled by `capture_peaks[row]` if given, else by its own 99.9th percentile, and
+/// that scale is written under it (`WHITE 1.2e-3`: the capture value shown as white).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn figure_canvas(
     labels: &[&str],
@@ -960,6 +961,11 @@ pub(crate) fn figure_canvas(
             Some(p) => p[r],
             None => percentile_peak(capture),
         };
+        // The capture's scale, stated: the value shown as white (capture units, 1 = a white
+        // display pixel through lossless optics), so a near-empty capture does not read as a
+        // bright one.
+        let scale = format!("WHITE {peak:.1e}");
+        text(&mut blit, &scale, col_x(1) + TILE / 2, y0 + TILE + 3, TILE);
         let cap: Vec<f64> = capture.iter().map(|v| v / peak).collect();
         tiles.push(resample(&cap, crop.0, crop.1, TILE, TILE));
         for f in rec {
