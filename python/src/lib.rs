@@ -941,9 +941,8 @@ fn discrepancy_sensor(
     let sys = load_job(py, scene)?;
     let peak = white_peak
         .unwrap_or_else(|| stscam::recon::discrepancy::white_peak_of_sums(h_ones, offset));
-    stscam::noise::SensorNoise::check_white_peak(&sys.scene.noise, peak)
-        .map_err(|e| value_error(format!("white_peak: {e}")))?;
-    Ok(stscam::noise::SensorNoise::new(&sys.scene.noise, peak))
+    stscam::noise::SensorNoise::checked(&sys.scene.noise, peak)
+        .map_err(|e| value_error(format!("white_peak: {e}")))
 }
 
 /// A reconstruction problem set up once (Hᵀ and the Gram matrix HᵀH, as `stscam reconstruct`
@@ -1313,9 +1312,8 @@ fn sensor_noise<'py>(
         )));
     }
     let sys = load_job(py, &scene)?;
-    stscam::noise::SensorNoise::check_white_peak(&sys.scene.noise, white_peak)
-        .map_err(value_error)?;
-    let noise = stscam::noise::SensorNoise::new(&sys.scene.noise, white_peak);
+    let noise =
+        stscam::noise::SensorNoise::checked(&sys.scene.noise, white_peak).map_err(value_error)?;
     let out = run_job(py, None, || {
         stscam::noise::measure_capture(&noise, &clean, seed)
     })?;

@@ -372,6 +372,12 @@ impl SensorNoise {
     /// denormal; above, a saturated pixel would be stored as infinity). The message names the
     /// value and the range.
     pub fn check_white_peak(desc: &NoiseDesc, white_peak: f64) -> Result<(), String> {
+        Self::checked(desc, white_peak).map(|_| ())
+    }
+
+    /// [`SensorNoise::new`] after [`SensorNoise::check_white_peak`]: the model, or the
+    /// check's message.
+    pub fn checked(desc: &NoiseDesc, white_peak: f64) -> Result<Self, String> {
         let n = SensorNoise::new(desc, white_peak);
         let full_scale_units = n.full_scale_dn / n.dn_per_unit();
         let dn_units = 1.0 / n.dn_per_unit();
@@ -380,7 +386,7 @@ impl SensorNoise {
             && full_scale_units <= 1e37
             && dn_units >= 1e-30
         {
-            Ok(())
+            Ok(n)
         } else {
             Err(format!(
                 "white peak {white_peak}: must be a positive number that puts the sensor's full scale (white peak / exposure_fraction) at most 1e37 and one DN at least 1e-30 capture units, so that captures fit float32"

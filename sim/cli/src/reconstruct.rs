@@ -173,21 +173,37 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     check_out_dir(out)?;
     let object = object.map(parse_object).transpose()?;
     let pool = thread_pool(*threads)?;
-    let (lm, mut g) = load_problem(matrix, capture, object, offset)?;
+    let (lm, raw) = load_problem(matrix, capture, object, offset)?;
+    // The matrix's offset (0 without one); the capture less it, or less a measured dark frame.
+    let zero_offset;
+    let offset: &[f32] = match &lm.offset {
+        Some(o) => o,
+        None => {
+            zero_offset = vec![0.0f32; raw.len()];
+            &zero_offset
+        }
+    };
     let dark = dark_frame
         .as_deref()
-        .map(|d| load_dark(d, &lm, &mut g))
+        .map(|d| load_dark(d, raw.len()))
         .transpose()?;
+    let g: Vec<f64> = match &dark {
+        Some(d) => raw.iter().zip(d).map(|(x, d)| x - d).collect(),
+        None => raw
+            .iter()
+            .zip(offset)
+            .map(|(x, &o)| x - f64::from(o))
+            .collect(),
+    };
     // Warnings are printed once the reconstruction is written (a refusal stays one line).
     let mut warnings = Vec::new();
     let (sensor_model, fallback) = match rule {
         Regularisation::Discrepancy => {
             match sensor_of(
-                matrix,
-                capture,
+                (matrix, capture),
                 sensor.as_deref(),
                 *white_peak,
-                &lm,
+                (&lm.h, offset),
                 &mut warnings,
             )? {
                 Ok(m) => (Some(m), None),
@@ -224,26 +240,14 @@ fn cmd_reconstruct(a: &ReconstructOptions, con: &Console) -> Result<(), Failure>
     let Solution { f, info } = pool.install(|| match &sensor_model {
         None => crate::recon::solve_planes(&problem, planes, &g, &opts),
         Some(sm) => {
-            let (zeros, black);
-            let offset: &[f32] = match (&dark, &lm.offset) {
-                (Some(d), _) => {
-                    // The black level: the dark frame less the sensor's dark offset.
-                    let dark_units = sm.noise.dark_offset_units();
-                    black = d
-                        .iter()
-                        .map(|&v| (f64::from(v) - dark_units) as f32)
-                        .collect::<Vec<f32>>();
-                    &black
-                }
-                (None, Some(o)) => o,
-                (None, None) => {
-                    zeros = vec![0.0f32; g.len()];
-                    &zeros
-                }
-            };
+            // The black level each value sits at: a measured dark frame less the sensor's dark
+            // offset, else the matrix's offset.
+            let black = dark
+                .as_ref()
+                .map(|d| crate::capture::black_level_of(d, &sm.noise));
             let sensor = crate::recon::discrepancy::Sensor {
                 noise: &sm.noise,
-                offset,
+                offset: black.as_deref().unwrap_or(offset),
                 dark_subtracted: dark.is_some(),
             };
             crate::recon::discrepancy::solve_discrepancy(&problem, planes, &g, &opts, &sensor)
@@ -334,11 +338,10 @@ impl SensorModel {
 /// `--white-peak`, else the capture's sidecar, else max(H·1 + offset). `Ok(Err(reason))`
 /// where that last default cannot set an exposure (the caller keeps fixed parameters).
 fn sensor_of(
-    matrix: &std::path::Path,
-    capture: &std::path::Path,
+    (matrix, capture): (&std::path::Path, &std::path::Path),
     sensor: Option<&std::path::Path>,
     white_peak: Option<f64>,
-    lm: &stscam_tracer::matrix::LoadedMatrix,
+    (h, offset): (&crate::sparse::CsrMatrix, &[f32]),
     warnings: &mut Vec<String>,
 ) -> Result<Result<SensorModel, String>, Failure> {
     let sidecar = |p: &std::path::Path| -> Option<serde_json::Value> {
@@ -377,67 +380,57 @@ fn sensor_of(
             capture.display()
         ));
     }
-    let white_peak = match white_peak {
-        Some(w) => (w, "--white-peak".to_string()),
-        None => match cap_json
-            .as_ref()
-            .and_then(|j| j.get("noise")?.get("white_peak")?.as_f64())
-        {
-            Some(w) => (
-                w,
-                format!(
-                    "{} (noise.white_peak)",
-                    capture.with_extension("json").display()
-                ),
+    let from_sidecar = cap_json
+        .as_ref()
+        .and_then(|j| j.get("noise")?.get("white_peak")?.as_f64());
+    // (value, where it came from, whether it is the matrix's own all-white capture)
+    let (peak, source, from_matrix) = match (white_peak, from_sidecar) {
+        (Some(w), _) => (w, "--white-peak".to_string(), false),
+        (None, Some(w)) => (
+            w,
+            format!(
+                "{} (noise.white_peak)",
+                capture.with_extension("json").display()
             ),
-            None => {
-                let zeros = vec![0.0f32; lm.h.rows];
-                let o = lm.offset.as_deref().unwrap_or(&zeros);
-                let w = crate::recon::discrepancy::white_peak(&lm.h, o);
-                if let Err(e) = crate::noise::SensorNoise::check_white_peak(&desc, w) {
-                    // A matrix that cannot set a sensor's exposure (no light, or a scale
-                    // float32 captures cannot hold) keeps the fixed parameters.
-                    return Ok(Err(format!(
-                        "{}: the all-white capture max(H·1 + offset) cannot set the sensor's exposure ({e}); fixed tau and iterations used (pass --white-peak, or --regularisation fixed)",
-                        matrix.display()
-                    )));
-                }
-                (w, "max(H·1 + offset), the all-white capture".to_string())
-            }
-        },
+            false,
+        ),
+        (None, None) => (
+            crate::recon::discrepancy::white_peak(h, offset),
+            "max(H·1 + offset), the all-white capture".to_string(),
+            true,
+        ),
     };
-    crate::noise::SensorNoise::check_white_peak(&desc, white_peak.0)
-        .map_err(|e| bad_input(format!("--white-peak ({}): {e}", white_peak.1)))?;
+    let noise = match crate::noise::SensorNoise::checked(&desc, peak) {
+        Ok(n) => n,
+        // A matrix that cannot set a sensor's exposure (no light, or a scale float32
+        // captures cannot hold) keeps the fixed parameters; a given exposure is refused.
+        Err(e) if from_matrix => {
+            return Ok(Err(format!(
+                "{}: the all-white capture max(H·1 + offset) cannot set the sensor's exposure ({e}); fixed tau and iterations used (pass --white-peak, or --regularisation fixed)",
+                matrix.display()
+            )));
+        }
+        Err(e) => return Err(bad_input(format!("--white-peak ({source}): {e}"))),
+    };
     Ok(Ok(SensorModel {
-        noise: crate::noise::SensorNoise::new(&desc, white_peak.0),
+        noise,
         desc,
         desc_source,
-        white_peak,
+        white_peak: (peak, source),
     }))
 }
 
-/// `--dark-frame`: the measured dark frame subtracted from `g` (in place of the offset, which
-/// `load_problem` subtracted); returns the dark frame as read.
-fn load_dark(
-    path: &std::path::Path,
-    lm: &stscam_tracer::matrix::LoadedMatrix,
-    g: &mut [f64],
-) -> Result<Vec<f32>, Failure> {
+/// `--dark-frame`: the measured dark frame, `rows` values like the capture.
+fn load_dark(path: &std::path::Path, rows: usize) -> Result<Vec<f64>, Failure> {
     let dark = load_capture(path)?;
-    if dark.len() != g.len() {
+    if dark.len() != rows {
         return Err(bad_input(format!(
-            "{}: --dark-frame has {} values but the capture has {}; they must match",
+            "{}: --dark-frame has {} values but the capture has {rows}; they must match",
             path.display(),
             dark.len(),
-            g.len()
         )));
     }
-    for (i, (x, d)) in g.iter_mut().zip(&dark).enumerate() {
-        // Undo the offset load_problem subtracted, then subtract the dark frame.
-        let o = lm.offset.as_ref().map_or(0.0, |o| f64::from(o[i]));
-        *x += o - d;
-    }
-    Ok(dark.iter().map(|&d| d as f32).collect())
+    Ok(dark)
 }
 
 /// The options that belong to one regularisation rule, checked against `rule`.
@@ -549,7 +542,7 @@ fn resolve_method(
     })
 }
 
-/// The matrix (with its offset) and the capture minus that offset, their sizes checked.
+/// The matrix (with its offset) and the capture, their sizes checked.
 fn load_problem(
     matrix: &std::path::Path,
     capture: &std::path::Path,
@@ -558,7 +551,7 @@ fn load_problem(
 ) -> Result<(stscam_tracer::matrix::LoadedMatrix, Vec<f64>), Failure> {
     let lm = stscam_tracer::matrix::load_matrix(matrix, object, offset)
         .map_err(|e| bad_input(e.to_string()))?;
-    let mut g = load_capture(capture)?;
+    let g = load_capture(capture)?;
     if g.len() != lm.h.rows {
         return Err(bad_input(format!(
             "{}: the capture has {} values but {} has {} rows (crop pixels x channels); they must match",
@@ -567,11 +560,6 @@ fn load_problem(
             matrix.display(),
             lm.h.rows
         )));
-    }
-    if let Some(o) = &lm.offset {
-        for (x, &v) in g.iter_mut().zip(o) {
-            *x -= f64::from(v);
-        }
     }
     Ok((lm, g))
 }
@@ -614,7 +602,12 @@ fn write_recon(
     // The PNG is a preview: each object pixel a k × k block, so a 64-pixel object is 512
     // pixels wide (`png_scale` in recon.json); the EXR holds the object itself.
     let k = preview_scale(w, h);
-    let (fu, wu, hu) = (upscale_planes(f, w, h, planes, k), w * k, h * k);
+    let (wu, hu) = (w * k, h * k);
+    // Box resampling by an integer factor repeats each pixel (nearest neighbour).
+    let fu: Vec<f64> = f
+        .chunks(w * h)
+        .flat_map(|plane| stscam_studies::demo::resample(plane, w, h, wu, hu))
+        .collect();
     let (exr, png) = if planes == 3 {
         (
             crate::output::encode_colour_object_exr(f, w, h).map_err(write_failure)?,
@@ -643,23 +636,6 @@ fn write_recon(
 fn preview_scale(w: usize, h: usize) -> usize {
     const PREVIEW_PX: usize = 512;
     PREVIEW_PX.div_ceil(w.max(h).max(1)).max(1)
-}
-
-/// `planes` row-major w × h planes, each pixel repeated as a k × k block (nearest neighbour).
-fn upscale_planes(f: &[f64], w: usize, h: usize, planes: usize, k: usize) -> Vec<f64> {
-    if k == 1 {
-        return f.to_vec();
-    }
-    let mut out = Vec::with_capacity(f.len() * k * k);
-    for p in 0..planes {
-        for y in 0..h * k {
-            let row = &f[p * w * h + (y / k) * w..][..w];
-            for &v in row {
-                out.extend(std::iter::repeat_n(v, k));
-            }
-        }
-    }
-    out
 }
 
 /// The XYZ matrix of the colour display a colour H was made for: the default scene's LCD

@@ -439,9 +439,8 @@ fn measure_render(
             )
         }
     };
-    crate::noise::SensorNoise::check_white_peak(desc, peak)
+    let noise = crate::noise::SensorNoise::checked(desc, peak)
         .map_err(|e| bad_input(format!("--white-peak: {e}")))?;
-    let noise = crate::noise::SensorNoise::new(desc, peak);
     let clean: Vec<f64> = cap
         .channels
         .iter()

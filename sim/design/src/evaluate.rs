@@ -656,8 +656,8 @@ fn reconstruction(
                 Exposure::Own => own_peak,
                 Exposure::WhitePeak(v) => v,
             };
-            crate::noise::SensorNoise::check_white_peak(&sys.scene.noise, peak).map_err(input)?;
-            let noise = crate::noise::SensorNoise::new(&sys.scene.noise, peak);
+            let noise =
+                crate::noise::SensorNoise::checked(&sys.scene.noise, peak).map_err(input)?;
             let dark = crate::capture::dark_frame(&m2, &noise, seed);
             let black = crate::capture::black_level_of(&dark, &noise);
             let problem = crate::recon::Problem::with_cancel(&m.h, ow, planes * oh, cancel.clone());

@@ -412,7 +412,7 @@ fn swap_in(
         return Ok(false);
     }
     let give_up = |sib: &Path| {
-        let _ = remove_swapped(sib);
+        let _ = remove_tree(sib);
         Ok(false)
     };
     if fs::set_permissions(&sib, fs::Permissions::from_mode(meta.permissions().mode())).is_err() {
@@ -442,12 +442,12 @@ fn swap_in(
             None => link_anonymous(&unnamed[i], &to),
         };
         if let Err(e) = r {
-            let _ = remove_swapped(&sib);
+            let _ = remove_tree(&sib);
             return Err(IoError::io(&dir.join(n), e));
         }
     }
     if let Err(e) = File::open(&sib).and_then(|d| d.sync_all()) {
-        let _ = remove_swapped(&sib);
+        let _ = remove_tree(&sib);
         return Err(IoError::io(&sib, e));
     }
     if let Some(d) = delay {
@@ -461,7 +461,7 @@ fn swap_in(
         let _ = d.sync_all();
     }
     // The old folder now has the sibling's name: its files, links, lock and staging folders go.
-    let _ = remove_swapped(&sib);
+    let _ = remove_tree(&sib);
     Ok(true)
 }
 
@@ -488,20 +488,6 @@ fn parent_and_name(dir: &Path) -> Option<(&Path, &std::ffi::OsStr)> {
     Some((parent, name))
 }
 
-/// Removes a folder an exchange left (or an unfinished sibling): its files and links, the
-/// staging folders in it, then the folder; never follows a link.
-fn remove_swapped(dir: &Path) -> std::io::Result<()> {
-    for entry in fs::read_dir(dir)?.flatten() {
-        let p = entry.path();
-        if entry.file_type().is_ok_and(|t| t.is_dir()) {
-            let _ = remove_tree(&p);
-        } else {
-            let _ = fs::remove_file(&p);
-        }
-    }
-    fs::remove_dir(dir)
-}
-
 /// Removes the exchange siblings of `dir` left by dead runs (killed before or just after
 /// their exchange: an unfinished new folder or an old one; neither is ever visible as `dir`).
 fn remove_dead_swaps(dir: &Path) {
@@ -524,7 +510,7 @@ fn remove_dead_swaps(dir: &Path) {
             continue;
         }
         if entry.file_type().is_ok_and(|t| t.is_dir()) {
-            let _ = remove_swapped(&entry.path());
+            let _ = remove_tree(&entry.path());
         }
     }
 }
@@ -624,12 +610,18 @@ fn recover_locked(dir: &Path) -> Result<(usize, usize), IoError> {
     Ok((done, removed))
 }
 
-/// Removes a staging folder: its plain files, then the folder (never following links).
-fn remove_tree(stage: &Path) -> std::io::Result<()> {
-    for entry in fs::read_dir(stage)?.flatten() {
-        let _ = fs::remove_file(entry.path());
+/// Removes a staging folder, or a folder an exchange left (or an unfinished sibling): its
+/// files and links, the folders in it (staging folders) the same way, then the folder; never
+/// follows a link.
+fn remove_tree(dir: &Path) -> std::io::Result<()> {
+    for entry in fs::read_dir(dir)?.flatten() {
+        if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            let _ = remove_tree(&entry.path());
+        } else {
+            let _ = fs::remove_file(entry.path());
+        }
     }
-    fs::remove_dir(stage)
+    fs::remove_dir(dir)
 }
 
 /// True unless `/proc` says no process `pid` exists (where there is no `/proc`, always true:

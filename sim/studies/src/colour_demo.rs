@@ -10,8 +10,8 @@
 //! 3. the colour Hadamard calibration (`hadamard::calibrate_colour`: N patterns per primary,
 //!    dark frame subtracted), giving H_est, with the per-primary noise prediction;
 //! 4. CGM and colour ADMM-TV (TV per plane) with H and H_est, both regularised by the
-//!    discrepancy principle on the sensor model (`recon::discrepancy::solve_discrepancy`, as
-//!    the mono demo's table); colour
+//!    discrepancy principle on the sensor model (`recon::discrepancy::solve_at_level`, one
+//!    noise level per capture and H, as the mono demo's table); colour
 //!    PSNR, CIEDE2000 (mean and 95th percentile over pixels, `recon::colour`) and the share of
 //!    the reconstruction's energy in each primary;
 //! 5. the colour bands per field row (`colour::field_bands`: which field rows have no band of a

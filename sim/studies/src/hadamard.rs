@@ -752,16 +752,22 @@ pub fn calibrate_scene(
     use std::time::Instant;
     let rs = RenderSettings::lattice(job.spp, job.seed, job.progress);
     let n_obj = sys.display.width_px * sys.display.height_px;
+    // A colour H (a colour display, or a loaded H with three column blocks) is calibrated
+    // per primary from H_true; rendered colour frames are not simulated. Refused before work.
+    let colour = job
+        .matrix
+        .as_ref()
+        .map_or(sys.display.primaries.is_some(), |m| m.planes > 1);
+    if colour && job.render_frames {
+        return Err(
+            "--render: a colour H is calibrated per primary from H_true (hadamard::calibrate_colour); rendered colour frames are not simulated, leave out --render".into(),
+        );
+    }
     let t0 = Instant::now();
     let computed;
     let tm = match &job.matrix {
         Some(m) => m,
         None => {
-            if sys.display.primaries.is_some() && job.render_frames {
-                return Err(
-                    "--render: a colour display is calibrated per primary from its H (hadamard::calibrate_colour); rendered colour frames are not simulated, leave out --render".into(),
-                );
-            }
             if !n_obj.is_power_of_two() {
                 return Err(format!(
                     "display.image: the object is {}x{} = {n_obj} pixels, not a power of two; Sylvester's Hadamard patterns need N = 2^k (e.g. a 64x64 target, `@64`)",
@@ -795,11 +801,6 @@ pub fn calibrate_scene(
     } = tm;
     let (object, planes) = (*object, (*planes).max(1));
     let matrix_s = t0.elapsed().as_secs_f64();
-    if planes > 1 && job.render_frames {
-        return Err(format!(
-            "--render: {source_desc} is a colour H, calibrated per primary from its H; leave out --render"
-        ));
-    }
     // The patterns of one primary (a colour H is calibrated a primary at a time).
     let n = h_true.cols / planes;
     // The calibration forms every frame value (rows x patterns) in f64, row by row.
